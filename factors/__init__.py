@@ -1,0 +1,1 @@
+"""Custom GTSAM factors of pedx-graph: one energy term of the PedX method per module."""

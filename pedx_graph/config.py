@@ -1,0 +1,104 @@
+"""Configuration as nested dataclasses, loaded from YAML presets and saved beside every result.
+
+Every config class is a dataclass whose fields carry a docstring (the string literal right after the
+field).  :func:`load_config` fills one from a YAML file (unknown keys are an error naming the file and the
+key), :func:`save_config` writes the resolved config (every field, defaults included) atomically.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from pedx_graph.utils import atomic_write_text, to_jsonable
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration file or field is malformed."""
+
+
+def _is_dataclass_type(tp: Any) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix: str = "") -> T:
+    """Build dataclass ``cls`` from a nested dict; missing fields keep their defaults."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: '{prefix or '<root>'}' must be a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"{source}: unknown config key '{prefix}{unknown[0]}' (known: {sorted(names)})")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            continue
+        value = data[f.name]
+        tp = hints.get(f.name)
+        if _is_dataclass_type(tp):
+            kwargs[f.name] = from_dict(tp, value, source=source, prefix=f"{prefix}{f.name}.")
+        else:
+            kwargs[f.name] = _coerce(value, tp, source, f"{prefix}{f.name}")
+    return cls(**kwargs)
+
+
+def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    try:
+        if tp is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if tp is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if tp is bool and isinstance(value, bool):
+            return value
+        if tp is str and isinstance(value, str):
+            return value
+        if origin in (tuple,) and isinstance(value, (list, tuple)):
+            args = typing.get_args(tp)
+            if len(args) == 2 and args[1] is Ellipsis:
+                return tuple(_coerce(v, args[0], source, key) for v in value)
+            return tuple(_coerce(v, a, source, key) for v, a in zip(value, args))
+        if origin in (list,) and isinstance(value, (list, tuple)):
+            (arg,) = typing.get_args(tp) or (Any,)
+            return [_coerce(v, arg, source, key) for v in value]
+        if tp in (Any, None) or origin is typing.Union or origin is getattr(__import__("types"), "UnionType", ()):
+            return value
+        if tp in (float, int, bool, str):
+            raise TypeError
+        return value
+    except TypeError:
+        pass
+    raise ConfigError(f"{source}: config key '{key}' must be {getattr(tp, '__name__', tp)}, got {value!r}")
+
+
+def load_config(cls: type[T], path: str | os.PathLike | None = None) -> T:
+    """Load ``cls`` from a YAML file (``None``: all defaults)."""
+    if path is None:
+        return cls()
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: config file not found") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    return from_dict(cls, data, source=str(path))
+
+
+def to_dict(cfg: Any) -> dict:
+    """The resolved config as a plain nested dict."""
+    return to_jsonable(dataclasses.asdict(cfg))
+
+
+def save_config(cfg: Any, path: str | os.PathLike) -> Path:
+    """Save the resolved config (all fields) as YAML, atomically."""
+    return atomic_write_text(path, yaml.safe_dump(to_dict(cfg), sort_keys=False))

@@ -1,0 +1,149 @@
+"""In-memory types shared by the reader, the simulator and the estimator.
+
+Data flows one way: dataset -> :class:`Track` -> graph -> solver -> result -> report.
+
+Frames
+------
+* ``world``: the LiDAR (range) frame of the capture vehicle, z up, metres. Every 3D quantity of a
+  :class:`Track` and of a result is in this frame (one world frame per sequence).
+* ``cam``: the left (reference) camera of a stereo pair before rectification, x right, y down, z forward.
+* ``rect``: the rectified left camera frame, ``rect_p = R_rect_00 @ cam_p``.
+* image coordinates are pixels of the rectified images, ``uv = project(P_rect @ [rect_p; 1])``.
+
+KITTI-style calibration: ``P_rect_00`` / ``P_rect_01`` are the 3x4 projections of the rectified left
+and right cameras (the right one carries ``-f * baseline`` in ``[0, 3]``), both applied to points in
+the rectified *left* frame.  ``world_T_cam`` is the 4x4 rigid transform mapping left-camera points into
+the LiDAR frame (the file's ``R``/``T`` or ``Tr``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pedx_graph.keypoints import EVAL_JOINTS, PEDX_KEYPOINTS  # noqa: F401  (re-exported)
+
+
+@dataclass(frozen=True)
+class StereoCalibration:
+    """Calibration of one rectified stereo pair and its placement in the LiDAR (world) frame."""
+
+    name: str
+    """Pair name as in the release, ``"<left>-<right>"`` (e.g. ``"ylw79D0-red707B"``)."""
+    left_P_rect: np.ndarray
+    """(3, 4) projection of the rectified left camera, pixels per metre, applied to ``rect`` points."""
+    right_P_rect: np.ndarray
+    """(3, 4) projection of the rectified right camera, applied to points in the rectified *left* frame."""
+    rect_R_cam: np.ndarray
+    """(3, 3) rectifying rotation of the left camera (``R_rect_00``)."""
+    world_T_cam: np.ndarray
+    """(4, 4) rigid transform: left camera frame -> LiDAR (world) frame."""
+    image_size: tuple[int, int]
+    """(width, height) of the rectified images in pixels."""
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length of the rectified pair in pixels."""
+        return float(self.left_P_rect[0, 0])
+
+    @property
+    def baseline_m(self) -> float:
+        """Stereo baseline in metres, ``-P_rect_01[0, 3] / P_rect_01[0, 0]`` (relative to the left)."""
+        return float(-(self.right_P_rect[0, 3] - self.left_P_rect[0, 3]) / self.right_P_rect[0, 0])
+
+    @property
+    def rect_T_world(self) -> np.ndarray:
+        """(4, 4) transform: LiDAR (world) frame -> rectified left camera frame."""
+        rect_T_cam = np.eye(4)
+        rect_T_cam[:3, :3] = self.rect_R_cam
+        return rect_T_cam @ np.linalg.inv(self.world_T_cam)
+
+    def world_to_rect(self, world_p: np.ndarray) -> np.ndarray:
+        """Map (..., 3) world points into the rectified left camera frame."""
+        rect_T_world = self.rect_T_world
+        return world_p @ rect_T_world[:3, :3].T + rect_T_world[:3, 3]
+
+    def project(self, world_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project (..., 3) world points into the left and right rectified images: two (..., 2) arrays.
+
+        Points behind the camera give non-finite or meaningless pixels; check depth with
+        :meth:`world_to_rect` when it matters.
+        """
+        rect_p = self.world_to_rect(np.asarray(world_p, dtype=float))
+        hom = np.concatenate([rect_p, np.ones(rect_p.shape[:-1] + (1,))], axis=-1)
+        left = hom @ self.left_P_rect.T
+        right = hom @ self.right_P_rect.T
+        return left[..., :2] / left[..., 2:3], right[..., :2] / right[..., 2:3]
+
+
+@dataclass
+class View2D:
+    """2D labels of one pedestrian in one rectified image."""
+
+    keypoints: np.ndarray
+    """(18, 2) pixel coordinates in PEDX_KEYPOINTS order; NaN where the joint is not labelled."""
+    visible: np.ndarray
+    """(18,) bool, the annotator's ``visible`` flag (False also where not labelled)."""
+    polygon: np.ndarray | None = None
+    """(K, 2) pixel polygon of the instance silhouette, or None when the label has none."""
+
+    @property
+    def labelled(self) -> np.ndarray:
+        """(18,) bool: the joint has a 2D position."""
+        return np.all(np.isfinite(self.keypoints), axis=-1)
+
+
+@dataclass
+class TrackFrame:
+    """Everything observed of one pedestrian at one synchronised stereo + LiDAR sample."""
+
+    frame: int
+    """Frame number as in the release file names."""
+    timestamp: float
+    """Seconds (from the timestamps file, or ``frame / fps`` when it is absent)."""
+    pair: str
+    """Name of the stereo pair (key into :attr:`Track.calibrations`) that saw this instance."""
+    left: View2D | None
+    """Labels in the rectified left image, or None when the instance is not labelled there."""
+    right: View2D | None
+    """Labels in the rectified right image, or None."""
+    world_lidar_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """(M, 3) LiDAR points assigned to this instance (segment PLY), world frame, metres."""
+
+
+@dataclass
+class Track:
+    """One pedestrian (one ``tracking_id``) over a sequence: frames sorted by frame number."""
+
+    sequence: str
+    """Sequence name, e.g. ``"20171207T2024"``."""
+    tracking_id: str
+    """The release's 32-hex tracking id (any string for simulated data)."""
+    frames: list[TrackFrame]
+    """Observed frames in increasing frame order (gaps allowed)."""
+    calibrations: dict[str, StereoCalibration]
+    """Stereo pairs by name; every ``TrackFrame.pair`` is a key."""
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+
+@dataclass
+class SmplLabel:
+    """One SMPL label as in ``labels/3d/smpl``: parameters in the LiDAR (world) frame.
+
+    The body model is evaluated as ``BodyModel.forward(pose, betas, trans)``, i.e. vertices in the
+    world frame (``pose[:3]`` is the world orientation of the root).
+    """
+
+    sequence: str
+    frame: int
+    tracking_id: str
+    betas: np.ndarray
+    """(10,) shape coefficients."""
+    pose: np.ndarray
+    """(72,) axis-angle, root first."""
+    trans: np.ndarray
+    """(3,) metres, added after skinning (smplx convention)."""
+    extra: dict = field(default_factory=dict)
+    """Our own fields (3D keypoints, covariances, errors, ...), JSON-serialisable."""

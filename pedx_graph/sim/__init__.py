@@ -1,0 +1,1 @@
+"""pedx_graph.sim"""
