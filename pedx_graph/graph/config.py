@@ -1,0 +1,100 @@
+"""Configuration of the estimator: noise in physical units, which energy terms, solver settings.
+
+Every noise value is a standard deviation in pixels, metres or radians (never a hand-tuned loss weight);
+the presets in ``configs/`` mirror these defaults.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class NoiseConfig:
+    """Measurement and prior noise, physical units."""
+
+    keypoint_sigma_px: float = 3.0
+    """2D label noise of joints marked visible, pixels (PedX annotators: a few pixels at 12 MP)."""
+    occluded_keypoint_sigma_px: float = 12.0
+    """2D label noise of joints labelled but marked not visible (guessed by the annotator), pixels."""
+    reprojection_loss: str = "geman_mcclure"
+    """Robust loss of the reprojection term: ``geman_mcclure``, ``huber``, ``cauchy`` or ``none``."""
+    reprojection_loss_scale: float = 3.0
+    """Scale of the robust reprojection loss in whitened units (multiples of the per-row sigma)."""
+    hip_sigma_factor: float = 2.0
+    """Hip keypoints get ``hip_sigma_factor`` times the sigma: the model's hip joints sit inside the pelvis."""
+    lidar_sigma_m: float = 0.04
+    """Point-to-surface noise of the LiDAR chamfer term, metres (range noise + model/clothing mismatch)."""
+    lidar_loss: str = "geman_mcclure"
+    """Robust loss of the chamfer term (mislabeled points from the 2D polygons)."""
+    lidar_loss_scale: float = 2.5
+    """Scale of the robust chamfer loss in whitened units."""
+    lidar_max_points: int = 150
+    """At most this many instance points per frame enter the chamfer term (seeded subsample)."""
+    translation_sigma_m: float = 0.15
+    """Translation prior: body centre vs LiDAR points' mean, metres (across the viewing ray)."""
+    translation_ray_sigma_m: float = 0.30
+    """Translation prior along the viewing ray, metres (the visible surface is in front of the root)."""
+    heading_sigma_rad: float = 0.35
+    """Heading prior: body forward vs LiDAR-trajectory heading, radians, at walking speed."""
+    heading_min_speed_mps: float = 0.3
+    """Below this speed (m/s) the heading sigma grows as ``sigma * min_speed / speed`` (no direction at rest)."""
+    joint_limit_sigma_rad: float = 0.05
+    """Joint-limit hinge (knees, elbows do not bend backwards), radians."""
+    shape_sigma: float = 1.0
+    """Shape prior: betas ~ N(0, shape_sigma^2 I)."""
+
+
+@dataclass
+class TermsConfig:
+    """Which energy terms enter the graph (the paper's Table IV ablation switches)."""
+
+    left_reprojection: bool = True
+    """E_J,l: 2D keypoints in the left image."""
+    right_reprojection: bool = True
+    """E_J,r: 2D keypoints in the right image."""
+    translation_prior: bool = True
+    """E_T: translation prior to the LiDAR points' mean (paper Eq. 2)."""
+    lidar_chamfer: bool = True
+    """E_3d: LiDAR point to model surface distance (paper Eq. 4)."""
+    heading_prior: bool = True
+    """E_D: heading from the LiDAR trajectory (paper Eq. 3)."""
+    pose_prior: bool = True
+    """E_P: GMM pose prior and joint limits."""
+    temporal_prior: bool = True
+    """E_tp: GMM prior on consecutive-frame differences (paper Eq. 10)."""
+
+
+@dataclass
+class SolverConfig:
+    """Levenberg-Marquardt settings."""
+
+    backend: str = "python"
+    """``python``: LM driven from Python over ``graph.linearize`` (measured faster); ``gtsam``: gtsam's LM."""
+    max_iterations: int = 25
+    """Maximum LM iterations."""
+    relative_error_tol: float = 1e-4
+    """Stop when the relative decrease of the error is below this."""
+    lambda_initial: float = 1e-2
+    """Initial LM damping."""
+    lambda_max: float = 1e8
+    """Give up increasing the damping past this."""
+
+
+@dataclass
+class FitConfig:
+    """Everything the batch fit needs besides the data."""
+
+    body_model: str = ""
+    """Path of an SMPL-format model file; empty: the shipped open model."""
+    fps: float = 10.0
+    """Nominal frame rate of synchronised samples, used when timestamps are missing."""
+    chamfer_vertices: int = 1500
+    """Number of model vertices (farthest-point subsample, fixed per model) the chamfer term matches against."""
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    """Noise in physical units."""
+    terms: TermsConfig = field(default_factory=TermsConfig)
+    """Energy terms switched on."""
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    """Solver settings."""
+    seed: int = 0
+    """Seed of every random choice (point subsampling)."""

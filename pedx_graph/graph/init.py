@@ -1,0 +1,164 @@
+"""Initial values of a track's graph, as the paper initialises (Sec. IV-B).
+
+* translation from the LiDAR instance points (median, robust to mislabeled points), or from stereo
+  triangulation of the labelled hips/torso when a frame has no LiDAR points;
+* heading from the LiDAR (or triangulated) trajectory, smoothed over neighbouring frames; at low speed from
+  the triangulated torso (left-right shoulder/hip line); the body stands upright (body +Y = world +z);
+* body pose: the template (the pose prior's dominant mean when a prior is given, else zeros);
+* shape: betas = 0.
+
+A single-frame track (no trajectory) gets a torso-only orientation search in :mod:`pedx_graph.graph.build`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pedx_graph.data.types import Track, TrackFrame
+from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+_IDX = {name: i for i, name in enumerate(PEDX_KEYPOINTS)}
+_TORSO_LEFT = (_IDX["lsho"], _IDX["lhip"])
+_TORSO_RIGHT = (_IDX["rsho"], _IDX["rhip"])
+
+
+def world_R_body_from_yaw(yaw: float | np.ndarray) -> np.ndarray:
+    """Upright body orientation: body +Y -> world +z, body +Z (forward) -> (cos yaw, sin yaw, 0).
+
+    Returns (..., 3, 3); columns are the world images of the body X (left), Y (up), Z (forward) axes.
+    """
+    yaw = np.asarray(yaw, dtype=float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    zero, one = np.zeros_like(c), np.ones_like(c)
+    col_x = np.stack([-s, c, zero], axis=-1)
+    col_y = np.stack([zero, zero, one], axis=-1)
+    col_z = np.stack([c, s, zero], axis=-1)
+    return np.stack([col_x, col_y, col_z], axis=-1)
+
+
+def yaw_of(world_R_body: np.ndarray) -> np.ndarray:
+    """Heading angle (radians) of the body's forward axis projected on the ground plane."""
+    fwd = np.asarray(world_R_body)[..., :, 2]
+    return np.arctan2(fwd[..., 1], fwd[..., 0])
+
+
+def triangulate_frame(track: Track, frame: TrackFrame) -> np.ndarray:
+    """Triangulate the 18 keypoints of one frame from the rectified stereo pair.
+
+    Returns (18, 3) world points, NaN where the joint is not labelled in both images or the disparity is
+    not positive.  Rectified geometry: ``Z = f * b / (u_l - u_r)``, ``X = (u_l - c_x) Z / f``,
+    ``Y = (v_l - c_y) Z / f`` in the rectified left frame.
+    """
+    out = np.full((len(PEDX_KEYPOINTS), 3), np.nan)
+    if frame.left is None or frame.right is None:
+        return out
+    calib = track.calibrations[frame.pair]
+    f = calib.focal_px
+    cx, cy = calib.left_P_rect[0, 2], calib.left_P_rect[1, 2]
+    uv_l, uv_r = frame.left.keypoints, frame.right.keypoints
+    disparity = uv_l[:, 0] - uv_r[:, 0]
+    ok = np.isfinite(disparity) & (disparity > 1e-3)
+    if not ok.any():
+        return out
+    depth = f * calib.baseline_m / disparity[ok]
+    rect_p = np.stack([(uv_l[ok, 0] - cx) * depth / f, (uv_l[ok, 1] - cy) * depth / f, depth], axis=-1)
+    world_T_rect = np.linalg.inv(calib.rect_T_world)
+    out[ok] = rect_p @ world_T_rect[:3, :3].T + world_T_rect[:3, 3]
+    return out
+
+
+@dataclass
+class TrackInit:
+    """Initial estimate and derived measurements of a track (arrays over the track's frames)."""
+
+    world_R_body: np.ndarray
+    """(T, 3, 3) upright root orientations."""
+    world_p_centre: np.ndarray
+    """(T, 3) body centre (pelvis) estimates in the world frame, metres."""
+    heading_yaw: np.ndarray
+    """(T,) heading from the trajectory (radians); NaN where unknown."""
+    speed_mps: np.ndarray
+    """(T,) speed of the smoothed trajectory, m/s (0 for a single frame)."""
+    lidar_centroid: np.ndarray
+    """(T, 3) median of the instance LiDAR points, NaN where a frame has none."""
+    times: np.ndarray
+    """(T,) seconds."""
+
+
+def _lidar_centroids(track: Track) -> np.ndarray:
+    out = np.full((len(track.frames), 3), np.nan)
+    for i, fr in enumerate(track.frames):
+        pts = np.asarray(fr.world_lidar_points, dtype=float).reshape(-1, 3)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) >= 3:
+            out[i] = np.median(pts, axis=0)
+    return out
+
+
+def _smoothed_velocity(times: np.ndarray, points: np.ndarray, half_window_s: float) -> np.ndarray:
+    """Velocity (T, 2) of the horizontal trajectory by a local linear fit; NaN where undetermined."""
+    vel = np.full((len(times), 2), np.nan)
+    ok = np.all(np.isfinite(points[:, :2]), axis=1)
+    for i in range(len(times)):
+        sel = ok & (np.abs(times - times[i]) <= half_window_s)
+        if sel.sum() < 2:
+            continue
+        dt = times[sel] - times[sel].mean()
+        denom = float(dt @ dt)
+        if denom < 1e-9:
+            continue
+        xy = points[sel, :2] - points[sel, :2].mean(axis=0)
+        vel[i] = dt @ xy / denom
+    return vel
+
+
+def initialise_track(track: Track, *, centre_height_m: float = 0.0, half_window_s: float = 0.35,
+                     min_speed_mps: float = 0.3) -> TrackInit:
+    """Initial orientation and centre of every frame of ``track``.
+
+    ``centre_height_m`` is unused for LiDAR frames (the median is used as is, then corrected to the
+    triangulated hip height when both hips are triangulated).
+    """
+    n = len(track.frames)
+    times = np.array([fr.timestamp for fr in track.frames], dtype=float)
+    centroids = _lidar_centroids(track)
+    tri = np.stack([triangulate_frame(track, fr) for fr in track.frames]) if n else np.zeros((0, 18, 3))
+    hips = tri[:, [_IDX["lhip"], _IDX["rhip"]]].mean(axis=1)          # NaN unless both hips triangulated
+    torso = np.nanmean(tri[:, [_IDX["lsho"], _IDX["rsho"], _IDX["lhip"], _IDX["rhip"]]], axis=1) \
+        if n else np.zeros((0, 3))
+
+    centre = np.where(np.isfinite(centroids), centroids, np.nan)
+    # Vertical: the triangulated hips are the better pelvis height; horizontal: LiDAR when present.
+    has_hips = np.all(np.isfinite(hips), axis=1)
+    centre[has_hips, 2] = hips[has_hips, 2]
+    missing = ~np.all(np.isfinite(centre), axis=1)
+    fill = np.where(np.all(np.isfinite(hips), axis=1, keepdims=True), hips, torso)
+    centre[missing] = fill[missing]
+    still_missing = ~np.all(np.isfinite(centre), axis=1)
+    if still_missing.all():
+        raise ValueError(f"track {track.sequence}/{track.tracking_id}: no LiDAR points and no stereo "
+                         "keypoints to place the pedestrian")
+    if still_missing.any():          # interpolate over frames with nothing to triangulate
+        good = np.flatnonzero(~still_missing)
+        for axis in range(3):
+            centre[still_missing, axis] = np.interp(times[still_missing], times[good], centre[good, axis])
+
+    vel = _smoothed_velocity(times, centre, half_window_s)
+    speed = np.linalg.norm(np.nan_to_num(vel), axis=1)
+    heading = np.where(np.isfinite(vel[:, 0]), np.arctan2(vel[:, 1], vel[:, 0]), np.nan)
+
+    # Torso direction (body left = +X) from the triangulated shoulders/hips: forward = left x up.
+    left = np.nanmean(tri[:, list(_TORSO_LEFT)], axis=1) - np.nanmean(tri[:, list(_TORSO_RIGHT)], axis=1)
+    torso_yaw = np.arctan2(-left[:, 0], left[:, 1])        # forward = (l_y, -l_x) for left = (l_x, l_y)
+    yaw = np.where(speed >= min_speed_mps, heading, np.nan)
+    use_torso = ~np.isfinite(yaw) & np.isfinite(torso_yaw)
+    yaw[use_torso] = torso_yaw[use_torso]
+    if not np.isfinite(yaw).any():
+        yaw[:] = np.where(np.isfinite(heading), heading, 0.0)
+    else:                                # carry the nearest known heading into unknown frames
+        known = np.flatnonzero(np.isfinite(yaw))
+        for i in np.flatnonzero(~np.isfinite(yaw)):
+            yaw[i] = yaw[known[np.argmin(np.abs(known - i))]]
+    return TrackInit(world_R_body=world_R_body_from_yaw(yaw), world_p_centre=centre, heading_yaw=heading,
+                     speed_mps=speed, lidar_centroid=centroids, times=times)
