@@ -24,6 +24,16 @@ import numpy as np
 from pedx_graph.keypoints import EVAL_JOINTS, PEDX_KEYPOINTS  # noqa: F401  (re-exported)
 
 
+class DataFormatError(ValueError):
+    """A release file (or one field of it) is malformed; the message names the file and the field."""
+
+    def __init__(self, path, field: str | None, message: str):
+        self.path = str(path)
+        self.field = field
+        where = f"{self.path}: field '{field}'" if field else self.path
+        super().__init__(f"{where}: {message}")
+
+
 @dataclass(frozen=True)
 class StereoCalibration:
     """Calibration of one rectified stereo pair and its placement in the LiDAR (world) frame."""

@@ -1,0 +1,259 @@
+"""2D label JSON files of the release: one file per instance per image.
+
+Layout (relative to the dataset root, the folder holding ``labels/``), both variants accepted:
+
+* ``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` (the public loader's layout);
+* ``labels/2d/<seq>/<seq>_<cam>_<frame:07d>_<tid>.json`` (flat, read by two third-party tools).
+
+Sequence and camera names contain no ``_``; the tracking id is the rest of the name.  The file name is
+authoritative for (sequence, camera, frame, tracking id): it is what links a 2D label to its segment and
+SMPL files.  Fields of the JSON object:
+
+``tracking_id`` (str), ``category`` (``pedestrian`` / ``vehicle``), ``subtype``, ``frame_id``,
+``polygon``: list of ``[x, y]`` pixels (at least 3), or null;
+``keypoint``: dict keyed by the 18 :data:`PEDX_KEYPOINTS` names, each ``{"x", "y", "visible"}``, or null.
+A missing name = not labelled; an entry that is null, or whose ``x`` and ``y`` are both null, is not
+labelled either.  ``visible`` defaults to true when absent.  Unknown keypoint names are warned about and
+ignored.  Any other malformation raises :class:`DataFormatError` naming the file and the field.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pedx_graph.data.types import PEDX_KEYPOINTS, DataFormatError, View2D
+from pedx_graph.utils import atomic_write_json
+
+logger = logging.getLogger(__name__)
+
+_KEYPOINT_INDEX = {name: i for i, name in enumerate(PEDX_KEYPOINTS)}
+_NAME_RE = re.compile(r"^(?P<cam>[^_]+)_(?P<frame>\d+)_(?P<tid>.+)\.json$")
+_NAME_IN_CAM_RE = re.compile(r"^(?P<frame>\d+)_(?P<tid>.+)\.json$")
+
+
+@dataclass
+class Label2D:
+    """One 2D label file: a single instance in a single rectified image."""
+
+    sequence: str
+    """Sequence name (from the file path)."""
+    camera: str
+    """Camera name, e.g. ``"ylw79D0"`` (from the file path)."""
+    frame: int
+    """Frame number (from the file name)."""
+    tracking_id: str
+    """Tracking id (from the file name; shared with the segment and SMPL files)."""
+    category: str
+    """``"pedestrian"`` or ``"vehicle"`` (any string is kept)."""
+    view: View2D
+    """Keypoints (all NaN when the file's ``keypoint`` is null) and polygon (None when null)."""
+    subtype: str | None = None
+    """The release's ``subtype`` field, kept verbatim (None when absent)."""
+    frame_id: object = None
+    """The file's ``frame_id`` field, kept verbatim (its format is undocumented)."""
+
+    @property
+    def n_labelled(self) -> int:
+        """Number of keypoints with a 2D position."""
+        return int(self.view.labelled.sum())
+
+
+def label2d_path(root: str | os.PathLike, sequence: str, camera: str, frame: int, tracking_id: str,
+                 flat: bool = False) -> Path:
+    """Path of a 2D label file under ``root`` (the folder holding ``labels/``); ``flat``: no camera folder."""
+    folder = Path(root) / "labels" / "2d" / sequence
+    if not flat:
+        folder = folder / camera
+    return folder / f"{sequence}_{camera}_{int(frame):07d}_{tracking_id}.json"
+
+
+def parse_label2d_name(path: str | os.PathLike, sequence: str,
+                       camera: str | None = None) -> tuple[str, int, str] | None:
+    """``(camera, frame, tracking_id)`` from a 2D label file name, or None when it does not match.
+
+    ``camera``: the camera folder the file sits in (None for the flat layout).
+    """
+    name = Path(path).name
+    prefix = f"{sequence}_"
+    if not name.startswith(prefix):
+        return None
+    rest = name[len(prefix):]
+    if camera is not None:
+        if not rest.startswith(f"{camera}_"):
+            return None
+        match = _NAME_IN_CAM_RE.match(rest[len(camera) + 1:])
+        return (camera, int(match["frame"]), match["tid"]) if match else None
+    match = _NAME_RE.match(rest)
+    return (match["cam"], int(match["frame"]), match["tid"]) if match else None
+
+
+def iter_label2d_files(root: str | os.PathLike, sequence: str) -> Iterator[tuple[Path, str, int, str]]:
+    """Yield ``(path, camera, frame, tracking_id)`` of every 2D label file of ``sequence`` (both layouts).
+
+    Files whose name does not follow the pattern are skipped with a warning.  Sorted by path.
+    """
+    seq_dir = Path(root) / "labels" / "2d" / sequence
+    if not seq_dir.is_dir():
+        return
+    for entry in sorted(seq_dir.iterdir()):
+        if entry.is_dir():
+            for path in sorted(entry.glob("*.json")):
+                parsed = parse_label2d_name(path, sequence, entry.name)
+                if parsed is None:
+                    logger.warning("%s: file name does not match '%s_%s_<frame>_<tid>.json'; skipped",
+                                   path, sequence, entry.name)
+                    continue
+                yield (path, *parsed)
+        elif entry.suffix == ".json":
+            parsed = parse_label2d_name(entry, sequence)
+            if parsed is None:
+                logger.warning("%s: file name does not match '%s_<cam>_<frame>_<tid>.json'; skipped",
+                               entry, sequence)
+                continue
+            yield (entry, *parsed)
+
+
+def _number(value, path, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                raise DataFormatError(path, field, f"not a number: {value!r}") from None
+        else:
+            raise DataFormatError(path, field, f"not a number: {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise DataFormatError(path, field, f"non-finite value {value!r}")
+    return value
+
+
+def _flag(value, path, field: str) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, (int, float)) and value in (0, 1):
+        return bool(value)
+    if isinstance(value, str) and value.strip().lower() in ("true", "false", "0", "1"):
+        return value.strip().lower() in ("true", "1")
+    raise DataFormatError(path, field, f"not a boolean: {value!r}")
+
+
+def parse_keypoints(data, path) -> tuple[np.ndarray, np.ndarray]:
+    """(18, 2) pixels (NaN = not labelled) and (18,) visible flags from a ``keypoint`` value (dict or None)."""
+    keypoints = np.full((len(PEDX_KEYPOINTS), 2), np.nan)
+    visible = np.zeros(len(PEDX_KEYPOINTS), dtype=bool)
+    if data is None:
+        return keypoints, visible
+    if not isinstance(data, dict):
+        raise DataFormatError(path, "keypoint", f"must be an object keyed by joint name or null, "
+                                                f"got {type(data).__name__}")
+    for name, entry in data.items():
+        field = f"keypoint.{name}"
+        index = _KEYPOINT_INDEX.get(name)
+        if index is None:
+            logger.warning("%s: field '%s': unknown keypoint name, ignored", path, field)
+            continue
+        if entry is None:
+            continue
+        if not isinstance(entry, dict):
+            raise DataFormatError(path, field, f"must be an object {{x, y, visible}}, got {type(entry).__name__}")
+        for axis in ("x", "y"):
+            if axis not in entry:
+                raise DataFormatError(path, f"{field}.{axis}", "missing")
+        if entry["x"] is None and entry["y"] is None:
+            continue
+        keypoints[index, 0] = _number(entry["x"], path, f"{field}.x")
+        keypoints[index, 1] = _number(entry["y"], path, f"{field}.y")
+        visible[index] = _flag(entry.get("visible", True), path, f"{field}.visible")
+    return keypoints, visible
+
+
+def parse_polygon(data, path) -> np.ndarray | None:
+    """(K, 2) float polygon (K >= 3) from a ``polygon`` value, or None when null or empty."""
+    if data is None:
+        return None
+    if not isinstance(data, list):
+        raise DataFormatError(path, "polygon", f"must be a list of [x, y] or null, got {type(data).__name__}")
+    if not data:
+        return None
+    points = []
+    for i, vertex in enumerate(data):
+        if not isinstance(vertex, (list, tuple)) or len(vertex) != 2:
+            raise DataFormatError(path, f"polygon[{i}]", f"must be [x, y], got {vertex!r}"[:120])
+        points.append([_number(vertex[0], path, f"polygon[{i}].x"), _number(vertex[1], path, f"polygon[{i}].y")])
+    if len(points) < 3:
+        raise DataFormatError(path, "polygon", f"needs at least 3 points, got {len(points)}")
+    return np.asarray(points, dtype=np.float64)
+
+
+def read_label2d(path: str | os.PathLike, sequence: str, camera: str, frame: int, tracking_id: str) -> Label2D:
+    """Read one 2D label file (identity from the caller, i.e. the file path).
+
+    Raises :class:`DataFormatError` naming the file and the field on malformed content.  A JSON
+    ``tracking_id`` that differs from the file name's is warned about (the file name wins).
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise DataFormatError(path, None, f"cannot read file ({exc.strerror or exc})") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataFormatError(path, "<json>", f"malformed JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise DataFormatError(path, "<json>", f"top level must be an object, got {type(data).__name__}")
+    if "category" not in data:
+        raise DataFormatError(path, "category", "missing")
+    category = data["category"]
+    if not isinstance(category, str):
+        raise DataFormatError(path, "category", f"must be a string, got {category!r}")
+    file_tid = data.get("tracking_id")
+    if file_tid is not None and str(file_tid) != tracking_id:
+        logger.warning("%s: field 'tracking_id' %r differs from the file name's %r; using the file name",
+                       path, file_tid, tracking_id)
+    keypoints, visible = parse_keypoints(data.get("keypoint"), path)
+    polygon = parse_polygon(data.get("polygon"), path)
+    subtype = data.get("subtype")
+    return Label2D(sequence=sequence, camera=camera, frame=int(frame), tracking_id=tracking_id,
+                   category=category, view=View2D(keypoints=keypoints, visible=visible, polygon=polygon),
+                   subtype=None if subtype is None else str(subtype), frame_id=data.get("frame_id"))
+
+
+def label2d_to_json(label: Label2D) -> dict:
+    """The JSON object of a :class:`Label2D` (keypoint null when none is labelled; unlabelled joints omitted)."""
+    view = label.view
+    labelled = view.labelled
+    keypoint = None
+    if labelled.any():
+        keypoint = {name: {"x": float(view.keypoints[i, 0]), "y": float(view.keypoints[i, 1]),
+                           "visible": bool(view.visible[i])}
+                    for i, name in enumerate(PEDX_KEYPOINTS) if labelled[i]}
+    polygon = None if view.polygon is None else np.asarray(view.polygon, dtype=float).tolist()
+    return {
+        "tracking_id": label.tracking_id,
+        "category": label.category,
+        "subtype": label.subtype,
+        "frame_id": label.frame if label.frame_id is None else label.frame_id,
+        "polygon": polygon,
+        "keypoint": keypoint,
+    }
+
+
+def write_label2d(root: str | os.PathLike, label: Label2D, flat: bool = False) -> Path:
+    """Write ``label`` atomically to its release path under ``root`` (folder holding ``labels/``)."""
+    if "_" in label.sequence or "_" in label.camera:
+        raise ValueError(f"sequence and camera names must not contain '_': {label.sequence!r}, {label.camera!r}")
+    if label.view.keypoints.shape != (len(PEDX_KEYPOINTS), 2):
+        raise ValueError(f"keypoints must have shape (18, 2), got {label.view.keypoints.shape}")
+    if label.view.polygon is not None:
+        polygon = np.asarray(label.view.polygon, dtype=float)
+        if polygon.ndim != 2 or polygon.shape[1] != 2 or len(polygon) < 3 or not np.isfinite(polygon).all():
+            raise ValueError(f"polygon must be (K >= 3, 2) finite pixels, got shape {polygon.shape}")
+    path = label2d_path(root, label.sequence, label.camera, label.frame, label.tracking_id, flat=flat)
+    return atomic_write_json(path, label2d_to_json(label))

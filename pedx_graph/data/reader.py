@@ -1,0 +1,376 @@
+"""Read a PedX release (or a simulated one in the same layout) into :class:`Track` objects.
+
+``root`` is the dataset folder holding ``labels/`` and ``calib/`` (the release's ``data/``), or its
+parent.  Needed: ``calib/`` and ``labels/2d/``; optional: ``labels/3d/segment/``, ``timestamps/``,
+``labels/3d/smpl/`` (ground truth, :func:`read_smpl_labels`).  Images and scene point clouds are not
+needed.
+
+Assembly rules
+--------------
+* One :class:`Track` per (sequence, tracking id) having at least one readable 2D label of a category in
+  :attr:`ReaderConfig.categories` (default ``pedestrian``).  Frames are sorted by frame number.
+* Stereo pairs are discovered from the ``calib_cam_to_cam_<left>-<right>.txt`` names; a label of camera
+  ``<left>`` fills :attr:`TrackFrame.left`, of ``<right>`` :attr:`TrackFrame.right`.  Labels of a camera
+  in no readable pair are skipped (one warning per camera).
+* When an instance is labelled in both pairs at one frame, the pair with more labelled keypoints
+  (left + right views) is kept; ties go to the pair whose name sorts first.  The other pair's labels
+  are dropped for that frame (a debug log line names them).
+* LiDAR points come from the instance's segment PLY (empty when absent).  Frames that have a segment
+  but no 2D label are not assembled (their pair is unknown).
+* Timestamps come from ``timestamps/timestamps-pointclouds-<seq>.txt`` when present
+  (:func:`read_timestamps`), else ``frame / fps`` (an info log note names the fps).
+* Robustness: a malformed file logs a warning naming the file and the field and only that file is
+  skipped (a bad segment leaves the frame without LiDAR points).  :class:`DataFormatError` is raised only
+  when nothing at all can be read (no calibration, no label files, no track).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import re
+from collections import defaultdict
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pedx_graph.data.calib import read_calibrations, split_pair
+from pedx_graph.data.labels2d import Label2D, iter_label2d_files, read_label2d
+from pedx_graph.data.ply import pointcloud_path, read_ply_points, segment_path
+from pedx_graph.data.smpl_labels import N_BETAS, parse_smpl_label_name, read_smpl_label
+from pedx_graph.data.types import DataFormatError, SmplLabel, StereoCalibration, Track, TrackFrame
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class ReaderConfig:
+    """How a release folder is turned into tracks."""
+
+    fps: float = 10.0
+    """Frame rate (Hz) giving ``timestamp = frame / fps`` when a sequence has no timestamps file."""
+    categories: tuple[str, ...] = ("pedestrian",)
+    """2D label categories assembled into tracks (others are skipped silently)."""
+    read_segments: bool = True
+    """Read the LiDAR segment PLY of every instance (False: empty point arrays)."""
+    timestamps_kind: str = "pointclouds"
+    """Which timestamps file gives frame times: ``timestamps-<kind>-<seq>.txt``."""
+
+
+def resolve_root(root: str | os.PathLike) -> Path:
+    """The folder holding ``labels/``: ``root`` itself or ``root/data``; :class:`DataFormatError` otherwise."""
+    root = Path(root)
+    if (root / "labels").is_dir():
+        return root
+    if (root / "data" / "labels").is_dir():
+        return root / "data"
+    raise DataFormatError(root, None, "not a PedX dataset folder: neither 'labels/' nor 'data/labels/' exists")
+
+
+def list_sequences(root: str | os.PathLike, kind: str = "2d") -> list[str]:
+    """Sorted sequence names with a folder in ``labels/2d`` (``kind="2d"``) or ``labels/3d/<kind>``."""
+    root = resolve_root(root)
+    base = root / "labels" / "2d" if kind == "2d" else root / "labels" / "3d" / kind
+    if not base.is_dir():
+        return []
+    return sorted(p.name for p in base.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+def _select_sequences(available: list[str], sequences: Iterable[str] | None, where: Path) -> list[str]:
+    if sequences is None:
+        return available
+    if isinstance(sequences, str):
+        sequences = [sequences]
+    chosen = []
+    for seq in sequences:
+        if seq in available:
+            chosen.append(seq)
+        else:
+            logger.warning("%s: sequence %s not found (available: %s); skipped", where, seq, available)
+    return chosen
+
+
+# --------------------------------------------------------------------------------------------- timestamps
+
+def timestamps_path(root: str | os.PathLike, sequence: str, kind: str = "pointclouds") -> Path:
+    """``<root>/timestamps/timestamps-<kind>-<seq>.txt`` (kind ``pointclouds`` or ``images``)."""
+    return Path(root) / "timestamps" / f"timestamps-{kind}-{sequence}.txt"
+
+
+_DIGITS_RE = re.compile(r"(\d+)(?!.*\d)")
+
+
+def _frame_token(token: str) -> int | None:
+    if token.isdigit():
+        return int(token)
+    match = _DIGITS_RE.search(token)  # e.g. a file name "<seq>_0000123.ply": its last digit run
+    return int(match.group(1)) if match and not _is_float(token) else None
+
+
+def _is_float(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def read_timestamps(path: str | os.PathLike) -> dict[int, float]:
+    """Frame number -> seconds from a timestamps file (the release does not document the format).
+
+    Accepted: one number per line (line ``i`` of the data lines is frame ``i``, counting from 0), or
+    two columns ``frame value`` (separated by whitespace or a comma; the frame may be zero padded or a
+    file name ending in the frame number).  Blank lines and ``#`` comments are skipped.  Units are
+    inferred from the median magnitude: > 1e17 nanoseconds, > 1e14 microseconds, > 1e11 milliseconds,
+    else seconds.  Raises :class:`DataFormatError` naming the file and line on malformed content.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise DataFormatError(path, None, f"cannot read file ({exc.strerror or exc})") from exc
+    frames: list[int] = []
+    values: list[float] = []
+    columns = None
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        tokens = [t for t in re.split(r"[,\s]+", stripped) if t]
+        if columns is None:
+            columns = len(tokens)
+            if columns not in (1, 2):
+                raise DataFormatError(path, f"line {lineno}", f"expected 1 or 2 columns, found {columns}")
+        if len(tokens) != columns:
+            raise DataFormatError(path, f"line {lineno}", f"expected {columns} columns, found {len(tokens)}")
+        try:
+            value = float(tokens[-1])
+        except ValueError:
+            raise DataFormatError(path, f"line {lineno}", f"non-numeric timestamp {tokens[-1]!r}") from None
+        if not np.isfinite(value):
+            raise DataFormatError(path, f"line {lineno}", f"non-finite timestamp {tokens[-1]!r}")
+        if columns == 1:
+            frame = len(frames)
+        else:
+            frame = _frame_token(tokens[0])
+            if frame is None:
+                raise DataFormatError(path, f"line {lineno}", f"frame {tokens[0]!r} is not an integer")
+        frames.append(frame)
+        values.append(value)
+    if not frames:
+        raise DataFormatError(path, None, "no timestamps in file")
+    if len(set(frames)) != len(frames):
+        raise DataFormatError(path, "frame", "a frame number appears twice")
+    times = np.asarray(values, dtype=np.float64)
+    magnitude = float(np.median(np.abs(times)))
+    scale = 1e-9 if magnitude > 1e17 else 1e-6 if magnitude > 1e14 else 1e-3 if magnitude > 1e11 else 1.0
+    return {f: float(t * scale) for f, t in zip(frames, times)}
+
+
+def frame_times(frames: Iterable[int], table: dict[int, float] | None, fps: float,
+                where: str = "") -> dict[int, float]:
+    """Seconds of each frame: from ``table`` where listed, else ``frame / fps`` when ``table`` is None.
+
+    Frames missing from a table are interpolated linearly between listed frames and extrapolated at
+    ``1 / fps`` seconds per frame beyond its ends (one warning naming ``where`` and the count).
+    """
+    frames = sorted(set(int(f) for f in frames))
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    if table is None:
+        return {f: f / fps for f in frames}
+    known = np.array(sorted(table), dtype=np.float64)
+    known_t = np.array([table[int(f)] for f in known])
+    out: dict[int, float] = {}
+    missing = 0
+    for f in frames:
+        if f in table:
+            out[f] = table[f]
+            continue
+        missing += 1
+        if f < known[0]:
+            out[f] = float(known_t[0] - (known[0] - f) / fps)
+        elif f > known[-1]:
+            out[f] = float(known_t[-1] + (f - known[-1]) / fps)
+        else:
+            out[f] = float(np.interp(f, known, known_t))
+    if missing:
+        logger.warning("%s: %d labelled frame(s) missing from the timestamps; interpolated", where, missing)
+    return out
+
+
+def _sequence_timestamps(root: Path, sequence: str, config: ReaderConfig) -> dict[int, float] | None:
+    path = timestamps_path(root, sequence, config.timestamps_kind)
+    if not path.is_file():
+        logger.info("%s: no timestamps file %s; using frame / fps with fps = %g", sequence, path.name, config.fps)
+        return None
+    try:
+        return read_timestamps(path)
+    except DataFormatError as exc:
+        logger.warning("%s; using frame / fps with fps = %g instead", exc, config.fps)
+        return None
+
+
+# ------------------------------------------------------------------------------------------------ tracks
+
+def camera_sides(calibrations: dict[str, StereoCalibration]) -> dict[str, tuple[str, str]]:
+    """Camera name -> (pair name, ``"left"`` or ``"right"``) of the given stereo pairs."""
+    sides: dict[str, tuple[str, str]] = {}
+    for pair in calibrations:
+        left, right = split_pair(pair)
+        for camera, side in ((left, "left"), (right, "right")):
+            if camera in sides:
+                raise DataFormatError(pair, None, f"camera {camera} belongs to two stereo pairs "
+                                                  f"({sides[camera][0]} and {pair})")
+            sides[camera] = (pair, side)
+    return sides
+
+
+def _index_sequence(root: Path, sequence: str, sides: dict[str, tuple[str, str]],
+                    warned_cameras: set[str]) -> dict[str, list[tuple[int, str, Path]]]:
+    """tracking id -> [(frame, camera, path)] of a sequence's 2D label files (names only, nothing read)."""
+    index: dict[str, list[tuple[int, str, Path]]] = defaultdict(list)
+    seen: dict[tuple[int, str, str], Path] = {}
+    for path, camera, frame, tid in iter_label2d_files(root, sequence):
+        if camera not in sides:
+            if camera not in warned_cameras:
+                warned_cameras.add(camera)
+                logger.warning("%s: camera %s is in no calibrated stereo pair; its labels are skipped",
+                               path.parent, camera)
+            continue
+        key = (frame, camera, tid)
+        if key in seen:
+            logger.warning("%s: duplicate of %s (same camera, frame and tracking id); skipped", path, seen[key])
+            continue
+        seen[key] = path
+        index[tid].append((frame, camera, path))
+    return index
+
+
+def _choose_pair(frame_views: dict[str, dict[str, Label2D]]) -> str:
+    """The pair with the most labelled keypoints over its two views (ties: first name)."""
+    def score(pair: str) -> int:
+        return sum(label.n_labelled for label in frame_views[pair].values())
+    return max(sorted(frame_views), key=score)
+
+
+def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[tuple[int, str, Path]],
+                    calibrations: dict[str, StereoCalibration], sides: dict[str, tuple[str, str]],
+                    times: dict[int, float], config: ReaderConfig) -> Track | None:
+    by_frame: dict[int, dict[str, dict[str, Label2D]]] = defaultdict(lambda: defaultdict(dict))
+    for frame, camera, path in sorted(entries):
+        try:
+            label = read_label2d(path, sequence, camera, frame, tracking_id)
+        except DataFormatError as exc:
+            logger.warning("%s; instance skipped", exc)
+            continue
+        if label.category not in config.categories:
+            continue
+        pair, side = sides[camera]
+        by_frame[frame][pair][side] = label
+    frames: list[TrackFrame] = []
+    for frame in sorted(by_frame):
+        views = by_frame[frame]
+        pair = _choose_pair(views)
+        if len(views) > 1:
+            logger.debug("%s %s frame %d: labelled in pairs %s; kept %s (more labelled keypoints)",
+                         sequence, tracking_id, frame, sorted(views), pair)
+        points = np.zeros((0, 3))
+        if config.read_segments:
+            seg = segment_path(root, sequence, frame, tracking_id)
+            if seg.is_file():
+                try:
+                    points = read_ply_points(seg)
+                except DataFormatError as exc:
+                    logger.warning("%s; LiDAR points of this instance skipped", exc)
+        left = views[pair].get("left")
+        right = views[pair].get("right")
+        frames.append(TrackFrame(frame=frame, timestamp=times[frame], pair=pair,
+                                 left=None if left is None else left.view,
+                                 right=None if right is None else right.view,
+                                 world_lidar_points=points))
+    if not frames:
+        return None
+    used = sorted({f.pair for f in frames})
+    return Track(sequence=sequence, tracking_id=tracking_id, frames=frames,
+                 calibrations={pair: calibrations[pair] for pair in used})
+
+
+def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
+                config: ReaderConfig | None = None) -> Iterator[Track]:
+    """Yield tracks one at a time (sequence by sequence, tracks by first frame then id); lazy variant of
+    :func:`read_dataset`: only the current track's files are held in memory.
+
+    Raises :class:`DataFormatError` when the calibration cannot be read, or (at the end) when no track
+    at all was produced.
+    """
+    config = config or ReaderConfig()
+    root = resolve_root(root)
+    calibrations = read_calibrations(root / "calib")
+    sides = camera_sides(calibrations)
+    available = list_sequences(root, "2d")
+    chosen = _select_sequences(available, sequences, root / "labels" / "2d")
+    warned_cameras: set[str] = set()
+    n_tracks = 0
+    n_files = 0
+    for sequence in chosen:
+        index = _index_sequence(root, sequence, sides, warned_cameras)
+        n_files += sum(len(v) for v in index.values())
+        if not index:
+            logger.warning("%s: no 2D label file of a calibrated camera", root / "labels" / "2d" / sequence)
+            continue
+        table = _sequence_timestamps(root, sequence, config)
+        all_frames = {frame for entries in index.values() for frame, _, _ in entries}
+        times = frame_times(all_frames, table, config.fps, where=sequence)
+        order = sorted(index, key=lambda tid: (min(f for f, _, _ in index[tid]), tid))
+        for tid in order:
+            track = _assemble_track(root, sequence, tid, index[tid], calibrations, sides, times, config)
+            if track is not None:
+                n_tracks += 1
+                yield track
+    if n_tracks == 0:
+        raise DataFormatError(root / "labels" / "2d", None,
+                              f"no track could be read (sequences {chosen or available or 'none'}, "
+                              f"{n_files} label files of calibrated cameras, categories {list(config.categories)})")
+
+
+def read_dataset(root: str | os.PathLike, sequences: Iterable[str] | None = None,
+                 config: ReaderConfig | None = None) -> list[Track]:
+    """All tracks of the dataset at ``root`` (see the module docstring for the assembly rules)."""
+    return list(iter_tracks(root, sequences, config))
+
+
+# ------------------------------------------------------------------------------------------ ground truth
+
+def read_smpl_labels(root: str | os.PathLike, sequences: Iterable[str] | None = None,
+                     n_betas: int | None = N_BETAS) -> dict[tuple[str, str], list[SmplLabel]]:
+    """SMPL labels under ``labels/3d/smpl``: ``(sequence, tracking_id) -> labels sorted by frame``.
+
+    Malformed files are skipped with a warning naming file and field; raises :class:`DataFormatError`
+    when none can be read.
+    """
+    root = resolve_root(root)
+    base = root / "labels" / "3d" / "smpl"
+    chosen = _select_sequences(list_sequences(root, "smpl"), sequences, base)
+    out: dict[tuple[str, str], list[SmplLabel]] = defaultdict(list)
+    for sequence in chosen:
+        for path in sorted((base / sequence).glob("*.json")):
+            parsed = parse_smpl_label_name(path, sequence)
+            if parsed is None:
+                logger.warning("%s: file name does not match '%s_<frame>_<tid>.json'; skipped", path, sequence)
+                continue
+            try:
+                label = read_smpl_label(path, sequence, parsed[0], parsed[1], n_betas=n_betas)
+            except DataFormatError as exc:
+                logger.warning("%s; label skipped", exc)
+                continue
+            out[(sequence, parsed[1])].append(label)
+    if not out:
+        raise DataFormatError(base, None, f"no SMPL label could be read (sequences {chosen})")
+    return {key: sorted(labels, key=lambda lab: lab.frame) for key, labels in sorted(out.items())}
+
+
+def read_scene_points(root: str | os.PathLike, sequence: str, frame: int) -> np.ndarray:
+    """(N, 3) finite LiDAR points of a frame's full scene (``pointclouds/``), world frame, metres."""
+    return read_ply_points(pointcloud_path(resolve_root(root), sequence, frame))
