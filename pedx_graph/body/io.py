@@ -1,0 +1,467 @@
+"""Reading and validating SMPL-format body model files (``.npz`` and ``.pkl``).
+
+Keys (smplx names): ``v_template (V,3)``, ``shapedirs (V,3,B)``, ``posedirs (V,3,207)`` (optional),
+``J_regressor (24,V)`` (dense or scipy-sparse), ``weights (V,24)``, ``kintree_table (2,24)`` (row 0 = parents,
+root parent stored as 4294967295 = uint32(-1), or -1), ``f (F,3)``.  Optional pedx keys:
+``pedx_keypoint_names``, ``pedx_keypoint_vertex_ids``, ``pedx_keypoint_joint_ids`` (18 each) and
+``provenance`` (JSON string).  See ``docs/architecture.md``.
+
+Original SMPL pickles store arrays as ``chumpy`` objects.  They are read here without chumpy: a restricted
+unpickler maps every chumpy class to a stub that keeps the pickled state and recovers the array from it
+(chumpy keeps the value of a ``Ch`` in its ``x`` attribute).  Only numpy, scipy.sparse and a few builtins may
+be constructed by the unpickler; anything else is refused.
+
+Every malformed file raises :class:`ModelFormatError` (a ``ValueError``) naming the file and the key.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import pickle
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+log = logging.getLogger(__name__)
+
+#: Number of SMPL joints; the pose vector has 3 x NUM_JOINTS entries.
+NUM_JOINTS = 24
+#: Number of pose-corrective features, 9 x (NUM_JOINTS - 1).
+NUM_POSE_FEATURES = 9 * (NUM_JOINTS - 1)
+#: How the root's parent is stored in ``kintree_table`` (uint32(-1)).
+ROOT_PARENT_UINT32 = 4294967295
+
+REQUIRED_KEYS = ("v_template", "shapedirs", "J_regressor", "weights", "kintree_table", "f")
+
+CONVERT_HINT = (
+    "Convert it once to .npz in an environment that has chumpy installed, e.g.\n"
+    "  import pickle, numpy as np, scipy.sparse as sp\n"
+    "  d = pickle.load(open(PKL, 'rb'), encoding='latin1')\n"
+    "  np.savez(NPZ, **{k: (v.toarray() if sp.issparse(v) else np.asarray(v)) for k, v in d.items()\n"
+    "                   if k in ('v_template','shapedirs','posedirs','J_regressor','weights','kintree_table','f')})"
+)
+
+
+class ModelFormatError(ValueError):
+    """A body model file is missing a key or holds an array of the wrong shape, type or value."""
+
+
+@dataclass(frozen=True)
+class ModelData:
+    """Validated arrays of an SMPL-format model (float64 / int64)."""
+
+    v_template: np.ndarray
+    """(V, 3) rest vertices, metres, body frame (Y up, +Z forward)."""
+    shapedirs: np.ndarray
+    """(V, 3, B) shape blend shapes (first ``num_betas`` of the file's components)."""
+    posedirs: np.ndarray | None
+    """(V, 3, 207) pose-corrective blend shapes, or None when absent or all zero."""
+    j_regressor: sp.csr_matrix
+    """(24, V) joint regressor (sparse CSR)."""
+    weights: np.ndarray
+    """(V, 24) skinning weights."""
+    parents: np.ndarray
+    """(24,) parent of each joint, -1 for the root; parents[j] < j."""
+    faces: np.ndarray
+    """(F, 3) triangle vertex indices."""
+    keypoint_names: tuple[str, ...] | None = None
+    """``pedx_keypoint_names`` when present (equal to PEDX_KEYPOINTS)."""
+    keypoint_vertex_ids: np.ndarray | None = None
+    """(18,) ``pedx_keypoint_vertex_ids`` when present (-1 = not a vertex)."""
+    keypoint_joint_ids: np.ndarray | None = None
+    """(18,) ``pedx_keypoint_joint_ids`` when present (-1 = not a joint)."""
+    provenance: dict | None = None
+    """Parsed ``provenance`` JSON, or None."""
+    source: str = "<arrays>"
+    """Where the arrays came from (file path or a description), for messages."""
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.v_template.shape[0])
+
+    @property
+    def num_betas(self) -> int:
+        return int(self.shapedirs.shape[2])
+
+
+# ----------------------------------------------------------------------------------------------- pickles
+
+
+class _ChumpyStub:
+    """Stands in for any chumpy class while unpickling; keeps the pickled state."""
+
+    def __init__(self, *args, **kwargs):
+        self._args = args
+        self._state = {}
+
+    def __setstate__(self, state):
+        if isinstance(state, tuple) and len(state) == 2 and isinstance(state[0], dict):
+            merged = dict(state[0])
+            merged.update(state[1] or {})
+            state = merged
+        self._state = state if isinstance(state, dict) else {"state": state}
+
+    def recover(self) -> np.ndarray | None:
+        """The array this chumpy object held: its ``x`` (Ch) or ``a`` attribute, else the only array."""
+        for key in ("x", "a"):
+            value = self._state.get(key)
+            if value is not None:
+                value = _unstub(value)
+                if isinstance(value, np.ndarray) or sp.issparse(value):
+                    return value
+        arrays = [v for v in self._state.values() if isinstance(v, np.ndarray)]
+        return arrays[0] if len(arrays) == 1 else None
+
+
+def _unstub(value):
+    return value.recover() if isinstance(value, _ChumpyStub) else value
+
+
+_SAFE_BUILTINS = {"object", "set", "frozenset", "dict", "list", "tuple", "slice", "complex", "bytearray",
+                  "int", "float", "str", "bool", "range"}
+
+
+class _RestrictedUnpickler(pickle.Unpickler):
+    """Builds only numpy arrays/dtypes, scipy.sparse matrices, safe builtins and chumpy stubs."""
+
+    def find_class(self, module, name):
+        if module == "chumpy" or module.startswith("chumpy."):
+            return _ChumpyStub
+        if module in ("copy_reg", "copyreg") and name == "_reconstructor":
+            import copyreg
+            return copyreg._reconstructor
+        if module in ("__builtin__", "builtins") and name in _SAFE_BUILTINS:
+            import builtins
+            return getattr(builtins, name)
+        if module == "numpy" or module.startswith("numpy."):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                return super().find_class(module, name)
+        if module == "scipy.sparse" or module.startswith("scipy.sparse."):
+            if hasattr(sp, name):
+                return getattr(sp, name)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"refusing to construct {module}.{name} from a model pickle")
+
+
+def _load_pickle(path: Path) -> dict:
+    try:
+        with open(path, "rb") as fh:
+            data = _RestrictedUnpickler(fh, encoding="latin1").load()
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError, ValueError) as exc:
+        raise ModelFormatError(f"{path}: cannot read the pickle ({exc}).\n{CONVERT_HINT}") from exc
+    if not isinstance(data, dict):
+        raise ModelFormatError(f"{path}: the pickle holds a {type(data).__name__}, expected a dict of arrays")
+    out = {}
+    for key, value in data.items():
+        if isinstance(value, _ChumpyStub):
+            arr = value.recover()
+            if arr is None:
+                raise ModelFormatError(
+                    f"{path}: key '{key}' is a chumpy object whose array could not be recovered without "
+                    f"chumpy.\n{CONVERT_HINT}")
+            value = arr
+        out[str(key)] = value
+    return out
+
+
+def _load_npz(path: Path) -> dict:
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            out = {}
+            for key in npz.files:
+                try:
+                    out[key] = npz[key]
+                except ValueError as exc:
+                    raise ModelFormatError(
+                        f"{path}: key '{key}' is stored as a pickled object array, which is not loaded for "
+                        f"safety; store it as a plain numeric array ({exc})") from exc
+            return out
+    except ModelFormatError:
+        raise
+    except (OSError, ValueError, EOFError) as exc:
+        raise ModelFormatError(f"{path}: not a readable .npz file ({exc})") from exc
+
+
+def read_model_file(path: str | Path) -> dict:
+    """Raw key -> array mapping of an SMPL-format ``.npz`` or ``.pkl`` (no validation)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"body model file not found: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return _load_npz(path)
+    if suffix in (".pkl", ".pickle"):
+        return _load_pickle(path)
+    raise ModelFormatError(f"{path}: unknown model file type '{suffix}' (expected .npz or .pkl)")
+
+
+# -------------------------------------------------------------------------------------------- validation
+
+
+def _float_array(raw: dict, key: str, shape: tuple, src: str) -> np.ndarray:
+    """``raw[key]`` as float64 with the given shape (None = any size); must be finite."""
+    value = raw[key]
+    if sp.issparse(value):
+        value = value.toarray()
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ModelFormatError(f"{src}: key '{key}' is not numeric ({exc})") from exc
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+        raise ModelFormatError(f"{src}: key '{key}' has shape {arr.shape}, expected {want}")
+    if not np.all(np.isfinite(arr)):
+        raise ModelFormatError(f"{src}: key '{key}' contains NaN or infinite values")
+    return arr
+
+
+def _parents_from_kintree(raw: dict, src: str) -> np.ndarray:
+    value = raw["kintree_table"]
+    arr = np.asarray(value)
+    if arr.ndim != 2 or arr.shape != (2, NUM_JOINTS):
+        raise ModelFormatError(f"{src}: key 'kintree_table' has shape {arr.shape}, expected (2, {NUM_JOINTS})")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ModelFormatError(f"{src}: key 'kintree_table' is not numeric (dtype {arr.dtype})")
+    row = arr[0].astype(np.float64)
+    if not np.all(np.isfinite(row)) or np.any(row != np.round(row)):
+        raise ModelFormatError(f"{src}: key 'kintree_table' holds non-integer parents")
+    row = row.astype(np.int64)
+    parents = np.where((row == ROOT_PARENT_UINT32) | (row == -1), -1, row)
+    if parents[0] != -1:
+        raise ModelFormatError(
+            f"{src}: key 'kintree_table': joint 0 must be the root (parent {ROOT_PARENT_UINT32} or -1), "
+            f"got parent {row[0]}")
+    for j in range(1, NUM_JOINTS):
+        if not 0 <= parents[j] < j:
+            raise ModelFormatError(
+                f"{src}: key 'kintree_table': parent of joint {j} is {row[j]}; parents must be listed before "
+                f"their children (0 <= parent < joint)")
+    return parents
+
+
+def _optional_keypoints(raw: dict, src: str, num_vertices: int):
+    keys = ("pedx_keypoint_names", "pedx_keypoint_vertex_ids", "pedx_keypoint_joint_ids")
+    present = [k for k in keys if k in raw]
+    if not present:
+        return None, None, None
+    if len(present) != 3:
+        missing = [k for k in keys if k not in raw][0]
+        raise ModelFormatError(f"{src}: missing key '{missing}' (the pedx keypoint keys come together)")
+    names = tuple(str(n) for n in np.asarray(raw["pedx_keypoint_names"]).reshape(-1))
+    if names != PEDX_KEYPOINTS:
+        raise ModelFormatError(
+            f"{src}: key 'pedx_keypoint_names' must equal {list(PEDX_KEYPOINTS)}, got {list(names)}")
+    ids = {}
+    for key, limit in (("pedx_keypoint_vertex_ids", num_vertices), ("pedx_keypoint_joint_ids", NUM_JOINTS)):
+        arr = np.asarray(raw[key])
+        if arr.shape != (len(PEDX_KEYPOINTS),) or not np.issubdtype(arr.dtype, np.integer):
+            raise ModelFormatError(
+                f"{src}: key '{key}' must be an integer array of shape ({len(PEDX_KEYPOINTS)},), "
+                f"got {arr.dtype} {arr.shape}")
+        arr = arr.astype(np.int64)
+        if np.any((arr < -1) | (arr >= limit)):
+            raise ModelFormatError(f"{src}: key '{key}' holds ids outside [-1, {limit})")
+        ids[key] = arr
+    vid, jid = ids["pedx_keypoint_vertex_ids"], ids["pedx_keypoint_joint_ids"]
+    bad = np.flatnonzero((vid >= 0) == (jid >= 0))
+    if bad.size:
+        raise ModelFormatError(
+            f"{src}: keypoint '{PEDX_KEYPOINTS[bad[0]]}': exactly one of 'pedx_keypoint_vertex_ids' and "
+            f"'pedx_keypoint_joint_ids' must be >= 0")
+    return names, vid, jid
+
+
+def _provenance(raw: dict, src: str) -> dict | None:
+    if "provenance" not in raw:
+        return None
+    value = raw["provenance"]
+    text = value.item() if isinstance(value, np.ndarray) and value.shape == () else value
+    if isinstance(text, bytes):
+        text = text.decode("utf-8")
+    if not isinstance(text, str):
+        raise ModelFormatError(f"{src}: key 'provenance' must be a JSON string, got {type(text).__name__}")
+    try:
+        out = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ModelFormatError(f"{src}: key 'provenance' is not valid JSON ({exc})") from exc
+    return out if isinstance(out, dict) else {"value": out}
+
+
+def validate_model_arrays(raw: dict, source: str = "<arrays>", num_betas: int = 10) -> ModelData:
+    """Check an SMPL-format key -> array mapping and return :class:`ModelData`.
+
+    ``num_betas``: keep the first ``num_betas`` shape components (all of them if the file has fewer).
+    Raises :class:`ModelFormatError` naming ``source`` and the offending key.
+    """
+    src = str(source)
+    for key in REQUIRED_KEYS:
+        if key not in raw:
+            raise ModelFormatError(f"{src}: missing key '{key}' (SMPL-format keys: {list(REQUIRED_KEYS)} "
+                                   f"and optional 'posedirs')")
+    if num_betas < 1:
+        raise ValueError(f"num_betas must be >= 1, got {num_betas}")
+    v_template = _float_array(raw, "v_template", (None, 3), src)
+    num_v = v_template.shape[0]
+    if num_v < 1:
+        raise ModelFormatError(f"{src}: key 'v_template' has no vertices")
+    shapedirs = _float_array(raw, "shapedirs", (num_v, 3, None), src)
+    if shapedirs.shape[2] < 1:
+        raise ModelFormatError(f"{src}: key 'shapedirs' has no components")
+    if shapedirs.shape[2] < num_betas:
+        log.info("%s: 'shapedirs' has %d components (< %d requested); using all", src, shapedirs.shape[2],
+                 num_betas)
+    shapedirs = np.ascontiguousarray(shapedirs[:, :, :num_betas])
+    posedirs = None
+    if "posedirs" in raw and raw["posedirs"] is not None:
+        posedirs = _float_array(raw, "posedirs", (num_v, 3, NUM_POSE_FEATURES), src)
+        if not np.any(posedirs):
+            posedirs = None
+    jreg_raw = raw["J_regressor"]
+    if sp.issparse(jreg_raw):
+        if jreg_raw.shape != (NUM_JOINTS, num_v):
+            raise ModelFormatError(
+                f"{src}: key 'J_regressor' has shape {jreg_raw.shape}, expected ({NUM_JOINTS}, {num_v})")
+        j_regressor = sp.csr_matrix(jreg_raw, dtype=np.float64)
+        if not np.all(np.isfinite(j_regressor.data)):
+            raise ModelFormatError(f"{src}: key 'J_regressor' contains NaN or infinite values")
+    else:
+        j_regressor = sp.csr_matrix(_float_array(raw, "J_regressor", (NUM_JOINTS, num_v), src))
+    j_regressor.eliminate_zeros()
+    weights = _float_array(raw, "weights", (num_v, NUM_JOINTS), src)
+    row_sum = weights.sum(axis=1)
+    if np.any(np.abs(row_sum - 1.0) > 1e-3):
+        log.warning("%s: 'weights' rows do not sum to 1 (range %.4g..%.4g)", src, row_sum.min(), row_sum.max())
+    parents = _parents_from_kintree(raw, src)
+    faces_arr = np.asarray(raw["f"])
+    if faces_arr.ndim != 2 or faces_arr.shape[1] != 3:
+        raise ModelFormatError(f"{src}: key 'f' has shape {faces_arr.shape}, expected (F, 3)")
+    if faces_arr.size and not np.issubdtype(faces_arr.dtype, np.integer):
+        if not np.issubdtype(faces_arr.dtype, np.floating) or np.any(faces_arr != np.round(faces_arr)):
+            raise ModelFormatError(f"{src}: key 'f' must hold integer vertex indices (dtype {faces_arr.dtype})")
+    faces = faces_arr.astype(np.int64)
+    if faces.size and (faces.min() < 0 or faces.max() >= num_v):
+        raise ModelFormatError(f"{src}: key 'f' holds vertex indices outside [0, {num_v}) (V mismatch?)")
+    names, vid, jid = _optional_keypoints(raw, src, num_v)
+    return ModelData(v_template=v_template, shapedirs=shapedirs, posedirs=posedirs, j_regressor=j_regressor,
+                     weights=weights, parents=parents, faces=faces, keypoint_names=names,
+                     keypoint_vertex_ids=vid, keypoint_joint_ids=jid, provenance=_provenance(raw, src),
+                     source=src)
+
+
+def load_model_data(path: str | Path, num_betas: int = 10) -> ModelData:
+    """Read and validate an SMPL-format ``.npz`` / ``.pkl`` file (see module docstring)."""
+    return validate_model_arrays(read_model_file(path), source=str(path), num_betas=num_betas)
+
+
+# ------------------------------------------------------------------------------------- synthetic models
+
+#: Rough SMPL-like T-pose joint locations (metres, Y up, +Z forward, left = +X) for synthetic models.
+_SYNTHETIC_JOINTS = np.array([
+    [0.0, 0.0, 0.0], [0.06, -0.09, 0.0], [-0.06, -0.09, 0.0], [0.0, 0.11, -0.02],
+    [0.10, -0.47, 0.0], [-0.10, -0.47, 0.0], [0.0, 0.24, 0.0], [0.09, -0.87, -0.04],
+    [-0.09, -0.87, -0.04], [0.0, 0.29, 0.02], [0.11, -0.93, 0.08], [-0.11, -0.93, 0.08],
+    [0.0, 0.50, -0.02], [0.07, 0.41, -0.01], [-0.07, 0.41, -0.01], [0.0, 0.60, 0.03],
+    [0.17, 0.44, -0.02], [-0.17, 0.44, -0.02], [0.43, 0.43, -0.04], [-0.43, 0.43, -0.04],
+    [0.68, 0.43, -0.03], [-0.68, 0.43, -0.03], [0.77, 0.43, -0.04], [-0.77, 0.43, -0.04],
+])
+
+
+def synthetic_model_arrays(num_vertices: int = 300, seed: int = 0, num_betas: int = 10,
+                           with_posedirs: bool = True, with_keypoint_keys: bool = True) -> dict:
+    """A random SMPL-format key -> array dict with a body-like layout, for tests and benchmarks.
+
+    Vertices are scattered around the bones of an SMPL-like T-pose skeleton (and a head sphere); each vertex
+    is skinned to its 4 nearest joints; ``shapedirs`` scale the body (component 0 = height) plus random
+    smooth offsets; ``posedirs`` are small random values; ``J_regressor`` is a sparse convex combination of
+    8 vertices near each joint (scipy CSC, as in the SMPL pickles); ``kintree_table`` is uint32 with the
+    root parent 4294967295; faces are random valid triangles.  Not a usable human model.
+    """
+    from pedx_graph.keypoints import SMPL_PARENTS
+    from pedx_graph.utils import make_rng
+
+    rng = make_rng(seed)
+    parents = np.array(SMPL_PARENTS)
+    joints = _SYNTHETIC_JOINTS
+    # Vertices along bones (parent -> child), radius ~5 cm, plus a head sphere of radius 10 cm.
+    num_head = max(num_vertices // 10, 8)
+    num_body = num_vertices - num_head
+    bone = rng.integers(1, len(parents), size=num_body)
+    frac = rng.uniform(0.0, 1.0, size=num_body)[:, None]
+    centre = joints[parents[bone]] * (1 - frac) + joints[bone] * frac
+    body = centre + rng.normal(scale=0.05, size=(num_body, 3))
+    head_dir = rng.normal(size=(num_head, 3))
+    head = joints[15] + 0.1 * head_dir / np.linalg.norm(head_dir, axis=1, keepdims=True)
+    v_template = np.concatenate([body, head])
+    # Skinning: 4 nearest joints, weights ~ exp(-d^2 / (2 * 0.08^2)), normalised.
+    d2 = ((v_template[:, None, :] - joints[None]) ** 2).sum(-1)
+    nearest = np.argsort(d2, axis=1)[:, :4]
+    weights = np.zeros((num_vertices, len(parents)))
+    w = np.exp(-np.take_along_axis(d2, nearest, axis=1) / (2 * 0.08 ** 2)) + 1e-3
+    np.put_along_axis(weights, nearest, w / w.sum(axis=1, keepdims=True), axis=1)
+    # Shape directions: height scaling, width scaling, then smooth random fields.
+    shapedirs = np.zeros((num_vertices, 3, num_betas))
+    shapedirs[:, 1, 0] = 0.05 * v_template[:, 1]
+    if num_betas > 1:
+        shapedirs[:, 0, 1] = 0.04 * v_template[:, 0]
+        shapedirs[:, 2, 1] = 0.04 * v_template[:, 2]
+    for b in range(2, num_betas):
+        freq = rng.normal(scale=3.0, size=(3, 3))
+        shapedirs[:, :, b] = 0.005 * np.sin(v_template @ freq + rng.uniform(0, 2 * np.pi, size=3))
+    posedirs = (rng.normal(scale=2e-3, size=(num_vertices, 3, NUM_POSE_FEATURES)) if with_posedirs
+                else np.zeros((num_vertices, 3, NUM_POSE_FEATURES)))
+    # Sparse regressor: 8 nearest vertices of each joint, positive weights summing to one.
+    rows, cols, vals = [], [], []
+    for j in range(len(parents)):
+        near = np.argsort(d2[:, j])[:8]
+        wj = rng.uniform(0.5, 1.5, size=8)
+        rows += [j] * 8
+        cols += near.tolist()
+        vals += (wj / wj.sum()).tolist()
+    j_regressor = sp.csc_matrix((vals, (rows, cols)), shape=(len(parents), num_vertices))
+    kintree = np.zeros((2, len(parents)), dtype=np.uint32)
+    kintree[0] = np.where(parents < 0, ROOT_PARENT_UINT32, parents).astype(np.uint32)
+    kintree[1] = np.arange(len(parents), dtype=np.uint32)
+    faces = np.stack([rng.choice(num_vertices, size=3, replace=False) for _ in range(2 * num_vertices)])
+    out = {
+        "v_template": v_template, "shapedirs": shapedirs, "posedirs": posedirs, "J_regressor": j_regressor,
+        "weights": weights, "kintree_table": kintree, "f": faces.astype(np.uint32),
+    }
+    if with_keypoint_keys:
+        vertex_ids = np.full(len(PEDX_KEYPOINTS), -1, dtype=np.int64)
+        joint_ids = np.full(len(PEDX_KEYPOINTS), -1, dtype=np.int64)
+        head_ids = np.arange(num_body, num_vertices)
+        face_targets = {"nose": [0.0, 0.58, 0.13], "leye": [0.03, 0.63, 0.11], "reye": [-0.03, 0.63, 0.11],
+                        "mouth": [0.0, 0.54, 0.11]}
+        joint_of = {"head": 15, "neck": 12, "lsho": 16, "rsho": 17, "lelb": 18, "relb": 19, "lwri": 20,
+                    "rwri": 21, "lhip": 1, "rhip": 2, "lknee": 4, "rknee": 5, "lankl": 7, "rankl": 8}
+        for i, name in enumerate(PEDX_KEYPOINTS):
+            if name in face_targets:
+                dist = np.linalg.norm(v_template[head_ids] - np.array(face_targets[name]), axis=1)
+                vertex_ids[i] = head_ids[np.argmin(dist)]
+            else:
+                joint_ids[i] = joint_of[name]
+        out["pedx_keypoint_names"] = np.array(PEDX_KEYPOINTS)
+        out["pedx_keypoint_vertex_ids"] = vertex_ids
+        out["pedx_keypoint_joint_ids"] = joint_ids
+        out["provenance"] = np.array(json.dumps({"builder": "pedx_graph.body.io.synthetic_model_arrays",
+                                                 "seed": int(seed), "num_vertices": int(num_vertices)}))
+    return out
+
+
+def save_model_npz(path: str | Path, arrays: dict) -> Path:
+    """Write an SMPL-format dict to ``.npz`` atomically (sparse matrices stored dense)."""
+    import io as _io
+
+    from pedx_graph.utils import atomic_write_bytes
+
+    buf = _io.BytesIO()
+    np.savez(buf, **{k: (v.toarray() if sp.issparse(v) else np.asarray(v)) for k, v in arrays.items()})
+    return atomic_write_bytes(path, buf.getvalue())

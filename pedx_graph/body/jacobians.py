@@ -1,0 +1,136 @@
+"""Analytic Jacobians of posed vertices and joints of an SMPL-format model (no finite differences).
+
+Notation (per frame; see :mod:`pedx_graph.body.lbs`): local rotations ``R_j = Exp(theta_j)``, world joint
+rotations ``Rg_j``, posed joint origins ``o_j`` (before ``trans``), skinning transforms ``A_k x = Rg_k x + t_k``
+with ``t_k = o_k - Rg_k J_k``, descendant mask ``D[j, k] = 1`` if ``k`` is ``j`` or below it.
+
+Rotation of joint ``j``.  A right perturbation ``R_j <- R_j Exp(w)`` rotates every bone below ``j`` (and ``j``)
+about ``o_j`` by ``phi = Rg_j w`` in the world frame, so a vertex ``p = sum_k w_vk A_k x_v`` moves by
+
+    dp = phi x a_j(v),     a_j(v) = sum_k D[j,k] w_vk A_k x_v - W_j(v) o_j,   W_j(v) = sum_k D[j,k] w_vk,
+
+i.e. ``dp/dw = -hat(a_j) Rg_j``.  For the root this is the right-perturbation Jacobian ``d_root``
+(``world_R_body <- world_R_body Exp(delta)``; with unit weight sums ``a_0 = p - o_0``); it is built from the
+rotation matrix and has no singularity at any heading.  For body joints (additive axis-angle) ``w = J_r(theta_j)
+d theta_j`` (right Jacobian), so ``dp/dtheta_j = -hat(a_j) Rg_j J_r(theta_j)``, plus the pose correctives:
+``x_v`` contains ``posedirs_v . vec(R_j - I)``, whose derivative is skinned by ``M_v = sum_k w_vk Rg_k``:
+``M_v posedirs_v[:, :, j] . dR_j/dtheta_j`` with ``dR_j/dtheta_j[m] = R_j hat(J_r[:, m])``.
+
+A posed joint ``o_i`` is the same formula with one unit weight on bone ``i`` and ``A_i J_i = o_i``:
+``a_j = D[j, i] (o_i - o_j)``; joints do not depend on the pose correctives.
+
+Shape.  ``J(beta) = J_template + J_shapedirs beta``; ``t_k = sum_{i in chain(k)} (Rg_parent(i) - Rg_i) J_i``
+(``Rg_parent(0) = I``), so ``dt_k/dbeta = sum_{i in chain(k)} (Rg_parent(i) - Rg_i) J_shapedirs_i``.  Then
+``dp/dbeta = M_v shapedirs_v + sum_k w_vk dt_k/dbeta`` and ``do_i/dbeta = dt_i/dbeta + Rg_i J_shapedirs_i``.
+
+All arrays are float64 with batch shape ``(N,)`` (callers flatten their leading dims).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pedx_graph.body.lbs import Kinematics
+from pedx_graph.body.rotation import hat
+
+
+@dataclass(frozen=True)
+class PointJacobians:
+    """World positions of N points and their derivatives (``...`` = batch shape of the inputs).
+
+    Follows the convention of ``docs/architecture.md`` ("Body model Jacobian convention").
+    """
+
+    points: np.ndarray
+    """(..., N, 3) world positions, metres (``trans`` included)."""
+    d_root: np.ndarray
+    """(..., N, 3, 3) w.r.t. a right perturbation of the root rotation, ``world_R_body <- world_R_body Exp(delta)``."""
+    d_body_pose: np.ndarray
+    """(..., N, 3, 69) w.r.t. the 69-d body pose (axis-angle of joints 1..23), additively."""
+    d_trans: np.ndarray
+    """(..., N, 3, 3) w.r.t. ``trans`` (the identity for vertices, joints and affine keypoints)."""
+    d_betas: np.ndarray
+    """(..., N, 3, B) w.r.t. the shape coefficients."""
+
+
+def rotation_bases(kin: Kinematics, jr_body: np.ndarray) -> np.ndarray:
+    """Per-joint maps from parameter increments to world rotation increments ``phi``: (N, J, 3, 3).
+
+    ``[Rg_0, Rg_1 J_r(theta_1), ..., Rg_{J-1} J_r(theta_{J-1})]``; jr_body (N, J-1, 3, 3).
+    """
+    bases = np.empty_like(kin.world_rot)
+    bases[:, 0] = kin.world_rot[:, 0]
+    bases[:, 1:] = kin.world_rot[:, 1:] @ jr_body
+    return bases
+
+
+def shape_chain_jacobian(kin: Kinematics, joint_shapedirs: np.ndarray, parents: np.ndarray,
+                         desc: np.ndarray) -> np.ndarray:
+    """``dt_k/dbeta`` of the skinning translations: (N, J, 3, B).
+
+    joint_shapedirs (J, 3, B) = ``J_regressor . shapedirs``; desc (J, J) descendant mask.
+    """
+    num_n, num_j = kin.world_rot.shape[:2]
+    parent_rot = np.empty_like(kin.world_rot)
+    parent_rot[:, 0] = np.eye(3)
+    parent_rot[:, 1:] = kin.world_rot[:, parents[1:]]
+    step = (parent_rot - kin.world_rot) @ joint_shapedirs            # (N, J, 3, B)
+    num_b = joint_shapedirs.shape[-1]
+    chained = desc.T @ step.reshape(num_n, num_j, 3 * num_b)         # sum over ancestors i of k
+    return chained.reshape(num_n, num_j, 3, num_b)
+
+
+def _rotation_part(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """From lever arms a (N, P, J, 3) and bases (N, J, 3, 3): d_root (N, P, 3, 3), d_body (N, P, 3, 3(J-1))."""
+    jac = -(hat(levers) @ bases[:, None])                            # (N, P, J, 3, 3)
+    d_root = jac[:, :, 0]
+    num_n, num_p, num_j = jac.shape[:3]
+    d_body = np.moveaxis(jac[:, :, 1:], 2, 3).reshape(num_n, num_p, 3, 3 * (num_j - 1))
+    return d_root, d_body
+
+
+def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray, weights: np.ndarray,
+                     desc: np.ndarray, shapedirs: np.ndarray, dt_dbeta: np.ndarray,
+                     posedirs: np.ndarray | None = None, drot_body: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Posed positions (before ``trans``) and Jacobians of P vertices.
+
+    rest_points (N, P, 3) = shaped + pose-corrected rest positions ``x_v``; weights (P, J); shapedirs (P, 3, B);
+    posedirs (P, 3, 9 (J-1)) or None; drot_body (N, J-1, 3, 3, 3) = ``dR_j/dtheta_j`` (needed with posedirs).
+    Returns points (N, P, 3), d_root (N, P, 3, 3), d_body (N, P, 3, 3 (J-1)), d_betas (N, P, 3, B).
+    """
+    world_rot, origin = kin.world_rot, kin.world_origin
+    num_n, num_j = world_rot.shape[:2]
+    num_p = rest_points.shape[1]
+    # Position of each vertex under each bone: y_vk = Rg_k x_v + t_k, (N, P, J, 3).
+    under_bone = np.einsum("nkab,npb->npka", world_rot, rest_points) + kin.bone_trans[:, None]
+    weighted = weights[None, :, :, None] * under_bone
+    points = weighted.sum(axis=2)
+    subtree_w = weights @ desc.T                                     # W_j(v), (P, J)
+    levers = desc @ weighted - subtree_w[None, :, :, None] * origin[:, None]
+    d_root, d_body = _rotation_part(levers, bases)
+    blended_rot = (weights @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
+    if posedirs is not None:
+        feats = posedirs.reshape(num_p * 3, num_j - 1, 9).transpose(1, 0, 2)   # (J-1, 3P, 9)
+        dfeat = drot_body.reshape(num_n, num_j - 1, 9, 3)                       # (N, J-1, 9, 3)
+        dq = feats[None] @ dfeat                                               # (N, J-1, 3P, 3)
+        dq = dq.reshape(num_n, num_j - 1, num_p, 3, 3).transpose(0, 2, 3, 1, 4)
+        d_body = d_body + blended_rot @ dq.reshape(num_n, num_p, 3, 3 * (num_j - 1))
+    d_betas = blended_rot @ shapedirs[None] + np.einsum("pk,nkcb->npcb", weights, dt_dbeta)
+    return points, d_root, d_body, d_betas
+
+
+def joint_jacobians(kin: Kinematics, bases: np.ndarray, joint_ids: np.ndarray, desc: np.ndarray,
+                    joint_shapedirs: np.ndarray, dt_dbeta: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Posed positions (before ``trans``) and Jacobians of the joints ``joint_ids`` (Q,).
+
+    Returns points (N, Q, 3), d_root (N, Q, 3, 3), d_body (N, Q, 3, 3 (J-1)), d_betas (N, Q, 3, B).
+    """
+    origin = kin.world_origin
+    points = origin[:, joint_ids]                                    # (N, Q, 3)
+    levers = desc.T[joint_ids][None, :, :, None] * (points[:, :, None, :] - origin[:, None, :, :])
+    d_root, d_body = _rotation_part(levers, bases)
+    d_betas = dt_dbeta[:, joint_ids] + kin.world_rot[:, joint_ids] @ joint_shapedirs[joint_ids][None]
+    return points, d_root, d_body, d_betas

@@ -1,0 +1,159 @@
+"""Where the 18 PedX keypoints sit on a body model, as a small sparse linear map.
+
+A keypoint set is ``keypoints = C_v @ vertices[vertex_ids] + C_j @ joints`` with ``C_v`` (K, m) over the few
+vertices actually used and ``C_j`` (K, J) over the posed joints; equivalently one sparse (K, V + J) matrix over
+``[vertices; joints]`` (:meth:`KeypointMap.as_sparse`).  Keypoints and their Jacobians therefore only need
+those ``m`` vertices.
+
+Sources, in order:
+
+1. the model file's ``pedx_keypoint_names / pedx_keypoint_vertex_ids / pedx_keypoint_joint_ids`` keys;
+2. for a real SMPL topology (V = 6890) without them, :data:`SMPL_TOPOLOGY_KEYPOINTS`: the vertex ids smplx uses
+   for nose (332), right eye (6260), left eye (2800); the mouth by the rule in :data:`SMPL_MOUTH_RULE`
+   (no confirmed SMPL lip-centre vertex id was found); the other keypoints are SMPL joints;
+3. on request only (``joints_only=True``), a joints-only fallback for any other model: face keypoints
+   (nose, eyes, mouth) are placed at the head joint (15).  This is crude (several cm off) and is logged.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+log = logging.getLogger(__name__)
+
+#: Vertex count of the SMPL topology.
+SMPL_NUM_VERTICES = 6890
+
+#: PedX keypoints that are SMPL joints (name -> joint index; SMPL's own joint names in comments).
+SMPL_JOINT_KEYPOINTS: dict[str, int] = {
+    "head": 15, "neck": 12,                     # head, neck
+    "lsho": 16, "rsho": 17,                     # left/right_shoulder
+    "lelb": 18, "relb": 19,                     # left/right_elbow
+    "lwri": 20, "rwri": 21,                     # left/right_wrist
+    "lhip": 1, "rhip": 2,                       # left/right_hip
+    "lknee": 4, "rknee": 5,                     # left/right_knee
+    "lankl": 7, "rankl": 8,                     # left/right_ankle
+}
+
+#: Face keypoints on the SMPL topology that are single vertices (smplx's vertex ids).
+SMPL_VERTEX_KEYPOINTS: dict[str, int] = {"nose": 332, "reye": 6260, "leye": 2800}
+
+#: Mouth on the SMPL topology: ``mouth = nose_vertex + 0.35 (neck_joint - head_joint)``, i.e. the nose tip
+#: moved along the head's downward axis by 35 % of the head-neck joint distance (about 3 cm down and 1.5 cm
+#: back on a mean body).  Coefficients over ``[vertex 332, joint 12, joint 15]``; they sum to one, so the
+#: point moves rigidly with the head.  An approximation: PedX annotators click the lip centre.
+SMPL_MOUTH_RULE: dict[str, tuple[tuple[int, float], ...]] = {
+    "vertices": ((332, 1.0),),
+    "joints": ((12, 0.35), (15, -0.35)),
+}
+
+
+@dataclass(frozen=True)
+class KeypointMap:
+    """Keypoints as a linear map over a few vertices and the joints: ``kp = C_v x[vertex_ids] + C_j joints``."""
+
+    names: tuple[str, ...]
+    """(K,) keypoint names (PEDX_KEYPOINTS order)."""
+    vertex_ids: np.ndarray
+    """(m,) distinct vertex ids used by any keypoint (int64, may be empty)."""
+    vertex_coeffs: np.ndarray
+    """(K, m) coefficients of those vertices."""
+    joint_coeffs: np.ndarray
+    """(K, J) coefficients of the posed joints."""
+    source: str
+    """How the map was obtained: 'file', 'smpl-topology' or 'joints-only'."""
+
+    @property
+    def num_keypoints(self) -> int:
+        return len(self.names)
+
+    def apply(self, vertices_subset: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Keypoints (..., K, 3) from the used vertices (..., m, 3) and joints (..., J, 3)."""
+        out = np.einsum("kj,...jc->...kc", self.joint_coeffs, joints)
+        if self.vertex_ids.size:
+            out = out + np.einsum("km,...mc->...kc", self.vertex_coeffs, vertices_subset)
+        return out
+
+    def as_sparse(self, num_vertices: int) -> sp.csr_matrix:
+        """The map as one sparse (K, V + J) matrix over ``[vertices; joints]``."""
+        num_k, num_j = self.joint_coeffs.shape
+        full_v = sp.csr_matrix((self.vertex_coeffs.ravel(),
+                                (np.repeat(np.arange(num_k), len(self.vertex_ids)),
+                                 np.tile(self.vertex_ids, num_k))), shape=(num_k, num_vertices))
+        return sp.hstack([full_v, sp.csr_matrix(self.joint_coeffs)], format="csr")
+
+
+def _build(entries: dict[str, tuple[tuple[tuple[int, float], ...], tuple[tuple[int, float], ...]]],
+           num_joints: int, source: str) -> KeypointMap:
+    """entries: name -> ((vertex, coeff)...,), ((joint, coeff)...,) for every PEDX keypoint."""
+    used = sorted({v for name in PEDX_KEYPOINTS for v, _ in entries[name][0]})
+    col = {v: i for i, v in enumerate(used)}
+    vertex_coeffs = np.zeros((len(PEDX_KEYPOINTS), len(used)))
+    joint_coeffs = np.zeros((len(PEDX_KEYPOINTS), num_joints))
+    for k, name in enumerate(PEDX_KEYPOINTS):
+        verts, joints = entries[name]
+        for v, c in verts:
+            vertex_coeffs[k, col[v]] += c
+        for j, c in joints:
+            joint_coeffs[k, j] += c
+    return KeypointMap(names=PEDX_KEYPOINTS, vertex_ids=np.array(used, dtype=np.int64),
+                       vertex_coeffs=vertex_coeffs, joint_coeffs=joint_coeffs, source=source)
+
+
+def from_ids(vertex_ids: np.ndarray, joint_ids: np.ndarray, num_joints: int = 24,
+             source: str = "file") -> KeypointMap:
+    """Map from per-keypoint vertex ids / joint ids (18 each; exactly one of the two >= 0 per keypoint)."""
+    entries = {}
+    for k, name in enumerate(PEDX_KEYPOINTS):
+        v, j = int(vertex_ids[k]), int(joint_ids[k])
+        if (v >= 0) == (j >= 0):
+            raise ValueError(f"keypoint '{name}': exactly one of vertex id ({v}) and joint id ({j}) must be >= 0")
+        entries[name] = (((v, 1.0),), ()) if v >= 0 else ((), ((j, 1.0),))
+    return _build(entries, num_joints, source)
+
+
+def smpl_topology_map(num_joints: int = 24) -> KeypointMap:
+    """The map for a real SMPL mesh (V = 6890) without pedx keypoint keys (see module docstring)."""
+    entries = {}
+    for name in PEDX_KEYPOINTS:
+        if name in SMPL_JOINT_KEYPOINTS:
+            entries[name] = ((), ((SMPL_JOINT_KEYPOINTS[name], 1.0),))
+        elif name in SMPL_VERTEX_KEYPOINTS:
+            entries[name] = (((SMPL_VERTEX_KEYPOINTS[name], 1.0),), ())
+        elif name == "mouth":
+            entries[name] = (SMPL_MOUTH_RULE["vertices"], SMPL_MOUTH_RULE["joints"])
+        else:                                          # pragma: no cover - guarded by the names test
+            raise KeyError(name)
+    return _build(entries, num_joints, "smpl-topology")
+
+
+def joints_only_map(num_joints: int = 24) -> KeypointMap:
+    """Fallback without any vertex: face keypoints at the head joint (15), the rest at their SMPL joints."""
+    entries = {name: ((), ((SMPL_JOINT_KEYPOINTS.get(name, 15), 1.0),)) for name in PEDX_KEYPOINTS}
+    return _build(entries, num_joints, "joints-only")
+
+
+def keypoint_map_for_model(data, joints_only: bool = False) -> KeypointMap:
+    """The keypoint map of a :class:`pedx_graph.body.io.ModelData` (file keys > SMPL topology > fallback).
+
+    Raises ValueError naming the model file when it has no keypoint keys, is not the SMPL topology and
+    ``joints_only`` is False.
+    """
+    num_joints = len(data.parents)
+    if data.keypoint_vertex_ids is not None:
+        return from_ids(data.keypoint_vertex_ids, data.keypoint_joint_ids, num_joints, "file")
+    if data.num_vertices == SMPL_NUM_VERTICES:
+        return smpl_topology_map(num_joints)
+    if joints_only:
+        log.warning("%s: no pedx keypoint keys and not the SMPL topology; face keypoints (nose, eyes, mouth) "
+                    "fall back to the head joint", data.source)
+        return joints_only_map(num_joints)
+    raise ValueError(
+        f"{data.source}: the model has {data.num_vertices} vertices (not the SMPL topology, {SMPL_NUM_VERTICES}) "
+        f"and no 'pedx_keypoint_names' / 'pedx_keypoint_vertex_ids' / 'pedx_keypoint_joint_ids' keys, so the "
+        f"PedX face keypoints cannot be placed; add those keys or load with joints_only_keypoints=True")

@@ -1,0 +1,175 @@
+"""Linear blend skinning of SMPL-format models in pure numpy (same meaning as smplx's ``lbs.py``).
+
+Shapes: ``V`` vertices, ``J`` joints (24 for SMPL), ``B`` shape coefficients, ``P = 9 (J - 1)`` pose-corrective
+features.  Every function is batched over arbitrary leading dimensions ``...`` and works in float64.
+
+The model (Loper et al. 2015, SMPL eqs. 2-10), in the body frame (metres; SMPL's frame: Y up, +Z forward):
+
+1. ``v_shaped = v_template + shapedirs . betas``                          (shape blend shapes)
+2. ``J = J_regressor @ v_shaped``                                        (rest joint locations)
+3. ``R_j = Exp(theta_j)``                                                (axis-angle per joint)
+4. ``v_posed = v_shaped + posedirs . vec(R_1..J-1 - I)``                 (pose correctives, row-major vec)
+5. ``G_j = G_parent(j) [R_j | J_j - J_parent(j)]``, ``G_0 = [R_0 | J_0]``;  ``A_j = G_j - [0 | G_j^R J_j]``
+6. ``vertex = sum_j w_vj A_j [v_posed; 1]``                              (skinning)
+7. ``trans`` is added to vertices and posed joints at the very end.
+
+The world rotation of joint ``j`` is ``Rg_j = G_j^R`` and its world origin (posed joint, before ``trans``) is
+``o_j = G_j^t``; ``A_j x = Rg_j x + (o_j - Rg_j J_j)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from pedx_graph.body.rotation import exp_so3
+
+
+def blend_shapes(betas: np.ndarray, shapedirs: np.ndarray) -> np.ndarray:
+    """Shape offsets ``sum_b betas[..., b] shapedirs[:, :, b]``: betas (..., B), shapedirs (V, 3, B) -> (..., V, 3)."""
+    betas = np.asarray(betas, dtype=np.float64)
+    num_v = shapedirs.shape[0]
+    flat = shapedirs.reshape(num_v * 3, -1)                     # (3V, B)
+    out = betas @ flat.T                                        # (..., 3V)
+    return out.reshape(betas.shape[:-1] + (num_v, 3))
+
+
+def vertices2joints(j_regressor, vertices: np.ndarray) -> np.ndarray:
+    """Joint locations ``J_regressor @ vertices``: regressor (J, V) dense or scipy-sparse, vertices (..., V, 3) -> (..., J, 3)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    lead = vertices.shape[:-2]
+    num_v = vertices.shape[-2]
+    if sp.issparse(j_regressor):
+        flat = np.moveaxis(vertices.reshape((-1, num_v, 3)), 1, 0).reshape(num_v, -1)   # (V, n*3)
+        joints = np.asarray(j_regressor @ flat)                                        # (J, n*3)
+        joints = np.moveaxis(joints.reshape(joints.shape[0], -1, 3), 0, 1)
+        return joints.reshape(lead + (j_regressor.shape[0], 3))
+    return np.einsum("jv,...vc->...jc", np.asarray(j_regressor, dtype=np.float64), vertices)
+
+
+def pose_features(rot_mats: np.ndarray) -> np.ndarray:
+    """Pose-corrective features ``vec(R_j - I)`` for j >= 1, row-major: rot_mats (..., J, 3, 3) -> (..., 9 (J-1))."""
+    feats = rot_mats[..., 1:, :, :] - np.eye(3)
+    return feats.reshape(rot_mats.shape[:-3] + (-1,))
+
+
+def pose_offsets(rot_mats: np.ndarray, posedirs: np.ndarray) -> np.ndarray:
+    """Pose-corrective offsets ``posedirs . pose_features(R)``: posedirs (V, 3, P) -> (..., V, 3)."""
+    feats = pose_features(rot_mats)
+    num_v = posedirs.shape[0]
+    out = feats @ posedirs.reshape(num_v * 3, -1).T
+    return out.reshape(feats.shape[:-1] + (num_v, 3))
+
+
+def depth_levels(parents: np.ndarray) -> list[np.ndarray]:
+    """Joint indices grouped by depth in the tree (root first); each level depends only on earlier ones."""
+    parents = np.asarray(parents)
+    depth = np.zeros(len(parents), dtype=np.int64)
+    for j in range(1, len(parents)):
+        depth[j] = depth[parents[j]] + 1
+    return [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)]
+
+
+def descendant_mask(parents: np.ndarray) -> np.ndarray:
+    """``D[j, k] = 1.0`` if joint ``k`` is ``j`` or a descendant of ``j`` (requires parents[k] < k): (J, J)."""
+    parents = np.asarray(parents)
+    num_j = len(parents)
+    mask = np.eye(num_j)
+    for k in range(num_j - 1, 0, -1):
+        mask[parents[k]] += mask[k]
+    return np.minimum(mask, 1.0)
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Forward kinematics of a batch of poses (all arrays float64, ``...`` = batch shape).
+
+    ``world`` below is the model's output frame before ``trans`` is added.
+    """
+
+    rot_mats: np.ndarray
+    """(..., J, 3, 3) local rotations ``R_j = Exp(theta_j)`` (joint 0: ``world_R_body``)."""
+    rest_joints: np.ndarray
+    """(..., J, 3) rest joint locations ``J(betas)``."""
+    world_rot: np.ndarray
+    """(..., J, 3, 3) world rotation of each joint's frame, ``Rg_j = Rg_parent R_j``."""
+    world_origin: np.ndarray
+    """(..., J, 3) posed joint locations ``o_j`` (before ``trans``)."""
+    bone_trans: np.ndarray
+    """(..., J, 3) translation of the skinning transform, ``o_j - Rg_j J_j``."""
+
+
+def batch_rigid_transform(rot_mats: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray,
+                          levels: list[np.ndarray] | None = None) -> Kinematics:
+    """Chain local rotations along the kinematic tree (smplx ``batch_rigid_transform``).
+
+    rot_mats (..., J, 3, 3), rest_joints (..., J, 3), parents (J,) with parents[0] = -1 and parents[j] < j.
+    ``levels`` (from :func:`depth_levels`) may be passed to avoid recomputing it.
+    """
+    rot_mats = np.asarray(rot_mats, dtype=np.float64)
+    rest_joints = np.asarray(rest_joints, dtype=np.float64)
+    parents = np.asarray(parents)
+    lead = np.broadcast_shapes(rot_mats.shape[:-3], rest_joints.shape[:-2])
+    rot_mats = np.broadcast_to(rot_mats, lead + rot_mats.shape[-3:])
+    rest_joints = np.broadcast_to(rest_joints, lead + rest_joints.shape[-2:])
+    if levels is None:
+        levels = depth_levels(parents)
+    world_rot = np.empty_like(rot_mats)
+    world_origin = np.empty(rest_joints.shape, dtype=np.float64)
+    root = levels[0]
+    world_rot[..., root, :, :] = rot_mats[..., root, :, :]
+    world_origin[..., root, :] = rest_joints[..., root, :]
+    for level in levels[1:]:
+        par = parents[level]
+        parent_rot = world_rot[..., par, :, :]
+        world_rot[..., level, :, :] = parent_rot @ rot_mats[..., level, :, :]
+        bone = rest_joints[..., level, :] - rest_joints[..., par, :]
+        world_origin[..., level, :] = (np.einsum("...ij,...j->...i", parent_rot, bone)
+                                       + world_origin[..., par, :])
+    bone_trans = world_origin - np.einsum("...jab,...jb->...ja", world_rot, rest_joints)
+    return Kinematics(rot_mats=rot_mats, rest_joints=rest_joints, world_rot=world_rot,
+                      world_origin=world_origin, bone_trans=bone_trans)
+
+
+def skin(points: np.ndarray, weights: np.ndarray, world_rot: np.ndarray, bone_trans: np.ndarray) -> np.ndarray:
+    """Blend ``sum_j w_vj (Rg_j x_v + bone_trans_j)``: points (..., V, 3), weights (V, J), world_rot (..., J, 3, 3),
+    bone_trans (..., J, 3) -> (..., V, 3).
+
+    The 12 transform entries per joint are blended with one matrix product per batch element, then applied
+    to the points elementwise (no per-vertex 3x3 matmul).
+    """
+    lead = world_rot.shape[:-3]
+    num_j = world_rot.shape[-3]
+    mats = np.concatenate([world_rot, bone_trans[..., None]], axis=-1).reshape(lead + (num_j, 12))
+    blended = (np.asarray(weights, dtype=np.float64) @ mats).reshape(lead + (weights.shape[0], 3, 4))
+    return (blended[..., 3] + blended[..., 0] * points[..., 0:1] + blended[..., 1] * points[..., 1:2]
+            + blended[..., 2] * points[..., 2:3])
+
+
+def lbs(betas: np.ndarray, full_pose: np.ndarray, v_template: np.ndarray, shapedirs: np.ndarray,
+        posedirs: np.ndarray | None, j_regressor, parents: np.ndarray, weights: np.ndarray,
+        trans: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and posed joints of an SMPL-format model (steps 1-7 above).
+
+    betas (..., B), full_pose (..., 3 J) axis-angle, v_template (V, 3), shapedirs (V, 3, B), posedirs (V, 3, P)
+    or None, j_regressor (J, V) dense or sparse, parents (J,), weights (V, J), trans (..., 3) or None.
+    Returns vertices (..., V, 3) and joints (..., J, 3), in metres.
+    """
+    betas = np.asarray(betas, dtype=np.float64)
+    full_pose = np.asarray(full_pose, dtype=np.float64)
+    num_j = len(parents)
+    lead = np.broadcast_shapes(betas.shape[:-1], full_pose.shape[:-1])
+    v_shaped = v_template + blend_shapes(betas, shapedirs)
+    rest_joints = vertices2joints(j_regressor, v_shaped)
+    rot_mats = exp_so3(full_pose.reshape(full_pose.shape[:-1] + (num_j, 3)))
+    v_posed = v_shaped if posedirs is None else v_shaped + pose_offsets(rot_mats, posedirs)
+    kin = batch_rigid_transform(rot_mats, rest_joints, parents)
+    v_posed = np.broadcast_to(v_posed, lead + v_posed.shape[-2:])
+    vertices = skin(v_posed, weights, kin.world_rot, kin.bone_trans)
+    joints = kin.world_origin
+    if trans is not None:
+        trans = np.asarray(trans, dtype=np.float64)
+        vertices = vertices + trans[..., None, :]
+        joints = joints + trans[..., None, :]
+    return vertices, joints

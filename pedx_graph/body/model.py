@@ -1,0 +1,310 @@
+"""``BodyModel``: a stateless SMPL-format body model layer (arrays only, never an estimate).
+
+Inputs of every method (float arrays, broadcast against each other over leading dims ``...``):
+
+* ``pose`` (..., 72): axis-angle of the 24 joints; ``pose[..., :3]`` is the root orientation ``world_R_body``
+  (``Rot3.Logmap``), the other 69 entries are the body pose, each joint relative to its parent;
+* ``betas`` (..., B) shape coefficients (``B = num_betas``);
+* ``trans`` (..., 3) world translation (metres) added after skinning, so the pelvis lands at
+  ``world_R_body J_0(betas) + trans`` ... exactly as smplx does (``J_0`` is not at the origin in general).
+
+Outputs are in the world frame (the body frame rotated by the root and shifted by ``trans``), metres, float64.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pedx_graph.body import jacobians as jac
+from pedx_graph.body.io import ModelData, load_model_data
+from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model
+from pedx_graph.body.lbs import (batch_rigid_transform, depth_levels, descendant_mask, pose_features, skin,
+                                 vertices2joints)
+from pedx_graph.body.rotation import exp_so3, exp_so3_derivative, right_jacobian
+
+#: File name of the open default model inside ``pedx_graph/body/data``.
+DEFAULT_MODEL_NAME = "pedx_open_neutral.npz"
+
+#: Frames processed together in the full-mesh forward pass (bounds memory at ~V x 12 x CHUNK doubles).
+FORWARD_CHUNK = 32
+
+
+def default_model_path() -> Path:
+    """Path of the open default model shipped with the package (may not exist in a source checkout)."""
+    return Path(__file__).resolve().parent / "data" / DEFAULT_MODEL_NAME
+
+
+@dataclass(frozen=True)
+class BodyOutput:
+    """Result of :meth:`BodyModel.forward` (world frame, metres)."""
+
+    vertices: np.ndarray
+    """(..., V, 3) posed vertices."""
+    joints: np.ndarray
+    """(..., J, 3) posed joints."""
+    keypoints: np.ndarray
+    """(..., 18, 3) PedX keypoints (PEDX_KEYPOINTS order)."""
+
+
+class BodyModel:
+    """Stateless SMPL-format body model: LBS forward pass, PedX keypoints and analytic Jacobians.
+
+    Build with :meth:`load` (a file) or :meth:`from_data` (validated arrays).  Holds only model arrays and
+    derived constants; every method is a pure function of its arguments.
+    """
+
+    def __init__(self, data: ModelData, keypoint_map: KeypointMap | None):
+        self.data = data
+        self.keypoint_map = keypoint_map
+        self.v_template = data.v_template
+        self.shapedirs = data.shapedirs
+        self.posedirs = data.posedirs
+        self.j_regressor = data.j_regressor
+        self.weights = data.weights
+        self._parents = data.parents
+        num_v = data.num_vertices
+        self._shapedirs_flat_t = np.ascontiguousarray(self.shapedirs.reshape(num_v * 3, -1).T)   # (B, 3V)
+        self._posedirs_flat_t = (None if self.posedirs is None else
+                                 np.ascontiguousarray(self.posedirs.reshape(num_v * 3, -1).T))  # (207, 3V)
+        self._levels = depth_levels(self._parents)
+        self._desc = descendant_mask(self._parents)
+        # Rest joints are linear in betas: J(beta) = J_template + J_shapedirs . beta.
+        self._joint_template = vertices2joints(self.j_regressor, self.v_template)                   # (J, 3)
+        jsd = self.j_regressor @ self.shapedirs.reshape(num_v, -1)                                 # (J, 3B)
+        self._joint_shapedirs = np.asarray(jsd).reshape(len(self._parents), 3, -1)                # (J, 3, B)
+
+    # ----------------------------------------------------------------------------------- construction
+
+    @classmethod
+    def from_data(cls, data: ModelData, joints_only_keypoints: bool = False) -> "BodyModel":
+        """Model from validated arrays; keypoints as in :func:`keypoint_map_for_model`."""
+        return cls(data, keypoint_map_for_model(data, joints_only=joints_only_keypoints))
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, num_betas: int = 10,
+             joints_only_keypoints: bool = False) -> "BodyModel":
+        """Load an SMPL-format ``.npz``/``.pkl`` (default: the open model ``pedx_open_neutral.npz``).
+
+        Raises FileNotFoundError if the file is missing, ``ModelFormatError`` if it is malformed, ValueError
+        if the PedX keypoints cannot be placed (see :mod:`pedx_graph.body.keypoint_defs`).
+        """
+        if path is None:
+            path = default_model_path()
+            if not path.is_file():
+                raise FileNotFoundError(
+                    f"the open default body model {DEFAULT_MODEL_NAME} is not installed (expected at "
+                    f"pedx_graph/body/data/{DEFAULT_MODEL_NAME}); build it with tools/build_open_body_model.py "
+                    f"or pass an SMPL-format .npz/.pkl path")
+        return cls.from_data(load_model_data(path, num_betas=num_betas), joints_only_keypoints)
+
+    # ------------------------------------------------------------------------------------- properties
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(F, 3) int64 triangle vertex indices."""
+        return self.data.faces
+
+    @property
+    def parents(self) -> np.ndarray:
+        """(J,) int64 parent joint of each joint, -1 for the root."""
+        return self._parents
+
+    @property
+    def num_betas(self) -> int:
+        return self.data.num_betas
+
+    @property
+    def num_vertices(self) -> int:
+        return self.data.num_vertices
+
+    @property
+    def num_joints(self) -> int:
+        return len(self._parents)
+
+    @property
+    def provenance(self) -> dict | None:
+        """The file's provenance record (parsed JSON), or None."""
+        return self.data.provenance
+
+    @property
+    def keypoint_names(self) -> tuple[str, ...]:
+        return self._kpmap().names
+
+    @property
+    def source(self) -> str:
+        return self.data.source
+
+    def __repr__(self) -> str:
+        return (f"BodyModel(V={self.num_vertices}, J={self.num_joints}, B={self.num_betas}, "
+                f"posedirs={'yes' if self.posedirs is not None else 'no'}, source={self.source!r})")
+
+    # --------------------------------------------------------------------------------------- helpers
+
+    def _kpmap(self) -> KeypointMap:
+        if self.keypoint_map is None:
+            raise ValueError(f"{self.source}: this model has no keypoint definition")
+        return self.keypoint_map
+
+    def _prepare(self, pose, betas, trans):
+        """Flatten broadcast inputs to (N, 72), (N, B), (N, 3); returns them and the batch shape."""
+        pose = np.asarray(pose, dtype=np.float64)
+        betas = np.asarray(betas, dtype=np.float64)
+        trans = np.zeros(3) if trans is None else np.asarray(trans, dtype=np.float64)
+        num_j = self.num_joints
+        if pose.shape[-1:] != (3 * num_j,):
+            raise ValueError(f"pose must have shape (..., {3 * num_j}), got {pose.shape}")
+        if betas.shape[-1:] != (self.num_betas,):
+            raise ValueError(f"betas must have shape (..., {self.num_betas}), got {betas.shape}")
+        if trans.shape[-1:] != (3,):
+            raise ValueError(f"trans must have shape (..., 3), got {trans.shape}")
+        lead = np.broadcast_shapes(pose.shape[:-1], betas.shape[:-1], trans.shape[:-1])
+        num_n = int(np.prod(lead, dtype=np.int64))
+        pose = np.broadcast_to(pose, lead + pose.shape[-1:]).reshape(num_n, -1)
+        betas = np.broadcast_to(betas, lead + betas.shape[-1:]).reshape(num_n, -1)
+        trans = np.broadcast_to(trans, lead + (3,)).reshape(num_n, 3)
+        return pose, betas, trans, lead
+
+    def rest_joints(self, betas: np.ndarray) -> np.ndarray:
+        """Rest (T-pose) joint locations ``J_regressor @ v_shaped``: betas (..., B) -> (..., J, 3)."""
+        betas = np.asarray(betas, dtype=np.float64)
+        return self._joint_template + np.einsum("jcb,...b->...jc", self._joint_shapedirs, betas)
+
+    def _kinematics(self, pose, betas):
+        axis_angle = pose.reshape(pose.shape[0], self.num_joints, 3)
+        rot_mats = exp_so3(axis_angle)
+        return batch_rigid_transform(rot_mats, self.rest_joints(betas), self._parents, self._levels)
+
+    def _rest_points(self, vertex_ids, betas, rot_mats):
+        """Shaped + pose-corrected rest positions of a few vertices: (N, P, 3)."""
+        x = self.v_template[vertex_ids] + np.einsum("pcb,nb->npc", self.shapedirs[vertex_ids], betas)
+        if self.posedirs is not None:
+            x = x + np.einsum("pcf,nf->npc", self.posedirs[vertex_ids], pose_features(rot_mats))
+        return x
+
+    # --------------------------------------------------------------------------------------- forward
+
+    def forward(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None) -> BodyOutput:
+        """Full LBS: vertices (..., V, 3), joints (..., J, 3), keypoints (..., 18, 3) in metres."""
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        num_n, num_v = pose.shape[0], self.num_vertices
+        vertices = np.empty((num_n, num_v, 3))
+        joints = np.empty((num_n, self.num_joints, 3))
+        for start in range(0, num_n, FORWARD_CHUNK):
+            sl = slice(start, min(start + FORWARD_CHUNK, num_n))
+            kin = self._kinematics(pose[sl], betas[sl])
+            rest = (betas[sl] @ self._shapedirs_flat_t).reshape(-1, num_v, 3) + self.v_template
+            if self._posedirs_flat_t is not None:
+                rest += (pose_features(kin.rot_mats) @ self._posedirs_flat_t).reshape(-1, num_v, 3)
+            vertices[sl] = skin(rest, self.weights, kin.world_rot, kin.bone_trans) + trans[sl, None]
+            joints[sl] = kin.world_origin + trans[sl, None]
+        keypoints = None
+        if self.keypoint_map is not None:
+            kp = self.keypoint_map
+            keypoints = kp.apply(vertices[:, kp.vertex_ids], joints).reshape(lead + (kp.num_keypoints, 3))
+        return BodyOutput(vertices=vertices.reshape(lead + (num_v, 3)),
+                          joints=joints.reshape(lead + (self.num_joints, 3)), keypoints=keypoints)
+
+    def joints(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None) -> np.ndarray:
+        """Posed joints (..., J, 3) without computing any vertex."""
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        kin = self._kinematics(pose, betas)
+        return (kin.world_origin + trans[:, None]).reshape(lead + (self.num_joints, 3))
+
+    def vertices_subset(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None,
+                        vertex_ids: np.ndarray) -> np.ndarray:
+        """Posed positions (..., P, 3) of the vertices ``vertex_ids`` (P,) only."""
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        vertex_ids = np.asarray(vertex_ids, dtype=np.int64)
+        kin = self._kinematics(pose, betas)
+        rest = self._rest_points(vertex_ids, betas, kin.rot_mats)
+        pts = skin(rest, self.weights[vertex_ids], kin.world_rot, kin.bone_trans) + trans[:, None]
+        return pts.reshape(lead + (len(vertex_ids), 3))
+
+    def keypoints(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None) -> np.ndarray:
+        """PedX keypoints (..., 18, 3), computing only the few vertices they use."""
+        kp = self._kpmap()
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        kin = self._kinematics(pose, betas)
+        verts = np.zeros((pose.shape[0], 0, 3))
+        if kp.vertex_ids.size:
+            rest = self._rest_points(kp.vertex_ids, betas, kin.rot_mats)
+            verts = skin(rest, self.weights[kp.vertex_ids], kin.world_rot, kin.bone_trans)
+        out = kp.apply(verts, kin.world_origin) + self._trans_gain(kp)[None, :, None] * trans[:, None]
+        return out.reshape(lead + (kp.num_keypoints, 3))
+
+    @staticmethod
+    def _trans_gain(kp: KeypointMap) -> np.ndarray:
+        """(K,) how much each keypoint moves per unit ``trans`` (its coefficient sum; 1 for affine maps)."""
+        return kp.vertex_coeffs.sum(axis=1) + kp.joint_coeffs.sum(axis=1)
+
+    # ------------------------------------------------------------------------------------- Jacobians
+
+    def _jacobian_setup(self, pose, betas):
+        kin = self._kinematics(pose, betas)
+        body_aa = pose.reshape(pose.shape[0], self.num_joints, 3)[:, 1:]
+        bases = jac.rotation_bases(kin, right_jacobian(body_aa))
+        dt_dbeta = jac.shape_chain_jacobian(kin, self._joint_shapedirs, self._parents, self._desc)
+        drot = exp_so3_derivative(body_aa) if self.posedirs is not None else None
+        return kin, bases, dt_dbeta, drot
+
+    def _vertex_terms(self, kin, bases, dt_dbeta, drot, betas, vertex_ids):
+        rest = self._rest_points(vertex_ids, betas, kin.rot_mats)
+        return jac.vertex_jacobians(
+            kin, bases, rest, self.weights[vertex_ids], self._desc, self.shapedirs[vertex_ids], dt_dbeta,
+            None if self.posedirs is None else self.posedirs[vertex_ids], drot)
+
+    def point_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None,
+                        vertex_ids: np.ndarray | None = None) -> jac.PointJacobians:
+        """Positions and analytic Jacobians of the 18 keypoints (``vertex_ids=None``) or of given vertices.
+
+        Returns :class:`pedx_graph.body.jacobians.PointJacobians` with ``points (..., N, 3)``,
+        ``d_root (..., N, 3, 3)`` (right perturbation of ``world_R_body``), ``d_body_pose (..., N, 3, 69)``,
+        ``d_trans (..., N, 3, 3)``, ``d_betas (..., N, 3, B)``; see docs/architecture.md.
+        """
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        kin, bases, dt_dbeta, drot = self._jacobian_setup(pose, betas)
+        if vertex_ids is not None:
+            vertex_ids = np.asarray(vertex_ids, dtype=np.int64).reshape(-1)
+            if vertex_ids.size and (vertex_ids.min() < 0 or vertex_ids.max() >= self.num_vertices):
+                raise ValueError(f"vertex_ids must lie in [0, {self.num_vertices})")
+            pts, d_root, d_body, d_betas = self._vertex_terms(kin, bases, dt_dbeta, drot, betas, vertex_ids)
+            gain = np.ones(len(vertex_ids))
+        else:
+            kp = self._kpmap()
+            used_j = np.flatnonzero(np.any(kp.joint_coeffs != 0.0, axis=0))
+            cj = kp.joint_coeffs[:, used_j]
+            pts, d_root, d_body, d_betas = (
+                np.einsum("kq,nq...->nk...", cj, term)
+                for term in jac.joint_jacobians(kin, bases, used_j, self._desc, self._joint_shapedirs, dt_dbeta))
+            if kp.vertex_ids.size:
+                vterms = self._vertex_terms(kin, bases, dt_dbeta, drot, betas, kp.vertex_ids)
+                pts, d_root, d_body, d_betas = (
+                    acc + np.einsum("km,nm...->nk...", kp.vertex_coeffs, term)
+                    for acc, term in zip((pts, d_root, d_body, d_betas), vterms))
+            gain = self._trans_gain(kp)
+        num_p = len(gain)
+        pts = pts + gain[None, :, None] * trans[:, None]
+        d_trans = np.broadcast_to(gain[:, None, None] * np.eye(3), lead + (num_p, 3, 3))
+        return jac.PointJacobians(
+            points=pts.reshape(lead + (num_p, 3)), d_root=d_root.reshape(lead + (num_p, 3, 3)),
+            d_body_pose=d_body.reshape(lead + (num_p, 3, d_body.shape[-1])), d_trans=d_trans,
+            d_betas=d_betas.reshape(lead + (num_p, 3, self.num_betas)))
+
+    def joints_and_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None,
+                             joint_ids: np.ndarray | None = None) -> jac.PointJacobians:
+        """Posed joints (all, or ``joint_ids``) and their analytic Jacobians (same layout as point_jacobians)."""
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        joint_ids = (np.arange(self.num_joints) if joint_ids is None
+                     else np.asarray(joint_ids, dtype=np.int64).reshape(-1))
+        kin, bases, dt_dbeta, _ = self._jacobian_setup(pose, betas)
+        pts, d_root, d_body, d_betas = jac.joint_jacobians(kin, bases, joint_ids, self._desc,
+                                                           self._joint_shapedirs, dt_dbeta)
+        num_p = len(joint_ids)
+        pts = pts + trans[:, None]
+        return jac.PointJacobians(
+            points=pts.reshape(lead + (num_p, 3)), d_root=d_root.reshape(lead + (num_p, 3, 3)),
+            d_body_pose=d_body.reshape(lead + (num_p, 3, d_body.shape[-1])),
+            d_trans=np.broadcast_to(np.eye(3), lead + (num_p, 3, 3)),
+            d_betas=d_betas.reshape(lead + (num_p, 3, self.num_betas)))
