@@ -1,0 +1,246 @@
+"""Shared pieces of the pedx-graph factors: key bundles, noise models, Jacobian stacking, max-mixtures.
+
+Conventions used by every factor in this package
+------------------------------------------------
+* Variables of one frame (keys chosen by the graph builder, bundled in :class:`FrameKeys`):
+
+  ========== ================ ============= ===========================================================
+  variable   GTSAM type       tangent dim   meaning
+  ========== ================ ============= ===========================================================
+  root       ``gtsam.Rot3``   3             ``world_R_body``, right perturbation ``R @ Exp(delta)``
+  trans      ``np.ndarray``   3             SMPL ``trans`` in metres (world frame), read with ``atVector``
+  body_pose  ``np.ndarray``   69            axis-angle of SMPL joints 1..23, radians
+  betas      ``np.ndarray``   B (10)        shape coefficients, one vector per track
+  ========== ================ ============= ===========================================================
+
+* The error of a factor is ``h(x) - z`` (prediction minus measurement), whitened by its noise model.
+* Jacobians are filled only when GTSAM asks (``H is not None``), one float64 C-contiguous array per key
+  with shape ``(m, tangent dim)``: GTSAM does not check shapes, so :func:`set_jacobians` asserts them.
+* Robust kernels are applied **per residual row** (``mEstimator.ReweightScheme.Scalar``): with GTSAM's
+  default ``Block`` scheme one bad keypoint down-weights the whole frame, because the kernel then sees the
+  norm of the factor's entire residual vector.  With ``Scalar`` both the factor error (sum of per-row
+  losses) and the linearisation (per-row IRLS weights) are per row (checked in the tests).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol, Sequence
+
+import gtsam
+import numpy as np
+
+from pedx_graph.body.rotation import log_so3
+
+#: Tangent dimensions of the per-frame variables.
+ROOT_DIM = 3
+TRANS_DIM = 3
+BODY_POSE_DIM = 69
+
+#: Robust kernels accepted by :func:`make_noise` (``"none"`` = Gaussian).
+ROBUST_KERNELS = ("none", "gemanmcclure", "huber", "cauchy")
+
+
+class BodyModelLike(Protocol):
+    """What the factors need of ``pedx_graph.body.BodyModel`` (see docs/architecture.md).
+
+    ``point_jacobians(pose (72,), betas (B,), trans (3,), vertex_ids=None)`` returns an object with fields
+    ``points (N,3)``, ``d_root (N,3,3)`` (right perturbation of ``world_R_body``), ``d_body_pose (N,3,69)``,
+    ``d_trans (N,3,3)``, ``d_betas (N,3,B)``: the 18 PEDX keypoints when ``vertex_ids`` is None, else the
+    given vertices.  ``forward(pose, betas, trans)`` returns an object with ``vertices (V,3)``,
+    ``joints (24,3)`` and ``keypoints (18,3)``, world frame, metres.
+    """
+
+    def point_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
+                        vertex_ids: np.ndarray | None = None) -> Any: ...
+
+    def forward(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray) -> Any: ...
+
+
+@dataclass(frozen=True)
+class FrameKeys:
+    """GTSAM keys of the variables of one frame (the shape key is shared by every frame of a track)."""
+
+    root: int
+    """Key of ``world_R_body`` (``gtsam.Rot3``)."""
+    trans: int
+    """Key of ``trans`` (vector, 3)."""
+    body_pose: int
+    """Key of the 69-d body pose (vector)."""
+    betas: int
+    """Key of the track's shape coefficients (vector, B)."""
+
+    def as_list(self) -> list[int]:
+        """Keys in the order every body factor uses: ``[root, trans, body_pose, betas]``."""
+        return [self.root, self.trans, self.body_pose, self.betas]
+
+    @staticmethod
+    def for_frame(index: int, betas_index: int = 0) -> "FrameKeys":
+        """Default symbols: ``r<i>`` root, ``t<i>`` trans, ``p<i>`` body pose, ``b<betas_index>`` shape."""
+        return FrameKeys(root=gtsam.symbol("r", index), trans=gtsam.symbol("t", index),
+                         body_pose=gtsam.symbol("p", index), betas=gtsam.symbol("b", betas_index))
+
+
+@dataclass(frozen=True)
+class FrameState:
+    """The current estimate of one frame as plain numpy arrays (float64)."""
+
+    world_R_body: np.ndarray
+    """(3, 3) root orientation."""
+    trans: np.ndarray
+    """(3,) metres."""
+    body_pose: np.ndarray
+    """(69,) axis-angle, radians."""
+    betas: np.ndarray
+    """(B,) shape coefficients."""
+
+    @property
+    def full_pose(self) -> np.ndarray:
+        """(72,) SMPL pose: ``[Log(world_R_body), body_pose]``."""
+        return full_pose(self.world_R_body, self.body_pose)
+
+
+def full_pose(world_R_body: np.ndarray, body_pose: np.ndarray) -> np.ndarray:
+    """SMPL pose (72,) from the root rotation matrix (3, 3) and the 69-d body pose."""
+    return np.concatenate([log_so3(np.asarray(world_R_body, dtype=np.float64)),
+                           np.asarray(body_pose, dtype=np.float64)])
+
+
+def read_frame_state(values: gtsam.Values, keys: Sequence[int]) -> FrameState:
+    """Read ``[root, trans, body_pose, betas]`` (keys in that order) from GTSAM ``values``."""
+    k_root, k_trans, k_pose, k_betas = keys
+    return FrameState(world_R_body=values.atRot3(k_root).matrix(),
+                      trans=np.asarray(values.atVector(k_trans), dtype=np.float64),
+                      body_pose=np.asarray(values.atVector(k_pose), dtype=np.float64),
+                      betas=np.asarray(values.atVector(k_betas), dtype=np.float64))
+
+
+def as_f64(array: Any) -> np.ndarray:
+    """``array`` as a C-contiguous float64 ndarray (no copy when it already is one)."""
+    return np.ascontiguousarray(array, dtype=np.float64)
+
+
+def set_jacobians(H: list, blocks: Sequence[np.ndarray], rows: int, dims: Sequence[int]) -> None:
+    """Store one Jacobian block per key into GTSAM's ``H`` list, checking each shape ``(rows, dims[i])``.
+
+    GTSAM does not check these shapes (too few rows segfaults, a wrong column count silently corrupts the
+    solve), so a mismatch raises ``ValueError`` here instead.
+    """
+    for i, (block, dim) in enumerate(zip(blocks, dims)):
+        block = as_f64(block)
+        if block.shape != (rows, dim):
+            raise ValueError(f"Jacobian block {i} has shape {block.shape}, expected {(rows, dim)}")
+        H[i] = block
+
+
+def stack_point_jacobians(lin_map: np.ndarray, jac: Any) -> list[np.ndarray]:
+    """Chain a per-point linear map with the body-model point Jacobians and stack the rows.
+
+    ``lin_map`` (N, m, 3) maps a point's world-position perturbation to its m residual rows (e.g. the
+    projection derivative, or the identity); ``jac`` carries ``d_root, d_trans, d_body_pose, d_betas`` of
+    shape (N, 3, k).  Returns ``[J_root, J_trans, J_body_pose, J_betas]``, each (N*m, k), rows ordered
+    point by point.
+    """
+    out = []
+    for name in ("d_root", "d_trans", "d_body_pose", "d_betas"):
+        d = np.asarray(getattr(jac, name), dtype=np.float64)
+        block = np.matmul(lin_map, d)                    # (N, m, k)
+        out.append(as_f64(block.reshape(-1, d.shape[-1])))
+    return out
+
+
+def make_noise(sigmas: np.ndarray | float, dim: int | None = None, robust: str = "none",
+               robust_scale: float = 1.0) -> gtsam.noiseModel.Base:
+    """Diagonal noise model with per-row ``sigmas`` (physical units), optionally robust per row.
+
+    ``robust`` is one of :data:`ROBUST_KERNELS`; ``robust_scale`` is the kernel's scale in *whitened* units
+    (e.g. 3 means "rows beyond ~3 sigma count less").  The kernel is wrapped with
+    ``ReweightScheme.Scalar`` so it acts on each row separately (see the module docstring).
+    """
+    sig = np.atleast_1d(np.asarray(sigmas, dtype=np.float64))
+    if dim is not None and sig.size == 1:
+        sig = np.full(dim, float(sig[0]))
+    if not np.all(np.isfinite(sig)) or np.any(sig <= 0):
+        raise ValueError(f"noise sigmas must be finite and > 0, got {sig}")
+    base = gtsam.noiseModel.Diagonal.Sigmas(as_f64(sig))
+    kernel = robust.lower()
+    if kernel == "none":
+        return base
+    if not robust_scale > 0:
+        raise ValueError(f"robust_scale must be > 0, got {robust_scale}")
+    scheme = gtsam.noiseModel.mEstimator.Base.ReweightScheme.Scalar
+    est = gtsam.noiseModel.mEstimator
+    if kernel == "gemanmcclure":
+        m = est.GemanMcClure.Create(float(robust_scale), scheme)
+    elif kernel == "huber":
+        m = est.Huber.Create(float(robust_scale), scheme)
+    elif kernel == "cauchy":
+        m = est.Cauchy.Create(float(robust_scale), scheme)
+    else:
+        raise ValueError(f"unknown robust kernel {robust!r}; expected one of {ROBUST_KERNELS}")
+    return gtsam.noiseModel.Robust.Create(m, base)
+
+
+class MaxMixture:
+    """Gaussian mixture evaluated as a max-mixture residual (Olson & Agarwal 2013; SMPLify's pose prior).
+
+    Components ``k`` with weight ``w_k``, mean ``mu_k`` (D,) and precision Cholesky factor ``L_k`` (D, D)
+    (``precision_k = L_k L_k^T``, as scikit-learn's ``precisions_cholesky_``).  Per component
+
+        c_k = -log w_k - log|det L_k|     (so -log(w_k N_k(x)) = 0.5 ||L_k^T (x - mu_k)||^2 + c_k + const)
+
+    and with ``c_min = min_k c_k`` the residual is
+
+        k*  = argmin_k 0.5 ||L_k^T (x - mu_k)||^2 + c_k
+        r(x) = [L_k*^T (x - mu_k*) ; sqrt(2 (c_k* - c_min))]        (D + 1,)
+
+    so ``0.5 ||r||^2 = -log max_k w_k N_k(x) + const`` (unit noise model).  The Jacobian is ``L_k*^T`` on the
+    first D rows and zero on the last (the selection is piecewise constant).  ``covariance_scale`` s
+    multiplies every covariance (``L_k -> L_k / sqrt(s)``); it changes every ``c_k`` by the same amount.
+    """
+
+    def __init__(self, weights: np.ndarray, means: np.ndarray, prec_chol: np.ndarray,
+                 covariance_scale: float = 1.0) -> None:
+        weights = np.asarray(weights, dtype=np.float64).reshape(-1)
+        means = np.asarray(means, dtype=np.float64)
+        prec_chol = np.asarray(prec_chol, dtype=np.float64)
+        k = weights.size
+        if means.ndim != 2 or means.shape[0] != k:
+            raise ValueError(f"means must be (K={k}, D), got {means.shape}")
+        d = means.shape[1]
+        if prec_chol.shape != (k, d, d):
+            raise ValueError(f"prec_chol must be (K={k}, D={d}, D={d}), got {prec_chol.shape}")
+        if np.any(weights <= 0) or not np.all(np.isfinite(weights)):
+            raise ValueError("mixture weights must be finite and > 0")
+        if not covariance_scale > 0:
+            raise ValueError(f"covariance_scale must be > 0, got {covariance_scale}")
+        sign, logdet = np.linalg.slogdet(prec_chol)
+        if np.any(sign == 0) or not np.all(np.isfinite(logdet)):
+            raise ValueError("a precision Cholesky factor is singular")
+        self.dim = d
+        self.num_components = k
+        self.means = as_f64(means)
+        #: L_k^T / sqrt(s): (K, D, D), so that whitened = lt[k] @ (x - mu_k)
+        self.lt = as_f64(np.swapaxes(prec_chol, 1, 2) / np.sqrt(covariance_scale))
+        c = -np.log(weights / weights.sum()) - logdet
+        self.extra = np.sqrt(2.0 * (c - c.min()))          # (K,) >= 0
+        self.c = c - c.min()
+
+    def residual(self, x: np.ndarray, want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None, int]:
+        """Max-mixture residual (D+1,), its Jacobian (D+1, D) (or None) and the selected component."""
+        diff = np.asarray(x, dtype=np.float64)[None, :] - self.means           # (K, D)
+        white = np.einsum("kij,kj->ki", self.lt, diff)                         # (K, D)
+        cost = 0.5 * np.einsum("ki,ki->k", white, white) + self.c
+        best = int(np.argmin(cost))
+        r = np.empty(self.dim + 1)
+        r[:-1] = white[best]
+        r[-1] = self.extra[best]
+        jac = None
+        if want_jacobian:
+            jac = np.zeros((self.dim + 1, self.dim))
+            jac[:-1] = self.lt[best]
+        return r, jac, best
+
+    def negative_log_likelihood(self, x: np.ndarray) -> float:
+        """``0.5 ||r(x)||^2`` (max-mixture cost, up to a constant)."""
+        r, _, _ = self.residual(x)
+        return 0.5 * float(r @ r)

@@ -1,0 +1,101 @@
+"""E_D (PedX Eq. 3): the body faces the direction in which the LiDAR trajectory moves.
+
+Measurement: the ground-plane heading of the pedestrian at this frame, from the LiDAR track (e.g. the
+finite difference of the per-frame LiDAR point means), as a world-frame 2D direction ``h = (h_x, h_y)``
+(or an angle from +x toward +y), and the speed in m/s that produced it.  World is the LiDAR frame, z up.
+
+Prediction: the body's forward axis (SMPL +Z) in the world, projected on the ground plane,
+
+    f = (world_R_body @ [0, 0, 1])[:2]                       (2,)
+
+Residual (radians, wrapped to (-pi, pi] by construction, no branch at +-pi):
+
+    r = atan2(h x f, h . f) = atan2(h_x f_y - h_y f_x, h_x f_x + h_y f_y)       (1,)
+
+i.e. the signed angle from the measured heading to the body's heading.  Jacobian w.r.t. the root's right
+perturbation ``world_R_body @ Exp(delta)``: ``dr/df = (d * [-h_y, h_x] - c * [h_x, h_y]) / |f|^2`` and
+``df/ddelta = -(world_R_body @ hat(e_z))[:2]``.  When the forward axis is vertical (``|f| < 1e-6``, body
+lying face up/down) the heading is undefined: the residual is 0 with a zero Jacobian.
+
+Zero speed: the trajectory heading is noise when the pedestrian stands still, so the noise grows as the
+speed drops,
+
+    sigma = sigma0 * max(1, v0 / max(speed, 1e-3))            (radians)
+
+and no factor is created below ``min_speed`` (:func:`make_heading_prior_factor` returns ``None``).
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors.common import ROOT_DIM, as_f64, make_noise, set_jacobians
+
+#: |f| below this (the body's forward axis is vertical) gives residual 0 and a zero Jacobian.
+MIN_FORWARD_NORM = 1e-6
+
+#: Speeds are clamped to at least this (m/s) in :func:`heading_sigma`.
+MIN_SPEED_CLAMP = 1e-3
+
+
+def heading_vector(world_heading: float | np.ndarray) -> np.ndarray:
+    """Unit 2D heading (2,) from an angle (radians from world +x toward +y) or a 2D vector."""
+    h = np.asarray(world_heading, dtype=np.float64)
+    if h.ndim == 0:
+        return np.array([np.cos(h), np.sin(h)])
+    h = h.reshape(-1)[:2]
+    n = float(np.hypot(h[0], h[1]))
+    if h.size != 2 or not np.isfinite(n) or n < 1e-9:
+        raise ValueError(f"heading vector must be a finite non-zero 2D vector, got {world_heading!r}")
+    return h / n
+
+
+def heading_sigma(speed: float, sigma0_rad: float, v0: float) -> float:
+    """``sigma0 * max(1, v0 / max(speed, 1e-3))``: noise of the heading prior at ``speed`` m/s."""
+    return float(sigma0_rad * max(1.0, v0 / max(float(speed), MIN_SPEED_CLAMP)))
+
+
+def heading_prior_error(world_R_body: np.ndarray, world_heading: np.ndarray,
+                        want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """Signed angle (1,) from the unit heading (2,) to the body's ground-plane forward; Jacobian (1, 3)."""
+    rot = as_f64(world_R_body)
+    hx, hy = float(world_heading[0]), float(world_heading[1])
+    fx, fy = rot[0, 2], rot[1, 2]                     # world_R_body @ e_z, first two rows
+    c = hx * fy - hy * fx
+    d = hx * fx + hy * fy
+    n2 = fx * fx + fy * fy
+    if n2 < MIN_FORWARD_NORM ** 2:
+        return np.zeros(1), (np.zeros((1, ROOT_DIM)) if want_jacobian else None)
+    r = np.array([np.arctan2(c, d)])
+    jac = None
+    if want_jacobian:
+        dr_df = np.array([d * -hy - c * hx, d * hx - c * hy]) / n2          # (2,)
+        # d(R e_z)/d delta = -R hat(e_z); hat(e_z) = [[0,-1,0],[1,0,0],[0,0,0]]
+        df_ddelta = -np.stack([rot[:2, 1], -rot[:2, 0], np.zeros(2)], axis=1)  # (2, 3)
+        jac = (dr_df @ df_ddelta)[None, :]
+    return r, jac
+
+
+def make_heading_prior_factor(key_root: int, world_heading: float | np.ndarray, speed: float,
+                              sigma0_rad: float = 0.3, v0: float = 0.5, min_speed: float = 0.2,
+                              robust: str = "none", robust_scale: float = 2.0) -> gtsam.CustomFactor | None:
+    """Heading prior on ``key_root`` (Rot3), or ``None`` when ``speed < min_speed`` (m/s).
+
+    ``sigma0_rad`` is the noise at speeds >= ``v0`` m/s; it grows as ``v0 / speed`` below (see the module
+    docstring).  ``robust`` / ``robust_scale`` as :func:`factors.common.make_noise` (e.g. for pedestrians
+    walking backwards or a flipped trajectory heading).
+    """
+    if not np.isfinite(speed) or speed < 0:
+        raise ValueError(f"heading prior: speed must be finite and >= 0, got {speed}")
+    if speed < min_speed:
+        return None
+    h = heading_vector(world_heading)
+    noise = make_noise(heading_sigma(speed, sigma0_rad, v0), dim=1, robust=robust, robust_scale=robust_scale)
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        r, jac = heading_prior_error(values.atRot3(this.keys()[0]).matrix(), h, H is not None)
+        if H is not None:
+            set_jacobians(H, [jac], 1, [ROOT_DIM])
+        return r
+
+    return gtsam.CustomFactor(noise, [key_root], error)

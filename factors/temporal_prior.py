@@ -1,0 +1,127 @@
+"""E_tp (PedX Eq. 10): motion prior between consecutive frames, a GMM on a 75-d frame-to-frame difference.
+
+The shared definition (the temporal GMM in ``pedx_graph.priors`` is trained on exactly this function):
+
+    d(i, j) = [ world_R_body_i^T (trans_j - trans_i)        (3)  translation step in the body frame of i, m
+                Log(world_R_body_i^T world_R_body_j)         (3)  root rotation step, local rotation vector, rad
+                body_pose_j - body_pose_i ]                  (69) body pose difference, rad
+
+The translation step is expressed in the full body frame of frame i (SMPL axes: Y up, +Z forward), so d is
+invariant to any rotation and translation of the world (the world's up axis never enters: mocap in a Y-up
+frame and PedX's z-up LiDAR frame give the same d).  For a person walking forward the step is ~(0, 0, v dt).
+``trans`` differences equal pelvis differences because the shape is shared by the track.
+
+The prior is the 10-component GMM of the paper evaluated as a max-mixture (:class:`factors.common.MaxMixture`,
+unit noise, residual 76 = 75 + 1).  Missing frames: when frame j is ``k = frame_gap`` frame periods after i,
+the prior is evaluated at the per-frame average ``d / k`` with the covariances unchanged.  That equals
+``cov(d) = k^2 Sigma`` (constant velocity, fully correlated steps), which is never tighter than the
+independent-step model ``k Sigma``: a gap only weakens the prior.
+
+Jacobians (right perturbations ``R <- R Exp(delta)``; ``s = R_i^T (t_j - t_i)``, ``w = Log(R_i^T R_j)``):
+``ds/ddelta_i = hat(s)``, ``ds/dt_i = -R_i^T``, ``ds/dt_j = R_i^T``; ``dw/ddelta_j = J_r^-1(w)``,
+``dw/ddelta_i = -J_r^-1(w) (R_i^T R_j)^T``; pose: ``-I`` and ``I``.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, set_jacobians
+from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
+
+#: Dimension of the temporal difference.
+TEMPORAL_DIM = TRANS_DIM + ROOT_DIM + BODY_POSE_DIM          # 75
+_DIMS = [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BODY_POSE_DIM]
+
+
+def temporal_difference(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
+                        world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray) -> np.ndarray:
+    """The 75-d difference d(i, j) of the module docstring, batched over leading dimensions.
+
+    Shapes: rotations (..., 3, 3), translations (..., 3) metres, body poses (..., 69) radians -> (..., 75).
+    """
+    rot_i = np.asarray(world_R_body_i, dtype=np.float64)
+    rot_j = np.asarray(world_R_body_j, dtype=np.float64)
+    step = np.einsum("...ji,...j->...i", rot_i, np.asarray(trans_j, float) - np.asarray(trans_i, float))
+    rel = np.swapaxes(rot_i, -1, -2) @ rot_j
+    return np.concatenate([step, log_so3(rel),
+                           np.asarray(body_pose_j, float) - np.asarray(body_pose_i, float)], axis=-1)
+
+
+def temporal_difference_jacobians(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
+                                  world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray
+                                  ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """d(i, j) (75,) for one pair and its Jacobians w.r.t. (root_i, trans_i, pose_i, root_j, trans_j, pose_j).
+
+    Blocks have shapes (75, 3), (75, 3), (75, 69), (75, 3), (75, 3), (75, 69).
+    """
+    rot_i = as_f64(world_R_body_i)
+    rot_j = as_f64(world_R_body_j)
+    step = rot_i.T @ (as_f64(trans_j) - as_f64(trans_i))
+    rel = rot_i.T @ rot_j
+    w = log_so3(rel)
+    d = np.concatenate([step, w, as_f64(body_pose_j) - as_f64(body_pose_i)])
+    jr_inv = right_jacobian_inverse(w)
+    j_ri = np.zeros((TEMPORAL_DIM, 3))
+    j_ri[0:3] = hat(step)
+    j_ri[3:6] = -jr_inv @ rel.T
+    j_ti = np.zeros((TEMPORAL_DIM, 3))
+    j_ti[0:3] = -rot_i.T
+    j_rj = np.zeros((TEMPORAL_DIM, 3))
+    j_rj[3:6] = jr_inv
+    j_tj = np.zeros((TEMPORAL_DIM, 3))
+    j_tj[0:3] = rot_i.T
+    j_pi = np.zeros((TEMPORAL_DIM, BODY_POSE_DIM))
+    j_pi[6:] = -np.eye(BODY_POSE_DIM)
+    j_pj = np.zeros((TEMPORAL_DIM, BODY_POSE_DIM))
+    j_pj[6:] = np.eye(BODY_POSE_DIM)
+    return d, [j_ri, j_ti, j_pi, j_rj, j_tj, j_pj]
+
+
+def temporal_prior_error(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
+                         world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray,
+                         mixture: MaxMixture, frame_gap: int = 1, want_jacobian: bool = False
+                         ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Max-mixture residual (76,) of ``d(i, j) / frame_gap`` and its six Jacobian blocks when asked."""
+    d, blocks = temporal_difference_jacobians(world_R_body_i, trans_i, body_pose_i,
+                                              world_R_body_j, trans_j, body_pose_j)
+    r, jac_x, _ = mixture.residual(d / frame_gap, want_jacobian)
+    if not want_jacobian:
+        return r, None
+    scaled = jac_x / frame_gap                                   # (76, 75)
+    return r, [as_f64(scaled @ b) for b in blocks]
+
+
+def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_i: int,
+                               key_root_j: int, key_trans_j: int, key_body_pose_j: int,
+                               weights: np.ndarray | None = None, means: np.ndarray | None = None,
+                               prec_chol: np.ndarray | None = None, *, mixture: MaxMixture | None = None,
+                               frame_gap: int = 1, covariance_scale: float = 1.0) -> gtsam.CustomFactor:
+    """Temporal max-mixture prior between frame i and frame j = i + ``frame_gap`` (frame periods).
+
+    Pass the GMM arrays (weights (K,), means (K, 75), prec_chol (K, 75, 75)) or a prebuilt ``mixture``
+    (then ``covariance_scale`` is ignored).  Keys: Rot3, vector 3, vector 69 for each frame.
+    """
+    if mixture is None:
+        if weights is None or means is None or prec_chol is None:
+            raise ValueError("make_temporal_prior_factor needs weights, means and prec_chol, or a mixture")
+        mixture = MaxMixture(weights, means, prec_chol, covariance_scale=covariance_scale)
+    if mixture.dim != TEMPORAL_DIM:
+        raise ValueError(f"temporal prior mixture must be {TEMPORAL_DIM}-d, got {mixture.dim}")
+    if int(frame_gap) != frame_gap or frame_gap < 1:
+        raise ValueError(f"frame_gap must be a positive integer, got {frame_gap}")
+    gap = int(frame_gap)
+    rows = TEMPORAL_DIM + 1
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        k = this.keys()
+        r, blocks = temporal_prior_error(
+            values.atRot3(k[0]).matrix(), values.atVector(k[1]), values.atVector(k[2]),
+            values.atRot3(k[3]).matrix(), values.atVector(k[4]), values.atVector(k[5]),
+            mixture, gap, H is not None)
+        if H is not None:
+            set_jacobians(H, blocks, rows, _DIMS)
+        return r
+
+    keys = [key_root_i, key_trans_i, key_body_pose_i, key_root_j, key_trans_j, key_body_pose_j]
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)

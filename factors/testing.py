@@ -1,0 +1,133 @@
+"""Test helpers for factors: a tiny analytic body model and numerical Jacobian checks.
+
+``ToyBodyModel`` has the same ``point_jacobians`` / ``forward`` interface as ``pedx_graph.body.BodyModel``
+but a closed-form, cheap measurement model, so the factors' chain rules can be checked against numerical
+derivatives without the SMPL machinery:
+
+    body_v_i(betas, body_pose) = T_i + S_i betas + P_i sin(body_pose)          (body frame, metres)
+    world_v_i = world_R_body @ body_v_i + trans
+
+with ``T`` (V, 3) a human-sized point cloud (SMPL body frame: Y up, +Z forward), ``S`` (V, 3, B) and ``P``
+(V, 3, 69) small random matrices.  The 18 keypoints are vertices ``keypoint_vertex_ids``; joints are the
+first 24 vertices.
+"""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import gtsam
+import numpy as np
+from gtsam.utils.numerical_derivative import numericalDerivative11
+
+from pedx_graph.body.rotation import exp_so3, hat
+
+
+class ToyBodyModel:
+    """Closed-form stand-in for the body model (see the module docstring)."""
+
+    def __init__(self, num_vertices: int = 200, num_betas: int = 10, seed: int = 0) -> None:
+        rng = np.random.default_rng(seed)
+        half = np.array([0.2, 0.85, 0.12])
+        self.template = rng.uniform(-1.0, 1.0, size=(num_vertices, 3)) * half
+        self.shapedirs = rng.normal(scale=0.01, size=(num_vertices, 3, num_betas))
+        self.posedirs = rng.normal(scale=0.03, size=(num_vertices, 3, 69))
+        self.keypoint_vertex_ids = np.arange(18) * (num_vertices // 18)
+        self.num_betas = num_betas
+        self.num_vertices = num_vertices
+
+    def _body_points(self, body_pose: np.ndarray, betas: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        return (self.template[ids] + self.shapedirs[ids] @ betas + self.posedirs[ids] @ np.sin(body_pose))
+
+    def forward(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray) -> SimpleNamespace:
+        """Vertices (V,3), joints (24,3), keypoints (18,3) in the world frame."""
+        pose = np.asarray(pose, dtype=np.float64)
+        rot = exp_so3(pose[:3])
+        ids = np.arange(self.num_vertices)
+        verts = self._body_points(pose[3:], np.asarray(betas, float), ids) @ rot.T + trans
+        return SimpleNamespace(vertices=verts, joints=verts[:24].copy(),
+                               keypoints=verts[self.keypoint_vertex_ids].copy())
+
+    def point_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
+                        vertex_ids: np.ndarray | None = None) -> SimpleNamespace:
+        """Points and their derivatives (architecture.md convention) for keypoints or given vertices."""
+        pose = np.asarray(pose, dtype=np.float64)
+        rot = exp_so3(pose[:3])
+        ids = self.keypoint_vertex_ids if vertex_ids is None else np.asarray(vertex_ids, dtype=np.int64)
+        body = self._body_points(pose[3:], np.asarray(betas, float), ids)       # (N, 3)
+        n = ids.size
+        return SimpleNamespace(
+            points=body @ rot.T + trans,
+            d_root=-rot[None] @ hat(body),                                       # R Exp(d) v ~ R v - R [v]x d
+            d_body_pose=(rot[None] @ self.posedirs[ids]) * np.cos(pose[3:])[None, None, :],
+            d_trans=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+            d_betas=rot[None] @ self.shapedirs[ids],
+        )
+
+
+def random_rot3(rng: np.random.Generator, max_angle: float = np.pi) -> gtsam.Rot3:
+    """A random rotation with angle up to ``max_angle``."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return gtsam.Rot3.Expmap(axis * rng.uniform(0.2, max_angle))
+
+
+def _get(values: gtsam.Values, key: int):
+    try:
+        return values.atRot3(key)
+    except RuntimeError:
+        return np.array(values.atVector(key))
+
+
+def numerical_jacobians(factor: gtsam.NonlinearFactor, values: gtsam.Values,
+                        delta: float = 1e-6) -> list[np.ndarray]:
+    """Central-difference Jacobians of ``factor.unwhitenedError`` w.r.t. each of its keys (retracting)."""
+    out = []
+    for key in factor.keys():
+        def h(x, key=key):
+            v = gtsam.Values(values)
+            v.update(key, x)
+            return np.asarray(factor.unwhitenedError(v))
+        out.append(numericalDerivative11(h, _get(values, key), delta))
+    return out
+
+
+def gtsam_jacobians(factor: gtsam.NoiseModelFactor, values: gtsam.Values) -> list[np.ndarray]:
+    """Unwhitened per-key Jacobians as GTSAM sees them: ``linearize`` (whitened) times the sigmas.
+
+    Valid for Gaussian (diagonal) noise models only: a robust model also reweights the rows.
+    """
+    jf = factor.linearize(values)
+    a, _ = jf.jacobian()
+    sig = np.asarray(factor.noiseModel().sigmas())
+    a = a * sig[:, None]
+    out, col = [], 0
+    for key in factor.keys():
+        x = _get(values, key)
+        dim = 3 if isinstance(x, gtsam.Rot3) else x.size
+        out.append(a[:, col:col + dim])
+        col += dim
+    return out
+
+
+def random_gmm(rng: np.random.Generator, num_components: int, dim: int,
+               scale: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random mixture (weights (K,), means (K,D), prec_chol (K,D,D) lower-triangular, precision = L L^T)."""
+    weights = rng.uniform(0.5, 1.5, size=num_components)
+    weights /= weights.sum()
+    means = rng.normal(scale=scale, size=(num_components, dim))
+    chol = np.empty((num_components, dim, dim))
+    for k in range(num_components):
+        a = rng.normal(size=(dim, dim)) / np.sqrt(dim)
+        cov = (scale ** 2) * (a @ a.T + 0.5 * np.eye(dim))
+        chol[k] = np.linalg.cholesky(np.linalg.inv(cov))
+    return weights, means, chol
+
+
+def assert_factor_jacobians(factor: gtsam.NoiseModelFactor, values: gtsam.Values,
+                            rtol: float = 1e-5, atol: float = 1e-6) -> None:
+    """Assert GTSAM's linearised Jacobians (unwhitened) match central differences, key by key."""
+    num = numerical_jacobians(factor, values)
+    ana = gtsam_jacobians(factor, values)
+    for i, (a, n) in enumerate(zip(ana, num)):
+        assert a.shape == n.shape, f"key {i}: shape {a.shape} vs numerical {n.shape}"
+        np.testing.assert_allclose(a, n, rtol=rtol, atol=atol, err_msg=f"Jacobian block of key {i}")

@@ -1,0 +1,66 @@
+"""Tests of factors/heading_prior.py (E_D, PedX Eq. 3)."""
+import gtsam
+import numpy as np
+import pytest
+
+from factors.heading_prior import (heading_prior_error, heading_sigma, heading_vector,
+                                   make_heading_prior_factor)
+from factors.testing import assert_factor_jacobians, random_rot3
+
+
+def _standing(yaw):
+    """world_R_body of an upright body (body +Y -> world +z) facing world yaw ``yaw``."""
+    forward = np.array([np.cos(yaw), np.sin(yaw), 0.0])     # body +Z
+    up = np.array([0.0, 0.0, 1.0])                          # body +Y
+    x_axis = np.cross(up, forward)                          # body +X = Y x Z
+    return np.stack([x_axis, up, forward], axis=1)
+
+
+def test_noise_free_zero_and_sign():
+    rot = _standing(0.7)
+    r, _ = heading_prior_error(rot, heading_vector(0.7))
+    assert abs(r[0]) < 1e-12
+    r, _ = heading_prior_error(rot, heading_vector(0.5))
+    assert r[0] == pytest.approx(0.2)                       # body is 0.2 rad counter-clockwise of heading
+
+
+def test_wrap_near_pi():
+    rot = _standing(np.pi - 0.05)
+    r, _ = heading_prior_error(rot, heading_vector(-np.pi + 0.05))
+    assert r[0] == pytest.approx(-0.1)
+    r, _ = heading_prior_error(_standing(-np.pi + 0.02), heading_vector(np.pi - 0.03))
+    assert r[0] == pytest.approx(0.05)
+    key = gtsam.symbol("r", 0)
+    f = make_heading_prior_factor(key, np.pi - 0.01, speed=1.2)
+    v = gtsam.Values()
+    v.insert(key, gtsam.Rot3(_standing(-np.pi + 0.01)))
+    assert_factor_jacobians(f, v)
+
+
+def test_jacobian_random_rotations():
+    rng = np.random.default_rng(0)
+    key = gtsam.symbol("r", 4)
+    for _ in range(5):
+        f = make_heading_prior_factor(key, rng.normal(size=2), speed=1.0)
+        v = gtsam.Values()
+        v.insert(key, random_rot3(rng))
+        assert_factor_jacobians(f, v)
+
+
+def test_vertical_forward_axis_is_finite():
+    rot = np.eye(3)                                         # body +Z -> world +z: lying face up
+    r, jac = heading_prior_error(rot, heading_vector(0.3), want_jacobian=True)
+    assert r[0] == 0.0 and np.all(jac == 0.0)
+
+
+def test_speed_handling():
+    assert heading_sigma(2.0, 0.3, 0.5) == pytest.approx(0.3)
+    assert heading_sigma(0.25, 0.3, 0.5) == pytest.approx(0.6)
+    assert np.isfinite(heading_sigma(0.0, 0.3, 0.5))
+    assert make_heading_prior_factor(0, 0.0, speed=0.1, min_speed=0.2) is None
+    f = make_heading_prior_factor(0, 0.0, speed=0.25, sigma0_rad=0.3, v0=0.5, min_speed=0.2)
+    np.testing.assert_allclose(f.noiseModel().sigmas(), [0.6])
+    with pytest.raises(ValueError):
+        make_heading_prior_factor(0, np.zeros(2), speed=1.0)
+    with pytest.raises(ValueError):
+        make_heading_prior_factor(0, 0.0, speed=float("nan"))
