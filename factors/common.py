@@ -47,13 +47,16 @@ class BodyModelLike(Protocol):
     ``points (N,3)``, ``d_root (N,3,3)`` (right perturbation of ``world_R_body``), ``d_body_pose (N,3,69)``,
     ``d_trans (N,3,3)``, ``d_betas (N,3,B)``: the 18 PEDX keypoints when ``vertex_ids`` is None, else the
     given vertices.  ``forward(pose, betas, trans)`` returns an object with ``vertices (V,3)``,
-    ``joints (24,3)`` and ``keypoints (18,3)``, world frame, metres.
+    ``joints (24,3)`` and ``keypoints (18,3)``, world frame, metres.  ``rest_joints(betas)`` gives the rest
+    (T-pose) joints (24, 3), linear in ``betas``; the posed pelvis is ``rest_joints(betas)[0] + trans``.
     """
 
     def point_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
                         vertex_ids: np.ndarray | None = None) -> Any: ...
 
     def forward(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray) -> Any: ...
+
+    def rest_joints(self, betas: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,8 @@ class FrameState:
 
     world_R_body: np.ndarray
     """(3, 3) root orientation."""
+    root_rotvec: np.ndarray
+    """(3,) ``Log(world_R_body)``, radians (SMPL ``pose[:3]``)."""
     trans: np.ndarray
     """(3,) metres."""
     body_pose: np.ndarray
@@ -96,19 +101,30 @@ class FrameState:
     @property
     def full_pose(self) -> np.ndarray:
         """(72,) SMPL pose: ``[Log(world_R_body), body_pose]``."""
-        return full_pose(self.world_R_body, self.body_pose)
+        return np.concatenate([self.root_rotvec, self.body_pose])
+
+    @staticmethod
+    def from_arrays(world_R_body: np.ndarray, trans: np.ndarray, body_pose: np.ndarray,
+                    betas: np.ndarray) -> "FrameState":
+        """State from a rotation matrix (3, 3), trans (3,), body pose (69,), betas (B,)."""
+        rot = as_f64(world_R_body)
+        return FrameState(world_R_body=rot, root_rotvec=log_so3(rot), trans=as_f64(trans),
+                          body_pose=as_f64(body_pose), betas=as_f64(betas))
 
 
-def full_pose(world_R_body: np.ndarray, body_pose: np.ndarray) -> np.ndarray:
-    """SMPL pose (72,) from the root rotation matrix (3, 3) and the 69-d body pose."""
-    return np.concatenate([log_so3(np.asarray(world_R_body, dtype=np.float64)),
-                           np.asarray(body_pose, dtype=np.float64)])
+def frame_key_list(keys: "FrameKeys | Sequence[int]") -> list[int]:
+    """``[root, trans, body_pose, betas]`` from a :class:`FrameKeys` or a sequence of 4 keys."""
+    out = keys.as_list() if isinstance(keys, FrameKeys) else [int(k) for k in keys]
+    if len(out) != 4:
+        raise ValueError(f"expected 4 frame keys (root, trans, body_pose, betas), got {len(out)}")
+    return out
 
 
 def read_frame_state(values: gtsam.Values, keys: Sequence[int]) -> FrameState:
     """Read ``[root, trans, body_pose, betas]`` (keys in that order) from GTSAM ``values``."""
     k_root, k_trans, k_pose, k_betas = keys
-    return FrameState(world_R_body=values.atRot3(k_root).matrix(),
+    rot = values.atRot3(k_root)
+    return FrameState(world_R_body=rot.matrix(), root_rotvec=np.asarray(gtsam.Rot3.Logmap(rot)),
                       trans=np.asarray(values.atVector(k_trans), dtype=np.float64),
                       body_pose=np.asarray(values.atVector(k_pose), dtype=np.float64),
                       betas=np.asarray(values.atVector(k_betas), dtype=np.float64))
@@ -132,17 +148,19 @@ def set_jacobians(H: list, blocks: Sequence[np.ndarray], rows: int, dims: Sequen
         H[i] = block
 
 
-def stack_point_jacobians(lin_map: np.ndarray, jac: Any) -> list[np.ndarray]:
+def stack_point_jacobians(lin_map: np.ndarray, jac: Any, index: np.ndarray | None = None) -> list[np.ndarray]:
     """Chain a per-point linear map with the body-model point Jacobians and stack the rows.
 
     ``lin_map`` (N, m, 3) maps a point's world-position perturbation to its m residual rows (e.g. the
     projection derivative, or the identity); ``jac`` carries ``d_root, d_trans, d_body_pose, d_betas`` of
-    shape (N, 3, k).  Returns ``[J_root, J_trans, J_body_pose, J_betas]``, each (N*m, k), rows ordered
+    shape (P, 3, k), of which the points ``index`` (N,) are used (all when None).  Returns ``[J_root, J_trans, J_body_pose, J_betas]``, each (N*m, k), rows ordered
     point by point.
     """
     out = []
     for name in ("d_root", "d_trans", "d_body_pose", "d_betas"):
         d = np.asarray(getattr(jac, name), dtype=np.float64)
+        if index is not None:
+            d = d[index]
         block = np.matmul(lin_map, d)                    # (N, m, k)
         out.append(as_f64(block.reshape(-1, d.shape[-1])))
     return out

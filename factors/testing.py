@@ -38,6 +38,11 @@ class ToyBodyModel:
     def _body_points(self, body_pose: np.ndarray, betas: np.ndarray, ids: np.ndarray) -> np.ndarray:
         return (self.template[ids] + self.shapedirs[ids] @ betas + self.posedirs[ids] @ np.sin(body_pose))
 
+    def rest_joints(self, betas: np.ndarray) -> np.ndarray:
+        """Rest joints (24, 3): the first 24 vertices at zero body pose (linear in betas, like SMPL)."""
+        ids = np.arange(24)
+        return self.template[ids] + self.shapedirs[ids] @ np.asarray(betas, float)
+
     def forward(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray) -> SimpleNamespace:
         """Vertices (V,3), joints (24,3), keypoints (18,3) in the world frame."""
         pose = np.asarray(pose, dtype=np.float64)
@@ -131,3 +136,50 @@ def assert_factor_jacobians(factor: gtsam.NoiseModelFactor, values: gtsam.Values
     for i, (a, n) in enumerate(zip(ana, num)):
         assert a.shape == n.shape, f"key {i}: shape {a.shape} vs numerical {n.shape}"
         np.testing.assert_allclose(a, n, rtol=rtol, atol=atol, err_msg=f"Jacobian block of key {i}")
+
+
+def make_test_calibration(focal_px: float = 1000.0, baseline_m: float = 0.5,
+                          rect_angle: float = 0.02) -> "StereoCalibration":
+    """A KITTI-style stereo pair 1.5 m above the world origin looking along world +x (camera x = world -y).
+
+    ``rect_angle`` (rad) rotates the rectified frame slightly about the camera y axis (non-identity
+    rectification).  Image 1920 x 1200, principal point at the centre.
+    """
+    from pedx_graph.data.types import StereoCalibration
+
+    k = np.array([[focal_px, 0.0, 960.0], [0.0, focal_px, 600.0], [0.0, 0.0, 1.0]])
+    left = np.hstack([k, np.zeros((3, 1))])
+    right = left.copy()
+    right[0, 3] = -focal_px * baseline_m
+    world_T_cam = np.eye(4)
+    world_T_cam[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    world_T_cam[:3, 3] = [0.0, 0.0, 1.5]
+    return StereoCalibration(name="test-pair", left_P_rect=left, right_P_rect=right,
+                             rect_R_cam=gtsam.Rot3.Ry(rect_angle).matrix(), world_T_cam=world_T_cam,
+                             image_size=(1920, 1200))
+
+
+def standing_rotation(yaw: float) -> np.ndarray:
+    """``world_R_body`` of an upright SMPL body (body +Y -> world +z) facing world yaw ``yaw`` (body +Z)."""
+    forward = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    return np.stack([np.cross(up, forward), up, forward], axis=1)
+
+
+def frame_values(keys, world_R_body: np.ndarray, trans: np.ndarray, body_pose: np.ndarray,
+                 betas: np.ndarray) -> gtsam.Values:
+    """Values holding one frame's variables under ``keys`` = [root, trans, body_pose, betas]."""
+    v = gtsam.Values()
+    v.insert(keys[0], gtsam.Rot3(np.asarray(world_R_body, float)))
+    v.insert(keys[1], np.asarray(trans, float))
+    v.insert(keys[2], np.asarray(body_pose, float))
+    v.insert(keys[3], np.asarray(betas, float))
+    return v
+
+
+def synthetic_body_model(num_vertices: int = 300, seed: int = 0):
+    """A real ``pedx_graph.body.BodyModel`` on the package's synthetic SMPL-format arrays."""
+    from pedx_graph.body import BodyModel
+    from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
+
+    return BodyModel.from_data(validate_model_arrays(synthetic_model_arrays(num_vertices=num_vertices, seed=seed)))

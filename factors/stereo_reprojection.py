@@ -1,0 +1,170 @@
+"""E_J,l + E_J,r (PedX): reprojection of the body model's 18 keypoints into both rectified stereo images.
+
+Measurement model, for each labelled keypoint k of image c in {left, right} (pixels of the rectified image):
+
+    rect_p_k = rect_T_world @ [world_p_k(root, trans, body_pose, betas); 1]      (metres, rectified left frame)
+    [u w, v w, w] = P_rect_c @ [rect_p_k; 1]                                       (KITTI-style P, (3, 4))
+    r_k,c = [u, v] - z_k,c                                                         (2,) pixels
+
+``world_p_k`` comes from ``BodyModel.point_jacobians`` (world frame = LiDAR, metres).  Rows: the left
+image's labelled keypoints (u, v each) in PEDX_KEYPOINTS order, then the right image's.  The depth ``w`` is
+clamped to ``min_depth`` metres (its derivative is then dropped) so points behind the camera stay finite.
+
+Noise: per-row sigma ``sigma_px`` for keypoints flagged visible, ``sigma_occluded_px`` for labelled but not
+visible ones, divided by ``sqrt(weight_k)`` (``keypoint_weights``: relative weight of each keypoint's
+squared error; 0 drops it; by default the hips get 0.25 because the annotators click the hip surface while
+the model's hip joints sit inside the pelvis).  Optionally robust per row (``factors.common.make_noise``;
+Geman-McClure by default, scale in whitened units).  Jacobians: ``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w``
+with ``M = P_rect[:, :3] @ rect_R_world``, chained with the body-model point Jacobians.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import gtsam
+import numpy as np
+
+from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
+                            frame_key_list,
+                            make_noise, read_frame_state, set_jacobians, stack_point_jacobians)
+from pedx_graph.data.types import StereoCalibration, View2D
+from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+NUM_KEYPOINTS = len(PEDX_KEYPOINTS)
+
+#: Relative weights of the 18 keypoints' squared errors (PEDX_KEYPOINTS order): hips 0.25, others 1.
+DEFAULT_KEYPOINT_WEIGHTS = np.array([0.25 if name in ("lhip", "rhip") else 1.0 for name in PEDX_KEYPOINTS])
+
+
+@dataclass(frozen=True)
+class StereoKeypoints:
+    """2D keypoint labels of one pedestrian in both rectified images of a stereo pair."""
+
+    left_uv: np.ndarray
+    """(18, 2) pixels in the rectified left image, NaN where not labelled."""
+    right_uv: np.ndarray
+    """(18, 2) pixels in the rectified right image, NaN where not labelled."""
+    left_visible: np.ndarray
+    """(18,) bool, the annotator's visible flag in the left image."""
+    right_visible: np.ndarray
+    """(18,) bool, the visible flag in the right image."""
+
+    @staticmethod
+    def from_views(left: View2D | None, right: View2D | None) -> "StereoKeypoints":
+        """From the ``TrackFrame.left`` / ``.right`` labels (either may be None: nothing labelled there)."""
+        def parts(view):
+            if view is None:
+                return np.full((NUM_KEYPOINTS, 2), np.nan), np.zeros(NUM_KEYPOINTS, bool)
+            return as_f64(view.keypoints), np.asarray(view.visible, dtype=bool)
+        luv, lvis = parts(left)
+        ruv, rvis = parts(right)
+        return StereoKeypoints(luv, ruv, lvis, rvis)
+
+
+@dataclass(frozen=True)
+class _ImageRows:
+    """Pre-selected rows of one image: keypoint indices (n,), measured uv (n, 2), M (3, 3), c (3,)."""
+
+    index: np.ndarray
+    uv: np.ndarray
+    proj_m: np.ndarray
+    proj_c: np.ndarray
+
+
+@dataclass(frozen=True)
+class StereoSetup:
+    """Everything fixed at construction: selected rows of both images, their sigmas, the projections."""
+
+    images: tuple[_ImageRows, _ImageRows]
+    sigmas: np.ndarray
+    """(m,) per-row sigmas in pixels."""
+    min_depth: float
+
+    @property
+    def rows(self) -> int:
+        return int(self.sigmas.size)
+
+
+def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px: float = 2.0,
+                       sigma_occluded_px: float = 6.0, keypoint_weights: np.ndarray | None = None,
+                       min_depth: float = 0.1) -> StereoSetup:
+    """Select the rows (labelled, finite, weight > 0) and their sigmas; precompute ``M``, ``c`` per image."""
+    if not (sigma_px > 0 and sigma_occluded_px > 0 and min_depth > 0):
+        raise ValueError("stereo reprojection: sigma_px, sigma_occluded_px and min_depth must be > 0")
+    weights = DEFAULT_KEYPOINT_WEIGHTS if keypoint_weights is None else as_f64(keypoint_weights)
+    if weights.shape != (NUM_KEYPOINTS,) or np.any(weights < 0):
+        raise ValueError(f"keypoint_weights must be ({NUM_KEYPOINTS},) and >= 0, got {weights}")
+    rect_T_world = calibration.rect_T_world
+    images, sigmas = [], []
+    for uv, vis, proj in ((measurement.left_uv, measurement.left_visible, calibration.left_P_rect),
+                          (measurement.right_uv, measurement.right_visible, calibration.right_P_rect)):
+        uv = as_f64(uv)
+        vis = np.asarray(vis, dtype=bool)
+        if uv.shape != (NUM_KEYPOINTS, 2) or vis.shape != (NUM_KEYPOINTS,):
+            raise ValueError(f"stereo keypoints must be ({NUM_KEYPOINTS}, 2) with ({NUM_KEYPOINTS},) visible "
+                             f"flags, got {uv.shape} and {vis.shape}")
+        proj = as_f64(proj)
+        use = np.all(np.isfinite(uv), axis=1) & (weights > 0)
+        idx = np.flatnonzero(use)
+        sig = np.where(vis[idx], sigma_px, sigma_occluded_px) / np.sqrt(weights[idx])
+        sigmas.append(np.repeat(sig, 2))
+        images.append(_ImageRows(index=idx, uv=uv[idx],
+                                 proj_m=as_f64(proj[:, :3] @ rect_T_world[:3, :3]),
+                                 proj_c=as_f64(proj[:, :3] @ rect_T_world[:3, 3] + proj[:, 3])))
+    return StereoSetup(images=(images[0], images[1]), sigmas=np.concatenate(sigmas), min_depth=float(min_depth))
+
+
+def project_points(world_p: np.ndarray, proj_m: np.ndarray, proj_c: np.ndarray,
+                   min_depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (N, 2) of world points (N, 3) under ``[uw, vw, w] = M p + c`` and ``d uv / d p`` (N, 2, 3)."""
+    hom = world_p @ proj_m.T + proj_c                        # (N, 3)
+    depth = hom[:, 2]
+    clamped = depth < min_depth
+    w = np.where(clamped, min_depth, depth)
+    uv = hom[:, :2] / w[:, None]
+    d_uv = proj_m[None, :2, :] - np.where(clamped, 0.0, 1.0)[:, None, None] * uv[:, :, None] * proj_m[None, 2:3, :]
+    return uv, d_uv / w[:, None, None]
+
+
+def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: StereoSetup,
+                              want_jacobians: bool = False) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Unwhitened residual (m,) in pixels and, when asked, ``[J_root, J_trans, J_body_pose, J_betas]``."""
+    jac = model.point_jacobians(state.full_pose, state.betas, state.trans)
+    points = np.asarray(jac.points, dtype=np.float64)
+    residuals, maps, index = [], [], []
+    for img in setup.images:
+        uv, d_uv = project_points(points[img.index], img.proj_m, img.proj_c, setup.min_depth)
+        residuals.append((uv - img.uv).reshape(-1))
+        maps.append(d_uv)
+        index.append(img.index)
+    r = np.concatenate(residuals)
+    if not want_jacobians:
+        return r, None
+    return r, stack_point_jacobians(np.concatenate(maps), jac, np.concatenate(index))
+
+
+def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, measurement: StereoKeypoints,
+                                    calibration: StereoCalibration, sigma_px: float = 2.0,
+                                    sigma_occluded_px: float = 6.0, keypoint_weights: np.ndarray | None = None,
+                                    robust: str = "gemanmcclure", robust_scale: float = 3.0,
+                                    min_depth: float = 0.1) -> gtsam.CustomFactor | None:
+    """Stereo keypoint reprojection factor on ``keys = [root, trans, body_pose, betas]``.
+
+    Returns ``None`` when no keypoint is labelled (with weight > 0) in either image.  ``sigma_px`` /
+    ``sigma_occluded_px`` in pixels; ``robust_scale`` in whitened units (sigmas).
+    """
+    setup = build_stereo_setup(measurement, calibration, sigma_px, sigma_occluded_px, keypoint_weights, min_depth)
+    if setup.rows == 0:
+        return None
+    rows = setup.rows
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        state = read_frame_state(values, this.keys())
+        r, blocks = stereo_reprojection_error(model, state, setup, H is not None)
+        if H is not None:
+            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, state.betas.size])
+        return r
+
+    noise = make_noise(setup.sigmas, robust=robust, robust_scale=robust_scale)
+    return gtsam.CustomFactor(noise, frame_key_list(keys), error)

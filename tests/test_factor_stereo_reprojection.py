@@ -1,0 +1,137 @@
+"""Tests of factors/stereo_reprojection.py (E_J,l + E_J,r)."""
+import gtsam
+import numpy as np
+import pytest
+
+from factors.common import FrameKeys, FrameState
+from factors.stereo_reprojection import (StereoKeypoints, build_stereo_setup, make_stereo_reprojection_factor,
+                                         stereo_reprojection_error)
+from factors.testing import (ToyBodyModel, assert_factor_jacobians, frame_values, make_test_calibration,
+                             standing_rotation, synthetic_body_model)
+from pedx_graph.data.types import View2D
+
+KEYS = FrameKeys.for_frame(2)
+
+
+def _scene(rng, model):
+    rot = standing_rotation(2.5) @ gtsam.Rot3.Expmap(rng.normal(scale=0.2, size=3)).matrix()
+    trans = np.array([8.0, 0.5, 0.9]) + rng.normal(scale=0.2, size=3)
+    body_pose = rng.normal(scale=0.2, size=69)
+    betas = rng.normal(scale=0.5, size=model.num_betas)
+    return rot, trans, body_pose, betas
+
+
+def _labels(model, calib, state, rng, noise_px=0.0):
+    kp = model.forward(state.full_pose, state.betas, state.trans).keypoints
+    left, right = calib.project(kp)
+    left = left + rng.normal(scale=noise_px, size=left.shape) if noise_px else left
+    right = right + rng.normal(scale=noise_px, size=right.shape) if noise_px else right
+    vis_l = rng.uniform(size=18) < 0.7
+    vis_r = rng.uniform(size=18) < 0.7
+    left[[3, 9]] = np.nan                          # not labelled in the left image
+    vis_l[[3, 9]] = False
+    return StereoKeypoints.from_views(View2D(left, vis_l), View2D(right, vis_r))
+
+
+@pytest.mark.parametrize("model_kind", ["toy", "synthetic_smpl"])
+def test_noise_free_zero_and_jacobians(model_kind):
+    rng = np.random.default_rng(0)
+    model = ToyBodyModel() if model_kind == "toy" else synthetic_body_model()
+    calib = make_test_calibration()
+    rot, trans, body_pose, betas = _scene(rng, model)
+    state = FrameState.from_arrays(rot, trans, body_pose, betas)
+    meas = _labels(model, calib, state, rng)
+    f = make_stereo_reprojection_factor(KEYS, model, meas, calib, robust="none")
+    v = frame_values(KEYS.as_list(), rot, trans, body_pose, betas)
+    assert f.dim() == 2 * (16 + 18)
+    np.testing.assert_allclose(f.unwhitenedError(v), 0.0, atol=1e-8)
+    # perturbed state: Jacobians vs central differences, key by key
+    v2 = frame_values(KEYS.as_list(), rot @ gtsam.Rot3.Expmap([0.1, -0.2, 0.05]).matrix(), trans + 0.1,
+                      body_pose + rng.normal(scale=0.1, size=69), betas + 0.3)
+    assert f.error(v2) > 1.0
+    assert_factor_jacobians(f, v2, rtol=1e-5, atol=1e-4)
+
+
+def test_rows_sigmas_and_weights():
+    rng = np.random.default_rng(1)
+    model = ToyBodyModel()
+    calib = make_test_calibration()
+    state = FrameState.from_arrays(*_scene(rng, model))
+    meas = _labels(model, calib, state, rng)
+    weights = np.ones(18)
+    weights[0] = 0.0                                # nose dropped
+    weights[5] = 4.0                                # neck twice as certain
+    setup = build_stereo_setup(meas, calib, sigma_px=2.0, sigma_occluded_px=8.0, keypoint_weights=weights)
+    left_idx = setup.images[0].index
+    assert 0 not in left_idx and 3 not in left_idx and 9 not in left_idx and 5 in left_idx
+    sig_left = setup.sigmas[: 2 * left_idx.size].reshape(-1, 2)[:, 0]
+    expected = np.where(meas.left_visible[left_idx], 2.0, 8.0) / np.sqrt(weights[left_idx])
+    np.testing.assert_allclose(sig_left, expected)
+    empty = StereoKeypoints.from_views(None, None)
+    assert make_stereo_reprojection_factor(KEYS, model, empty, calib) is None
+
+
+def test_robust_kernel_is_per_row():
+    rng = np.random.default_rng(2)
+    model = ToyBodyModel()
+    calib = make_test_calibration()
+    rot, trans, body_pose, betas = _scene(rng, model)
+    state = FrameState.from_arrays(rot, trans, body_pose, betas)
+    meas = _labels(model, calib, state, rng, noise_px=1.0)
+    meas.right_uv[7] += 300.0                        # one mislabelled keypoint
+    v = frame_values(KEYS.as_list(), rot, trans, body_pose, betas)
+    gauss = make_stereo_reprojection_factor(KEYS, model, meas, calib, robust="none")
+    robust = make_stereo_reprojection_factor(KEYS, model, meas, calib, robust="gemanmcclure", robust_scale=3.0)
+    white = gauss.whitenedError(v)
+    c = 3.0
+    per_row = np.sum(0.5 * c * c * white ** 2 / (c * c + white ** 2))
+    assert robust.error(v) == pytest.approx(per_row, rel=1e-9)
+    assert robust.error(v) < 0.05 * gauss.error(v)
+
+
+def test_matches_gtsam_generic_stereo_factor():
+    """Single keypoint at ``trans``: residual and d/dtrans agree with GenericStereoFactor3D."""
+    model = ToyBodyModel()
+    kp0 = model.keypoint_vertex_ids[0]
+    model.template[kp0] = 0.0
+    model.shapedirs[kp0] = 0.0
+    model.posedirs[kp0] = 0.0                        # keypoint 0 == trans exactly
+    calib = make_test_calibration(rect_angle=0.0)
+    rng = np.random.default_rng(3)
+    rot, _, body_pose, betas = _scene(rng, model)
+    point = np.array([7.0, -0.8, 1.1])
+    meas_l = np.full((18, 2), np.nan)
+    meas_r = np.full((18, 2), np.nan)
+    meas_l[0] = [1000.0, 640.0]
+    meas_r[0] = [930.0, 640.0]
+    meas = StereoKeypoints(meas_l, meas_r, np.ones(18, bool), np.ones(18, bool))
+    ours = make_stereo_reprojection_factor(KEYS, model, meas, calib, robust="none", sigma_px=1.0)
+    v = frame_values(KEYS.as_list(), rot, point, body_pose, betas)
+    r = ours.unwhitenedError(v)                      # [uL, vL, uR, vR] - z
+
+    k = calib.left_P_rect
+    cal = gtsam.Cal3_S2Stereo(k[0, 0], k[1, 1], 0.0, k[0, 2], k[1, 2], calib.baseline_m)
+    kx, kl = gtsam.symbol("x", 0), gtsam.symbol("l", 0)
+    theirs = gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(1000.0, 930.0, 640.0),
+                                         gtsam.noiseModel.Unit.Create(3), kx, kl, cal)
+    tv = gtsam.Values()
+    tv.insert(kx, gtsam.Pose3(calib.world_T_cam))
+    tv.insert(kl, point)
+    e = theirs.unwhitenedError(tv)                   # [uL, uR, v] - z
+    np.testing.assert_allclose([r[0], r[2], r[1]], e, atol=1e-9)
+    np.testing.assert_allclose(r[3], e[2], atol=1e-9)
+    a_theirs = theirs.linearize(tv).jacobian()[0][:, 6:9]
+    a_ours = ours.linearize(v).jacobian()[0][:, 3:6]
+    np.testing.assert_allclose(a_ours[[0, 2, 1]], a_theirs, rtol=1e-9, atol=1e-9)
+
+
+def test_point_behind_camera_is_finite():
+    model = ToyBodyModel()
+    calib = make_test_calibration()
+    rng = np.random.default_rng(4)
+    rot, _, body_pose, betas = _scene(rng, model)
+    state = FrameState.from_arrays(rot, np.array([-5.0, 0.0, 0.9]), body_pose, betas)
+    meas = _labels(model, calib, FrameState.from_arrays(rot, np.array([8.0, 0.0, 0.9]), body_pose, betas), rng)
+    setup = build_stereo_setup(meas, calib)
+    r, blocks = stereo_reprojection_error(model, state, setup, want_jacobians=True)
+    assert np.all(np.isfinite(r)) and all(np.all(np.isfinite(b)) for b in blocks)
