@@ -1,0 +1,89 @@
+"""E_3d (PedX Eq. 4): the instance's LiDAR points lie on the body surface (one-sided chamfer, point-to-point).
+
+Measurement: the LiDAR points assigned to the pedestrian in this frame, ``world_p_i`` (M, 3), world (LiDAR)
+frame, metres.  For each point its nearest posed model vertex ``n(i)`` is found with a k-d tree
+(``scipy.spatial.cKDTree``) over the vertices of the *current* estimate, re-built at every evaluation
+(so correspondences are re-found at each linearisation, as in ICP):
+
+    r_i = world_v_n(i)(root, trans, body_pose, betas) - world_p_i           (3,) metres;   r = [r_1..r_M]  (3M,)
+
+Point-to-point: the residual is the full 3D offset to the nearest vertex (not the distance along a
+normal), so it is smooth at zero distance (r_i = 0 has a regular Jacobian).  Within one evaluation the
+assignment n(i) is held fixed; the Jacobian uses ``BodyModel.point_jacobians`` of the matched vertices only.
+Noise: isotropic ``sigma_m`` metres per coordinate, robust per row (Geman-McClure by default, scale in
+whitened units) against points mislabelled as the pedestrian.  ``candidate_vertex_ids`` restricts the
+vertices that can be matched (e.g. a decimated subset, to speed up the tree).  No factor is created for
+zero points (:func:`make_lidar_chamfer_factor` returns ``None``).
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import gtsam
+import numpy as np
+from scipy.spatial import cKDTree
+
+from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
+                            frame_key_list, make_noise, read_frame_state, set_jacobians, stack_point_jacobians)
+
+
+def posed_vertices(model: BodyModelLike, state: FrameState, candidate_vertex_ids: np.ndarray | None) -> np.ndarray:
+    """World positions (C, 3) of the candidate vertices (all vertices when None) at ``state``."""
+    if candidate_vertex_ids is not None and hasattr(model, "vertices_subset"):
+        return np.asarray(model.vertices_subset(state.full_pose, state.betas, state.trans, candidate_vertex_ids))
+    verts = np.asarray(model.forward(state.full_pose, state.betas, state.trans).vertices)
+    return verts if candidate_vertex_ids is None else verts[candidate_vertex_ids]
+
+
+def nearest_vertices(model: BodyModelLike, state: FrameState, world_points: np.ndarray,
+                     candidate_vertex_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex id (M,) of the nearest posed vertex of each world point (M, 3), and that vertex's position (M, 3)."""
+    verts = posed_vertices(model, state, candidate_vertex_ids)
+    _, nn = cKDTree(verts).query(world_points)
+    ids = nn if candidate_vertex_ids is None else candidate_vertex_ids[nn]
+    return np.asarray(ids, dtype=np.int64), verts[nn]
+
+
+def lidar_chamfer_error(model: BodyModelLike, state: FrameState, world_points: np.ndarray,
+                        candidate_vertex_ids: np.ndarray | None = None, want_jacobians: bool = False
+                        ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Unwhitened residual (3M,) in metres and, when asked, ``[J_root, J_trans, J_body_pose, J_betas]``."""
+    ids, verts = nearest_vertices(model, state, world_points, candidate_vertex_ids)
+    if not want_jacobians:
+        return (verts - world_points).reshape(-1), None
+    unique, inverse = np.unique(ids, return_inverse=True)
+    jac = model.point_jacobians(state.full_pose, state.betas, state.trans, vertex_ids=unique)
+    r = (np.asarray(jac.points)[inverse] - world_points).reshape(-1)
+    eye = np.broadcast_to(np.eye(3), (len(ids), 3, 3))
+    return r, stack_point_jacobians(eye, jac, inverse)
+
+
+def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, world_points: np.ndarray,
+                              sigma_m: float = 0.03, robust: str = "gemanmcclure", robust_scale: float = 3.0,
+                              candidate_vertex_ids: np.ndarray | None = None) -> gtsam.CustomFactor | None:
+    """LiDAR-to-mesh factor on ``keys = [root, trans, body_pose, betas]``; ``None`` when there are no points.
+
+    ``world_points`` (M, 3) metres, world frame; ``sigma_m`` metres per coordinate; ``robust_scale`` in
+    whitened units.
+    """
+    pts = as_f64(world_points).reshape(-1, 3) if np.size(world_points) else np.zeros((0, 3))
+    if pts.shape[0] == 0:
+        return None
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("lidar chamfer: world_points contain non-finite values")
+    if not sigma_m > 0:
+        raise ValueError(f"lidar chamfer: sigma_m must be > 0, got {sigma_m}")
+    cand = None if candidate_vertex_ids is None else np.asarray(candidate_vertex_ids, dtype=np.int64).reshape(-1)
+    if cand is not None and cand.size == 0:
+        raise ValueError("lidar chamfer: candidate_vertex_ids is empty")
+    rows = 3 * pts.shape[0]
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        state = read_frame_state(values, this.keys())
+        r, blocks = lidar_chamfer_error(model, state, pts, cand, H is not None)
+        if H is not None:
+            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, state.betas.size])
+        return r
+
+    noise = make_noise(sigma_m, dim=rows, robust=robust, robust_scale=robust_scale)
+    return gtsam.CustomFactor(noise, frame_key_list(keys), error)

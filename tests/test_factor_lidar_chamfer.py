@@ -1,0 +1,71 @@
+"""Tests of factors/lidar_chamfer.py (E_3d, PedX Eq. 4)."""
+import gtsam
+import numpy as np
+import pytest
+
+from factors.common import FrameKeys, FrameState
+from factors.lidar_chamfer import lidar_chamfer_error, make_lidar_chamfer_factor, nearest_vertices
+from factors.testing import (ToyBodyModel, assert_factor_jacobians, frame_values, standing_rotation,
+                             synthetic_body_model)
+
+KEYS = FrameKeys.for_frame(0)
+
+
+def _state(rng, model):
+    rot = standing_rotation(0.4) @ gtsam.Rot3.Expmap(rng.normal(scale=0.2, size=3)).matrix()
+    return FrameState.from_arrays(rot, np.array([6.0, -2.0, 0.9]), rng.normal(scale=0.2, size=69),
+                                  rng.normal(scale=0.5, size=model.num_betas))
+
+
+@pytest.mark.parametrize("model_kind", ["toy", "synthetic_smpl"])
+def test_noise_free_zero_and_jacobians(model_kind):
+    rng = np.random.default_rng(0)
+    model = ToyBodyModel() if model_kind == "toy" else synthetic_body_model()
+    s = _state(rng, model)
+    verts = model.forward(s.full_pose, s.betas, s.trans).vertices
+    pts = verts[rng.choice(len(verts), 40, replace=False)]
+    f = make_lidar_chamfer_factor(KEYS, model, pts, robust="none")
+    v = frame_values(KEYS.as_list(), s.world_R_body, s.trans, s.body_pose, s.betas)
+    np.testing.assert_allclose(f.unwhitenedError(v), 0.0, atol=1e-12)      # zero distance
+    assert_factor_jacobians(f, v, rtol=1e-5, atol=1e-6)                     # Jacobian regular at zero distance
+    # points slightly off the surface (assignments stay stable under small perturbations)
+    f2 = make_lidar_chamfer_factor(KEYS, model, pts + rng.normal(scale=0.002, size=pts.shape), robust="none")
+    assert f2.error(v) > 0
+    assert_factor_jacobians(f2, v, rtol=1e-5, atol=1e-6)
+
+
+def test_correspondences_follow_the_estimate():
+    rng = np.random.default_rng(1)
+    model = ToyBodyModel()
+    s = _state(rng, model)
+    pts = model.forward(s.full_pose, s.betas, s.trans).vertices[:10]
+    ids, _ = nearest_vertices(model, s, pts)
+    np.testing.assert_array_equal(ids, np.arange(10))
+    moved = FrameState.from_arrays(s.world_R_body, s.trans + [0.0, 0.0, 5.0], s.body_pose, s.betas)
+    r, _ = lidar_chamfer_error(model, moved, pts)
+    dist = np.linalg.norm(r.reshape(-1, 3), axis=1)
+    assert np.all(dist < 5.0 + 1e-9) and np.all(dist > 3.0)
+
+
+def test_candidates_and_outliers():
+    rng = np.random.default_rng(2)
+    model = ToyBodyModel()
+    s = _state(rng, model)
+    verts = model.forward(s.full_pose, s.betas, s.trans).vertices
+    cand = np.arange(0, model.num_vertices, 2)
+    ids, _ = nearest_vertices(model, s, verts[:20], cand)
+    assert np.all(ids % 2 == 0)
+    pts = np.vstack([verts[cand[:30]], [[s.trans[0] + 3.0, s.trans[1], s.trans[2]]]])   # one point 3 m away
+    v = frame_values(KEYS.as_list(), s.world_R_body, s.trans, s.body_pose, s.betas)
+    gauss = make_lidar_chamfer_factor(KEYS, model, pts, robust="none", candidate_vertex_ids=cand)
+    robust = make_lidar_chamfer_factor(KEYS, model, pts, candidate_vertex_ids=cand)
+    assert robust.error(v) < 0.01 * gauss.error(v)
+
+
+def test_no_points_and_bad_input():
+    model = ToyBodyModel()
+    assert make_lidar_chamfer_factor(KEYS, model, np.zeros((0, 3))) is None
+    with pytest.raises(ValueError, match="non-finite"):
+        make_lidar_chamfer_factor(KEYS, model, np.array([[0.0, np.nan, 1.0]]))
+    with pytest.raises(ValueError, match="sigma_m"):
+        make_lidar_chamfer_factor(KEYS, model, np.ones((2, 3)), sigma_m=0.0)
