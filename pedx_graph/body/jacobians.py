@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from pedx_graph.body.lbs import Kinematics
-from pedx_graph.body.rotation import hat
 
 
 @dataclass(frozen=True)
@@ -81,13 +80,23 @@ def shape_chain_jacobian(kin: Kinematics, joint_shapedirs: np.ndarray, parents: 
     return chained.reshape(num_n, num_j, 3, num_b)
 
 
-def _rotation_part(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """From lever arms a (N, P, J, 3) and bases (N, J, 3, 3): d_root (N, P, 3, 3), d_body (N, P, 3, 3(J-1))."""
-    jac = -(hat(levers) @ bases[:, None])                            # (N, P, J, 3, 3)
-    d_root = jac[:, :, 0]
+def _cross_columns(levers: np.ndarray, bases: np.ndarray) -> np.ndarray:
+    """``-hat(a) @ B`` for a (..., 3) and B (..., 3, 3) (broadcast), i.e. ``B[:, m] x a`` per column m."""
+    a0, a1, a2 = levers[..., 0, None], levers[..., 1, None], levers[..., 2, None]
+    b0, b1, b2 = bases[..., 0, :], bases[..., 1, :], bases[..., 2, :]
+    return np.stack([a2 * b1 - a1 * b2, a0 * b2 - a2 * b0, a1 * b0 - a0 * b1], axis=-2)
+
+
+def _split_root_body(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, P, J, 3, 3) per-joint blocks -> d_root (N, P, 3, 3), d_body (N, P, 3, 3 (J-1))."""
     num_n, num_p, num_j = jac.shape[:3]
     d_body = np.moveaxis(jac[:, :, 1:], 2, 3).reshape(num_n, num_p, 3, 3 * (num_j - 1))
-    return d_root, d_body
+    return jac[:, :, 0], d_body
+
+
+def _rotation_part(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """From lever arms a (N, P, J, 3) and bases (N, J, 3, 3): d_root (N, P, 3, 3), d_body (N, P, 3, 3(J-1))."""
+    return _split_root_body(_cross_columns(levers, bases[:, None]))
 
 
 def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray, weights: np.ndarray,
@@ -129,8 +138,13 @@ def joint_jacobians(kin: Kinematics, bases: np.ndarray, joint_ids: np.ndarray, d
     Returns points (N, Q, 3), d_root (N, Q, 3, 3), d_body (N, Q, 3, 3 (J-1)), d_betas (N, Q, 3, B).
     """
     origin = kin.world_origin
+    num_n, num_j = origin.shape[:2]
     points = origin[:, joint_ids]                                    # (N, Q, 3)
-    levers = desc.T[joint_ids][None, :, :, None] * (points[:, :, None, :] - origin[:, None, :, :])
-    d_root, d_body = _rotation_part(levers, bases)
+    # Only strict ancestors j of joint i have a non-zero lever o_i - o_j: compute those pairs only.
+    q_idx, j_idx = np.nonzero(desc.T[joint_ids] * (1.0 - np.eye(num_j)[joint_ids]))
+    levers = points[:, q_idx] - origin[:, j_idx]                     # (N, pairs, 3)
+    blocks = np.zeros((num_n, len(joint_ids), num_j, 3, 3))
+    blocks[:, q_idx, j_idx] = _cross_columns(levers, bases[:, j_idx])
+    d_root, d_body = _split_root_body(blocks)
     d_betas = dt_dbeta[:, joint_ids] + kin.world_rot[:, joint_ids] @ joint_shapedirs[joint_ids][None]
     return points, d_root, d_body, d_betas

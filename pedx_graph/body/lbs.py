@@ -147,6 +147,21 @@ def skin(points: np.ndarray, weights: np.ndarray, world_rot: np.ndarray, bone_tr
             + blended[..., 2] * points[..., 2:3])
 
 
+def skin_frames_last(rest_points: np.ndarray, weights, world_rot: np.ndarray, bone_trans: np.ndarray) -> np.ndarray:
+    """Same as :func:`skin` for N frames stored frame-last (fast path for whole meshes).
+
+    rest_points (V, 3, N), weights (V, J) dense or scipy-sparse (sparse is faster: SMPL has <= 4 non-zeros
+    per row), world_rot (N, J, 3, 3), bone_trans (N, J, 3) -> (V, 3, N).  The blended transforms are one
+    (V, J) x (J, 12 N) product; the frame-last layout keeps every later operation contiguous.
+    """
+    num_n, num_j = world_rot.shape[:2]
+    num_v = rest_points.shape[0]
+    mats = np.concatenate([world_rot, bone_trans[..., None]], axis=-1)           # (N, J, 3, 4)
+    mats = np.ascontiguousarray(mats.transpose(1, 2, 3, 0)).reshape(num_j, 12 * num_n)
+    blended = np.asarray(weights @ mats).reshape(num_v, 3, 4, num_n)
+    return np.einsum("vijn,vjn->vin", blended[:, :, :3], rest_points) + blended[:, :, 3]
+
+
 def lbs(betas: np.ndarray, full_pose: np.ndarray, v_template: np.ndarray, shapedirs: np.ndarray,
         posedirs: np.ndarray | None, j_regressor, parents: np.ndarray, weights: np.ndarray,
         trans: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -16,19 +16,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 
 from pedx_graph.body import jacobians as jac
 from pedx_graph.body.io import ModelData, load_model_data
 from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model
 from pedx_graph.body.lbs import (batch_rigid_transform, depth_levels, descendant_mask, pose_features, skin,
+                                 skin_frames_last,
                                  vertices2joints)
 from pedx_graph.body.rotation import exp_so3, exp_so3_derivative, right_jacobian
 
 #: File name of the open default model inside ``pedx_graph/body/data``.
 DEFAULT_MODEL_NAME = "pedx_open_neutral.npz"
 
-#: Frames processed together in the full-mesh forward pass (bounds memory at ~V x 12 x CHUNK doubles).
-FORWARD_CHUNK = 32
+#: Frames processed together in the full-mesh forward pass (memory ~ V x 16 x CHUNK doubles, 56 MB for
+#: SMPL; larger chunks amortise reading posedirs, 11 MB per 64 frames... per chunk).
+FORWARD_CHUNK = 64
 
 
 def default_model_path() -> Path:
@@ -65,9 +68,11 @@ class BodyModel:
         self.weights = data.weights
         self._parents = data.parents
         num_v = data.num_vertices
-        self._shapedirs_flat_t = np.ascontiguousarray(self.shapedirs.reshape(num_v * 3, -1).T)   # (B, 3V)
-        self._posedirs_flat_t = (None if self.posedirs is None else
-                                 np.ascontiguousarray(self.posedirs.reshape(num_v * 3, -1).T))  # (207, 3V)
+        self._shapedirs_flat = np.ascontiguousarray(self.shapedirs.reshape(num_v * 3, -1))        # (3V, B)
+        self._posedirs_flat = (None if self.posedirs is None else
+                               np.ascontiguousarray(self.posedirs.reshape(num_v * 3, -1)))        # (3V, 207)
+        self._v_template_col = self.v_template.reshape(num_v * 3, 1)
+        self._weights_csr = sp.csr_matrix(self.weights)
         self._levels = depth_levels(self._parents)
         self._desc = descendant_mask(self._parents)
         # Rest joints are linear in betas: J(beta) = J_template + J_shapedirs . beta.
@@ -194,10 +199,14 @@ class BodyModel:
         for start in range(0, num_n, FORWARD_CHUNK):
             sl = slice(start, min(start + FORWARD_CHUNK, num_n))
             kin = self._kinematics(pose[sl], betas[sl])
-            rest = (betas[sl] @ self._shapedirs_flat_t).reshape(-1, num_v, 3) + self.v_template
-            if self._posedirs_flat_t is not None:
-                rest += (pose_features(kin.rot_mats) @ self._posedirs_flat_t).reshape(-1, num_v, 3)
-            vertices[sl] = skin(rest, self.weights, kin.world_rot, kin.bone_trans) + trans[sl, None]
+            # Frame-last layout (3V, n): shape and pose blend shapes are plain BLAS products.
+            rest = self._shapedirs_flat @ betas[sl].T
+            rest += self._v_template_col
+            if self._posedirs_flat is not None:
+                rest += self._posedirs_flat @ pose_features(kin.rot_mats).T
+            posed = skin_frames_last(rest.reshape(num_v, 3, -1), self._weights_csr, kin.world_rot,
+                                     kin.bone_trans)
+            np.add(posed.transpose(2, 0, 1), trans[sl, None], out=vertices[sl])
             joints[sl] = kin.world_origin + trans[sl, None]
         keypoints = None
         if self.keypoint_map is not None:
@@ -244,9 +253,11 @@ class BodyModel:
     def _jacobian_setup(self, pose, betas):
         kin = self._kinematics(pose, betas)
         body_aa = pose.reshape(pose.shape[0], self.num_joints, 3)[:, 1:]
-        bases = jac.rotation_bases(kin, right_jacobian(body_aa))
+        jr_body = right_jacobian(body_aa)
+        bases = jac.rotation_bases(kin, jr_body)
         dt_dbeta = jac.shape_chain_jacobian(kin, self._joint_shapedirs, self._parents, self._desc)
-        drot = exp_so3_derivative(body_aa) if self.posedirs is not None else None
+        drot = (exp_so3_derivative(body_aa, kin.rot_mats[:, 1:], jr_body) if self.posedirs is not None
+                else None)
         return kin, bases, dt_dbeta, drot
 
     def _vertex_terms(self, kin, bases, dt_dbeta, drot, betas, vertex_ids):
@@ -274,15 +285,18 @@ class BodyModel:
         else:
             kp = self._kpmap()
             used_j = np.flatnonzero(np.any(kp.joint_coeffs != 0.0, axis=0))
-            cj = kp.joint_coeffs[:, used_j]
-            pts, d_root, d_body, d_betas = (
-                np.einsum("kq,nq...->nk...", cj, term)
-                for term in jac.joint_jacobians(kin, bases, used_j, self._desc, self._joint_shapedirs, dt_dbeta))
+            num_n = pose.shape[0]
+
+            def combine(coeffs, term):        # (K, Q) x (N, Q, ...) -> (N, K, ...) as one matmul
+                return (coeffs @ term.reshape(num_n, term.shape[1], -1)).reshape(
+                    (num_n, coeffs.shape[0]) + term.shape[2:])
+
+            terms = [combine(kp.joint_coeffs[:, used_j], t) for t in jac.joint_jacobians(
+                kin, bases, used_j, self._desc, self._joint_shapedirs, dt_dbeta)]
             if kp.vertex_ids.size:
                 vterms = self._vertex_terms(kin, bases, dt_dbeta, drot, betas, kp.vertex_ids)
-                pts, d_root, d_body, d_betas = (
-                    acc + np.einsum("km,nm...->nk...", kp.vertex_coeffs, term)
-                    for acc, term in zip((pts, d_root, d_body, d_betas), vterms))
+                terms = [acc + combine(kp.vertex_coeffs, t) for acc, t in zip(terms, vterms)]
+            pts, d_root, d_body, d_betas = terms
             gain = self._trans_gain(kp)
         num_p = len(gain)
         pts = pts + gain[None, :, None] * trans[:, None]

@@ -124,15 +124,17 @@ def right_jacobian_inverse(omega: np.ndarray) -> np.ndarray:
     return eye + 0.5 * k + d[..., None, None] * (k @ k)
 
 
-def exp_so3_derivative(omega: np.ndarray) -> np.ndarray:
+def exp_so3_derivative(omega: np.ndarray, rot: np.ndarray | None = None,
+                       jr: np.ndarray | None = None) -> np.ndarray:
     """Derivative of the matrix ``Exp(omega)`` (..., 3) with respect to ``omega``: (..., 3, 3, 3).
 
     ``out[..., r, s, m] = d Exp(omega)[r, s] / d omega[m] = (Exp(omega) @ hat(J_r(omega)[:, m]))[r, s]``.
-    Used for the pose-corrective blend shapes, which are linear in the matrix entries.
+    Used for the pose-corrective blend shapes, which are linear in the matrix entries.  ``rot`` and ``jr``
+    (``exp_so3(omega)``, ``right_jacobian(omega)``) may be passed when already computed.
     """
     omega = np.asarray(omega, dtype=np.float64)
-    rot = exp_so3(omega)
-    jr = right_jacobian(omega)
+    rot = exp_so3(omega) if rot is None else rot
+    jr = right_jacobian(omega) if jr is None else jr
     # hat of each column m of J_r: (..., m, 3, 3)
     hats = hat(np.swapaxes(jr, -1, -2))
     out = rot[..., None, :, :] @ hats          # (..., m, r, s)
