@@ -1,0 +1,86 @@
+"""E_T (PedX Eq. 2): the body's root lies at the mean of the pedestrian's LiDAR points, up to a known offset.
+
+The LiDAR only sees the surface facing the sensor, so the mean ``m`` of the instance points (M, 3) sits in
+front of the body's centre along the viewing ray, and its height depends on which parts are visible.  The
+prior therefore compares the pelvis with ``m`` in a *sensor-ray frame* and allows for both effects:
+
+    world_p_pelvis = J_0(betas) + trans                (SMPL: the root joint never moves with the pose)
+    Q = [u, l, e_z]   u = unit ground-plane direction from the sensor to m,  l = e_z x u        (3, 3)
+    r = Q^T (world_p_pelvis - m) - [depth_offset_m, 0, height_offset_m]                  (3,) metres
+
+with per-axis sigmas ``(sigma_ray_m, sigma_lateral_m, sigma_vertical_m)``: the pelvis is expected
+``depth_offset_m`` (default 0.10 m, about half a torso depth) *behind* the visible surface along the ray,
+and the along-ray and vertical sigmas are larger than the lateral one (the offset varies with the
+body's orientation and with occlusion).  World = LiDAR frame, z up; the sensor sits at ``world_p_sensor``
+(default the origin).  ``J_0`` is linear in ``betas``, so ``J_0(betas) = J_0(0) + D betas`` is precomputed
+from ``model.rest_joints`` once; the callback needs no body-model evaluation.  Keys: ``trans`` (3) and
+``betas`` (B) only (the pelvis does not depend on the root rotation or the body pose).
+Jacobians: ``dr/dtrans = Q^T``, ``dr/dbetas = Q^T D``.  If the points are (horizontally) on the sensor axis,
+``u`` falls back to world +x.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors.common import TRANS_DIM, BodyModelLike, as_f64, make_noise, set_jacobians
+
+
+def sensor_ray_frame(world_p_mean: np.ndarray, world_p_sensor: np.ndarray | None = None) -> np.ndarray:
+    """``world_R_ray`` (3, 3), columns ``[u, l, e_z]``: ground-plane viewing direction, its left, world up."""
+    sensor = np.zeros(3) if world_p_sensor is None else as_f64(world_p_sensor)
+    d = as_f64(world_p_mean)[:2] - sensor[:2]
+    n = float(np.hypot(d[0], d[1]))
+    u = np.array([1.0, 0.0, 0.0]) if n < 1e-6 else np.array([d[0] / n, d[1] / n, 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    return np.stack([u, np.cross(up, u), up], axis=1)
+
+
+def pelvis_shape_basis(model: BodyModelLike, num_betas: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rest pelvis ``J_0(0)`` (3,) and ``D = dJ_0/dbetas`` (3, B) from ``model.rest_joints`` (linear in betas)."""
+    rest0 = np.asarray(model.rest_joints(np.zeros(num_betas)))[0]
+    basis = np.stack([np.asarray(model.rest_joints(e))[0] - rest0 for e in np.eye(num_betas)], axis=1)
+    return as_f64(rest0), as_f64(basis)
+
+
+def translation_prior_error(trans: np.ndarray, betas: np.ndarray, pelvis_rest: np.ndarray,
+                            pelvis_shapedirs: np.ndarray, world_p_mean: np.ndarray, world_R_ray: np.ndarray,
+                            offsets: np.ndarray, want_jacobians: bool = False
+                            ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Residual (3,) metres in the ray frame; Jacobians ``[dr/dtrans (3, 3), dr/dbetas (3, B)]`` when asked."""
+    pelvis = pelvis_rest + pelvis_shapedirs @ as_f64(betas) + as_f64(trans)
+    r = world_R_ray.T @ (pelvis - world_p_mean) - offsets
+    if not want_jacobians:
+        return r, None
+    return r, [as_f64(world_R_ray.T), as_f64(world_R_ray.T @ pelvis_shapedirs)]
+
+
+def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyModelLike, world_points: np.ndarray,
+                                  num_betas: int = 10, world_p_sensor: np.ndarray | None = None,
+                                  depth_offset_m: float = 0.10, height_offset_m: float = 0.0,
+                                  sigma_ray_m: float = 0.15, sigma_lateral_m: float = 0.10,
+                                  sigma_vertical_m: float = 0.25) -> gtsam.CustomFactor | None:
+    """Pelvis-to-LiDAR-mean prior on ``(trans, betas)``; ``None`` when there are no points.
+
+    ``world_points`` (M, 3) metres; offsets and sigmas in metres (see the module docstring).
+    """
+    pts = as_f64(world_points).reshape(-1, 3) if np.size(world_points) else np.zeros((0, 3))
+    if pts.shape[0] == 0:
+        return None
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("translation prior: world_points contain non-finite values")
+    mean = pts.mean(axis=0)
+    world_R_ray = sensor_ray_frame(mean, world_p_sensor)
+    offsets = np.array([depth_offset_m, 0.0, height_offset_m], dtype=np.float64)
+    pelvis_rest, pelvis_dirs = pelvis_shape_basis(model, num_betas)
+    noise = make_noise(np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m]))
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        k = this.keys()
+        r, blocks = translation_prior_error(values.atVector(k[0]), values.atVector(k[1]), pelvis_rest,
+                                            pelvis_dirs, mean, world_R_ray, offsets, H is not None)
+        if H is not None:
+            set_jacobians(H, blocks, 3, [TRANS_DIM, num_betas])
+        return r
+
+    return gtsam.CustomFactor(noise, [key_trans, key_betas], error)
