@@ -30,10 +30,14 @@ class NoiseConfig:
     """Scale of the robust chamfer loss in whitened units."""
     lidar_max_points: int = 150
     """At most this many instance points per frame enter the chamfer term (seeded subsample)."""
-    translation_sigma_m: float = 0.15
-    """Translation prior: body centre vs LiDAR points' mean, metres (across the viewing ray)."""
-    translation_ray_sigma_m: float = 0.30
+    translation_sigma_m: float = 0.10
+    """Translation prior: pelvis vs LiDAR points' mean, metres, across the viewing ray (paper Eq. 2)."""
+    translation_ray_sigma_m: float = 0.20
     """Translation prior along the viewing ray, metres (the visible surface is in front of the root)."""
+    translation_vertical_sigma_m: float = 0.25
+    """Translation prior vertically, metres (which body parts the LiDAR sees changes the points' mean height)."""
+    translation_depth_offset_m: float = 0.10
+    """The pelvis lies this far behind the mean of the visible surface along the viewing ray, metres."""
     heading_sigma_rad: float = 0.35
     """Heading prior: body forward vs LiDAR-trajectory heading, radians, at walking speed."""
     heading_min_speed_mps: float = 0.3

@@ -1,0 +1,205 @@
+"""One nonlinear factor graph per pedestrian track (the paper's energy, Sec. IV, as GTSAM factors).
+
+Variables: per frame ``i`` the root orientation ``r<i>`` (``Rot3``, ``world_R_body``), the translation
+``t<i>`` (3) and the body pose ``p<i>`` (69); one shape ``b0`` (10) shared by the whole track — the graph's
+shared node replaces the paper's ADMM consensus.
+
+Factors, one per frame per term (few, vectorised callbacks):
+
+* ``stereo_reprojection`` — E_J,l + E_J,r (left and right images in one factor; either can be switched off);
+* ``lidar_chamfer`` — E_3d, Eq. 4; ``translation_prior`` — E_T, Eq. 2; ``heading_prior`` — E_D, Eq. 3;
+* ``pose_prior`` + ``joint_limits`` — E_P; ``temporal_prior`` — E_tp, Eq. 10, between consecutive observed
+  frames (a gap of k frame periods weakens it); ``shape_prior`` once.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from factors.common import FrameKeys, MaxMixture
+from factors.heading_prior import make_heading_prior_factor
+from factors.joint_limits import make_joint_limit_factor
+from factors.lidar_chamfer import make_lidar_chamfer_factor
+from factors.pose_prior import make_pose_prior_factor
+from factors.shape_prior import make_shape_prior_factor
+from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
+from factors.temporal_prior import make_temporal_prior_factor
+from factors.translation_prior import make_translation_prior_factor
+from pedx_graph.body import BodyModel
+from pedx_graph.data.types import Track
+from pedx_graph.graph.config import FitConfig
+from pedx_graph.graph.init import TrackInit, initialise_track, world_R_body_from_yaw
+from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+log = logging.getLogger(__name__)
+
+_ROBUST_NAMES = {"geman_mcclure": "gemanmcclure", "gemanmcclure": "gemanmcclure", "huber": "huber",
+                 "cauchy": "cauchy", "none": "none"}
+
+
+def _robust(name: str) -> str:
+    try:
+        return _ROBUST_NAMES[name.lower()]
+    except KeyError:
+        raise ValueError(f"unknown robust loss {name!r}; choose one of {sorted(_ROBUST_NAMES)}") from None
+
+
+def farthest_point_subset(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """Indices of ``count`` points spread over ``points`` (N, 3) by farthest-point sampling (seeded)."""
+    n = len(points)
+    if count >= n:
+        return np.arange(n)
+    rng = np.random.default_rng(seed)
+    chosen = np.empty(count, dtype=np.int64)
+    chosen[0] = rng.integers(n)
+    dist = np.linalg.norm(points - points[chosen[0]], axis=1)
+    for i in range(1, count):
+        chosen[i] = int(np.argmax(dist))
+        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i]], axis=1))
+    return np.sort(chosen)
+
+
+@dataclass
+class EstimatorContext:
+    """What every track's graph shares: the body model, the priors and the chamfer vertex subset."""
+
+    model: BodyModel
+    pose_mixture: MaxMixture | None
+    temporal_mixture: MaxMixture | None
+    temporal_dt: float
+    chamfer_vertex_ids: np.ndarray
+    template_body_pose: np.ndarray
+
+    @staticmethod
+    def create(config: FitConfig) -> "EstimatorContext":
+        from pedx_graph.priors import load_pose_prior, load_temporal_prior
+
+        model = BodyModel.load(config.body_model or None)
+        pose_prior = load_pose_prior()
+        temporal_prior = load_temporal_prior()
+        pose_mixture = MaxMixture(pose_prior.weights, pose_prior.means, pose_prior.prec_chol)
+        temporal_mixture = MaxMixture(temporal_prior.weights, temporal_prior.means, temporal_prior.prec_chol)
+        template = pose_prior.means[int(np.argmax(pose_prior.weights))].copy()
+        rest = model.forward(np.zeros(72), np.zeros(model.num_betas), np.zeros(3)).vertices
+        ids = farthest_point_subset(rest, config.chamfer_vertices, seed=0)
+        return EstimatorContext(model=model, pose_mixture=pose_mixture, temporal_mixture=temporal_mixture,
+                                temporal_dt=float(temporal_prior.dt), chamfer_vertex_ids=ids,
+                                template_body_pose=template)
+
+
+@dataclass
+class TrackProblem:
+    """A track's graph, its initial values and the bookkeeping to read the estimate back."""
+
+    graph: gtsam.NonlinearFactorGraph
+    initial: gtsam.Values
+    keys: list[FrameKeys]
+    init: TrackInit
+    factor_kinds: list[str] = field(default_factory=list)
+    """Kind of each factor of ``graph`` (same order), e.g. ``"stereo_reprojection"``."""
+    factor_frames: list[int] = field(default_factory=list)
+    """Frame index (into the track) of each factor; -1 for track-level factors."""
+
+
+@dataclass
+class TrackEstimate:
+    pose: np.ndarray          # (T, 72)
+    betas: np.ndarray         # (B,)
+    trans: np.ndarray         # (T, 3)
+    world_keypoints: np.ndarray   # (T, 18, 3)
+
+
+def _hip_weights(config: FitConfig) -> np.ndarray:
+    weights = np.ones(len(PEDX_KEYPOINTS))
+    for name in ("lhip", "rhip"):
+        weights[PEDX_KEYPOINTS.index(name)] = 1.0 / config.noise.hip_sigma_factor ** 2
+    return weights
+
+
+def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if len(points) > count:
+        points = points[np.sort(rng.choice(len(points), size=count, replace=False))]
+    return points
+
+
+def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
+                      yaw_override: np.ndarray | None = None) -> TrackProblem:
+    """The factor graph and initial values of ``track`` (see the module docstring)."""
+    if len(track.frames) == 0:
+        raise ValueError(f"track {track.sequence}/{track.tracking_id} has no frames")
+    noise, terms = config.noise, config.terms
+    model = ctx.model
+    nb = model.num_betas
+    init = initialise_track(track, min_speed_mps=noise.heading_min_speed_mps)
+    world_R_body = init.world_R_body if yaw_override is None else world_R_body_from_yaw(yaw_override)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    kinds: list[str] = []
+    frames_of: list[int] = []
+
+    def add(factor, kind: str, frame: int) -> None:
+        if factor is not None:
+            graph.add(factor)
+            kinds.append(kind)
+            frames_of.append(frame)
+
+    rng = np.random.default_rng(config.seed)
+    betas0 = np.zeros(nb)
+    pelvis_rest = model.rest_joints(betas0)[0]
+    keys = [FrameKeys.for_frame(i) for i in range(len(track.frames))]
+    values.insert(keys[0].betas, betas0)
+    hip_weights = _hip_weights(config)
+    for i, (fr, k) in enumerate(zip(track.frames, keys)):
+        values.insert(k.root, gtsam.Rot3(world_R_body[i]))
+        values.insert(k.trans, np.asarray(init.world_p_centre[i] - pelvis_rest, dtype=float))
+        values.insert(k.body_pose, ctx.template_body_pose.copy())
+        left = fr.left if terms.left_reprojection else None
+        right = fr.right if terms.right_reprojection else None
+        if left is not None or right is not None:
+            add(make_stereo_reprojection_factor(
+                k, model, StereoKeypoints.from_views(left, right), track.calibrations[fr.pair],
+                sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
+                keypoint_weights=hip_weights, robust=_robust(noise.reprojection_loss),
+                robust_scale=noise.reprojection_loss_scale), "stereo_reprojection", i)
+        points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
+        if terms.lidar_chamfer and len(points):
+            add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
+                                          robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
+                                          candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer", i)
+        if terms.translation_prior and len(points) >= 3:
+            add(make_translation_prior_factor(k.trans, k.betas, model, points, num_betas=nb,
+                                              depth_offset_m=noise.translation_depth_offset_m,
+                                              sigma_ray_m=noise.translation_ray_sigma_m,
+                                              sigma_lateral_m=noise.translation_sigma_m,
+                                              sigma_vertical_m=noise.translation_vertical_sigma_m),
+                "translation_prior", i)
+        if terms.heading_prior and np.isfinite(init.heading_yaw[i]):
+            add(make_heading_prior_factor(k.root, float(init.heading_yaw[i]), float(init.speed_mps[i]),
+                                          sigma0_rad=noise.heading_sigma_rad, v0=noise.heading_min_speed_mps * 2,
+                                          min_speed=noise.heading_min_speed_mps), "heading_prior", i)
+        if terms.pose_prior:
+            add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture), "pose_prior", i)
+            add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits", i)
+        if terms.temporal_prior and i > 0:
+            kp = keys[i - 1]
+            gap = max(1, int(round((init.times[i] - init.times[i - 1]) / ctx.temporal_dt)))
+            add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
+                                           mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior", i)
+    add(make_shape_prior_factor(keys[0].betas, num_betas=nb, sigma=noise.shape_sigma), "shape_prior", -1)
+    return TrackProblem(graph=graph, initial=values, keys=keys, init=init, factor_kinds=kinds,
+                        factor_frames=frames_of)
+
+
+def extract_estimate(problem: TrackProblem, values: gtsam.Values, ctx: EstimatorContext) -> TrackEstimate:
+    """Read the per-frame SMPL parameters and world keypoints out of ``values``."""
+    betas = np.asarray(values.atVector(problem.keys[0].betas), dtype=float)
+    pose = np.stack([np.concatenate([gtsam.Rot3.Logmap(values.atRot3(k.root)), values.atVector(k.body_pose)])
+                     for k in problem.keys])
+    trans = np.stack([np.asarray(values.atVector(k.trans), dtype=float) for k in problem.keys])
+    kps = ctx.model.keypoints(pose, np.broadcast_to(betas, (len(pose), len(betas))), trans)
+    return TrackEstimate(pose=pose, betas=betas, trans=trans, world_keypoints=np.asarray(kps))
