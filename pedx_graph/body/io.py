@@ -135,6 +135,9 @@ class _RestrictedUnpickler(pickle.Unpickler):
         if module in ("copy_reg", "copyreg") and name == "_reconstructor":
             import copyreg
             return copyreg._reconstructor
+        if module == "_codecs" and name == "encode":          # how protocol-2 pickles store bytes
+            import codecs
+            return codecs.encode
         if module in ("__builtin__", "builtins") and name in _SAFE_BUILTINS:
             import builtins
             return getattr(builtins, name)
@@ -429,7 +432,9 @@ def synthetic_model_arrays(num_vertices: int = 300, seed: int = 0, num_betas: in
     kintree = np.zeros((2, len(parents)), dtype=np.uint32)
     kintree[0] = np.where(parents < 0, ROOT_PARENT_UINT32, parents).astype(np.uint32)
     kintree[1] = np.arange(len(parents), dtype=np.uint32)
-    faces = np.stack([rng.choice(num_vertices, size=3, replace=False) for _ in range(2 * num_vertices)])
+    first = rng.integers(0, num_vertices, size=2 * num_vertices)
+    steps = rng.integers(1, max(num_vertices // 2, 2), size=(2 * num_vertices, 2))
+    faces = np.stack([first, first + steps[:, 0], first + steps[:, 0] + steps[:, 1]], axis=1) % num_vertices
     out = {
         "v_template": v_template, "shapedirs": shapedirs, "posedirs": posedirs, "J_regressor": j_regressor,
         "weights": weights, "kintree_table": kintree, "f": faces.astype(np.uint32),
