@@ -1,1 +1,40 @@
-"""Custom GTSAM factors of pedx-graph: one energy term of the PedX method per module."""
+"""Custom GTSAM factors of pedx-graph: one energy term of the PedX method per module.
+
+Every ``make_*_factor`` returns one factor per frame (per frame pair for the temporal prior), or ``None``
+when the frame has no measurement for that term.  Per-frame keys are ``[root (Rot3), trans (3),
+body_pose (69), betas (B)]`` (:class:`FrameKeys`); see docs/factors.md for residuals, units and noise.
+
+=========================  ===============================  ============================================
+term                       module                           factory
+=========================  ===============================  ============================================
+E_J,l + E_J,r              :mod:`factors.stereo_reprojection`  :func:`make_stereo_reprojection_factor`
+E_3d (Eq. 4)               :mod:`factors.lidar_chamfer`        :func:`make_lidar_chamfer_factor`
+E_T (Eq. 2)                :mod:`factors.translation_prior`    :func:`make_translation_prior_factor`
+E_D (Eq. 3)                :mod:`factors.heading_prior`        :func:`make_heading_prior_factor`
+E_P (GMM)                  :mod:`factors.pose_prior`           :func:`make_pose_prior_factor`
+E_P (joint limits)         :mod:`factors.joint_limits`         :func:`make_joint_limit_factor`
+shape                      :mod:`factors.shape_prior`          :func:`make_shape_prior_factor`
+E_tp (Eq. 10)              :mod:`factors.temporal_prior`       :func:`make_temporal_prior_factor`
+=========================  ===============================  ============================================
+"""
+from factors.common import FrameKeys, FrameState, MaxMixture, make_noise, read_frame_state
+from factors.heading_prior import heading_sigma, make_heading_prior_factor
+from factors.joint_limits import DEFAULT_JOINT_LIMITS, JointLimit, make_joint_limit_factor
+from factors.lidar_chamfer import make_lidar_chamfer_factor
+from factors.pose_prior import make_pose_prior_factor
+from factors.shape_prior import make_shape_prior_factor
+from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
+from factors.temporal_prior import TEMPORAL_DIM, make_temporal_prior_factor, temporal_difference
+from factors.translation_prior import make_translation_prior_factor
+
+__all__ = [
+    "FrameKeys", "FrameState", "MaxMixture", "make_noise", "read_frame_state",
+    "make_stereo_reprojection_factor", "StereoKeypoints",
+    "make_lidar_chamfer_factor",
+    "make_translation_prior_factor",
+    "make_heading_prior_factor", "heading_sigma",
+    "make_pose_prior_factor",
+    "make_joint_limit_factor", "JointLimit", "DEFAULT_JOINT_LIMITS",
+    "make_shape_prior_factor",
+    "make_temporal_prior_factor", "temporal_difference", "TEMPORAL_DIM",
+]
