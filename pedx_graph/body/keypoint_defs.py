@@ -85,7 +85,9 @@ class KeypointMap:
         full_v = sp.csr_matrix((self.vertex_coeffs.ravel(),
                                 (np.repeat(np.arange(num_k), len(self.vertex_ids)),
                                  np.tile(self.vertex_ids, num_k))), shape=(num_k, num_vertices))
-        return sp.hstack([full_v, sp.csr_matrix(self.joint_coeffs)], format="csr")
+        out = sp.hstack([full_v, sp.csr_matrix(self.joint_coeffs)], format="csr")
+        out.eliminate_zeros()
+        return out
 
 
 def _build(entries: dict[str, tuple[tuple[tuple[int, float], ...], tuple[tuple[int, float], ...]]],
