@@ -1,0 +1,259 @@
+"""Run the simulator: build the scene, move the people, sweep the LiDAR, label the images, write the release.
+
+Output layout (``out_dir``; the PedX release layout, see the pedx-format notes, plus ``truth/``)::
+
+    calib/calib_cam_to_cam_<left>-<right>.txt, calib/calib_cam_to_range_<left>.txt
+    labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json    one per labelled instance per image
+    labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply        polygon-assigned LiDAR points (left image)
+    labels/3d/smpl/<seq>/<seq>_<frame:07d>_<tid>.json          ground-truth SMPL, world (LiDAR) frame
+    pointclouds/<seq>/<seq>_<frame:07d>.ply                    full sweep (lost returns as inf points)
+    timestamps/timestamps-{pointclouds,images}-<seq>.txt       ``frame seconds`` lines
+    truth/meta.json                                            objects, walkways, people, seed
+    truth/<seq>/<seq>_<frame:07d>.npz                          per-frame exact quantities (below)
+    truth/<seq>/<seq>_<frame:07d>.json                         per-frame, per-person visibility summary
+    sim_config.yaml                                            resolved config (``# seed: S`` first line)
+    summary.json                                               counts (no wall-clock times: byte-stable)
+
+Per-frame truth NPZ keys (``<tid>`` = tracking id): ``scene_points`` (N, 3) float32 = the finite points of
+the scene PLY in order, ``scene_object_id`` (N,) int32 = object id hit by each point (``truth/meta.json``
+maps ids to objects), ``scene_true_range`` (N,) float32 (noise-free range);
+``segment_index__<tid>`` (M,) int32 = rows of ``scene_points`` written to that instance's segment PLY (same
+order), ``segment_is_person__<tid>`` (M,) bool = the point really comes from that person (exact
+membership); ``keypoints__<tid>`` (18, 3) and ``joints__<tid>`` (24, 3) world positions of every present
+pedestrian.
+
+Same seed and config -> byte-identical files (NPZ members carry a fixed timestamp).
+"""
+from __future__ import annotations
+
+import io
+import logging
+import time
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from pedx_graph.config import to_dict
+from pedx_graph.data.labels2d import Label2D
+from pedx_graph.data.types import SmplLabel, StereoCalibration
+from pedx_graph.data.writer import (
+    write_calibration,
+    write_label2d,
+    write_results,
+    write_scene_points,
+    write_segment,
+    write_timestamps,
+)
+from pedx_graph.sim import cameras, labels, lidar
+from pedx_graph.sim.config import SimConfig
+from pedx_graph.sim.pedestrians import Pedestrian, plan_pedestrians
+from pedx_graph.sim.scene import RayScene, build_scene
+from pedx_graph.utils import atomic_write_bytes, atomic_write_json, atomic_write_text
+
+logger = logging.getLogger(__name__)
+
+
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An uncompressed ``.npz`` (readable by ``np.load``) with fixed member timestamps: byte-reproducible."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
+        for key, value in arrays.items():
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.ascontiguousarray(value), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, member.getvalue())
+    return buf.getvalue()
+
+
+@dataclass
+class _ViewLabel:
+    camera: str
+    side: str
+    uv: np.ndarray
+    visible: np.ndarray
+    polygon: np.ndarray
+    n_visible_true: int
+    area_px: float
+
+
+def _label_person_in_view(ray_scene: RayScene, view: cameras.CameraView, person: Pedestrian,
+                          vertices: np.ndarray, keypoints: np.ndarray, config: SimConfig,
+                          rng: np.random.Generator) -> tuple[_ViewLabel | None, dict]:
+    """Label one person in one image, or None when it is not labelable there; plus a truth record."""
+    lab = config.labels
+    uv_true, depth = view.project(keypoints)
+    in_image = view.in_image(uv_true) & (depth > 0.5)
+    record = {"in_image": int(in_image.sum())}
+    if not in_image.any():
+        return None, record
+    sil = cameras.visible_silhouette(ray_scene, view, person.object_id, vertices, lab.id_buffer_max_cells)
+    area = 0.0 if sil is None else sil.area_px
+    record["visible_area_px"] = round(area, 1)
+    if sil is None or area < lab.min_visible_pixels:
+        return None, record
+    visible = cameras.point_visibility(ray_scene, view, keypoints, lab.visibility_tolerance_m) & in_image
+    record["n_visible"] = int(visible.sum())
+    if visible.sum() < lab.min_visible_keypoints:
+        return None, record
+    polygon = cameras.silhouette_polygon(sil, lab.polygon_epsilon_px)
+    if polygon is None:
+        return None, record
+    uv, vis = labels.keypoint_labels(uv_true, visible, in_image, lab, rng, view.calib.image_size)
+    polygon = labels.noisy_polygon(polygon, lab, rng, view.calib.image_size)
+    record.update(labelled=True, visible=visible.astype(int).tolist())
+    return _ViewLabel(view.camera, view.side, uv, vis, polygon, int(visible.sum()), area), record
+
+
+def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0, body_model=None,
+             clip_source=None, progress: bool = False) -> dict:
+    """Simulate ``config.scene.n_frames`` frames into ``out_dir`` (layout in the module docstring).
+
+    ``body_model``: a :class:`pedx_graph.body.BodyModel` (default: ``BodyModel.load(config.body_model)``);
+    ``clip_source``: an object with ``draw(rng, n_frames, fps, rest_joints, hip_height_m, speed_mps)``
+    returning a MotionClip (default from ``config.motion``).  Returns a summary dict (counts and timing).
+    """
+    t_start = time.perf_counter()
+    config = (config or SimConfig()).validate()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if body_model is None:
+        from pedx_graph.body import BodyModel
+        body_model = BodyModel.load(config.body_model)
+    sc = config.scene
+    seq = sc.sequence
+    scene_rng, ped_rng, lidar_rng, label_rng = (np.random.default_rng(s)
+                                                 for s in np.random.SeedSequence(int(seed)).spawn(4))
+
+    scene = build_scene(config, scene_rng)
+    calibs: dict[str, StereoCalibration] = {}
+    for pair in config.cameras.pairs():
+        calibs[pair.name] = cameras.make_calibration(pair)
+        write_calibration(out, calibs[pair.name])
+    people = plan_pedestrians(config, scene, body_model, ped_rng, clip_source)
+    for person in people:
+        person.object_id = scene.add_object("pedestrian", person.tracking_id)
+    faces = np.asarray(body_model.faces, dtype=np.int64)
+    directions = lidar.beam_directions(config.lidar)
+
+    views = []
+    for calib in calibs.values():
+        for view in cameras.camera_views(calib):
+            if view.side == "left" or config.cameras.label_right_images:
+                views.append(view)
+
+    counts = {"labels_2d": 0, "segments": 0, "smpl_labels": 0, "segment_points": 0,
+              "segment_points_on_person": 0, "lidar_points": 0, "person_lidar_points": 0}
+    frame_seconds: dict[int, float] = {}
+    frames_iter = range(sc.n_frames)
+    if progress:
+        from tqdm import tqdm
+        frames_iter = tqdm(frames_iter, desc="simulate", unit="frame")
+    for k in frames_iter:
+        time_s = k / sc.fps
+        frame = sc.first_frame + k
+        frame_seconds[frame] = time_s
+        meshes = scene.meshes_at(time_s)
+        present = [p for p in people if p.present[k]]
+        bodies = {}
+        for person in present:
+            body = body_model.forward(person.pose[k], person.betas, person.trans[k])
+            bodies[person.tracking_id] = body
+            meshes.append((person.object_id, body.vertices, faces))
+        ray_scene = RayScene(meshes)
+        sweep = lidar.sweep(ray_scene, config.lidar, lidar_rng, directions)
+        scene_points = sweep.world_points
+        ply_points = scene_points
+        if config.lidar.write_dropouts_as_inf and sweep.n_dropped:
+            ply_points = np.concatenate([scene_points, np.full((sweep.n_dropped, 3), np.inf)])
+        write_scene_points(out, seq, frame, ply_points)
+        counts["lidar_points"] += len(scene_points)
+
+        truth_arrays = {"scene_points": scene_points.astype(np.float32),
+                        "scene_object_id": sweep.object_id.astype(np.int32),
+                        "scene_true_range": sweep.true_range_m.astype(np.float32)}
+        truth_people = {}
+        pair_projection = {}
+        for person in present:
+            tid = person.tracking_id
+            body = bodies[tid]
+            pelvis_xy = person.world_pelvis_xy[k]
+            distance = float(np.hypot(*pelvis_xy))
+            n_person_points = int((sweep.object_id == person.object_id).sum())
+            counts["person_lidar_points"] += n_person_points
+            record = {"distance_m": round(distance, 3), "n_lidar_points_on_person": n_person_points,
+                      "views": {}}
+            truth_arrays[f"keypoints__{tid}"] = body.keypoints
+            truth_arrays[f"joints__{tid}"] = body.joints
+            labelled_views: list[_ViewLabel] = []
+            if config.labels.min_distance_m <= distance <= config.labels.max_distance_m:
+                for view in views:
+                    vl, vrec = _label_person_in_view(ray_scene, view, person, body.vertices, body.keypoints,
+                                                     config, label_rng)
+                    record["views"][view.camera] = vrec
+                    if vl is not None:
+                        labelled_views.append(vl)
+                        write_label2d(out, Label2D(sequence=seq, camera=vl.camera, frame=frame, tracking_id=tid,
+                                                   category="pedestrian", subtype="adult",
+                                                   view=labels.make_view(vl.uv, vl.visible, vl.polygon),
+                                                   frame_id=frame))
+                        counts["labels_2d"] += 1
+            record["labelled"] = bool(labelled_views)
+            if labelled_views:
+                # Segment: points inside the polygon of every left image the person is labelled in.
+                seg = []
+                for vl in labelled_views:
+                    if vl.side != "left":
+                        continue
+                    pair_name = next(n for n in calibs if n.startswith(vl.camera + "-"))
+                    if pair_name not in pair_projection:
+                        left_view = cameras.CameraView(calibs[pair_name], "left", vl.camera)
+                        pair_projection[pair_name] = left_view.project(scene_points)
+                    uv, depth = pair_projection[pair_name]
+                    seg.append(labels.segment_indices_from_projection(uv, depth, vl.polygon))
+                index = np.unique(np.concatenate(seg)) if seg else np.zeros(0, dtype=np.int64)
+                is_person = sweep.object_id[index] == person.object_id
+                truth_arrays[f"segment_index__{tid}"] = index.astype(np.int32)
+                truth_arrays[f"segment_is_person__{tid}"] = is_person
+                record["n_segment_points"] = int(len(index))
+                record["n_segment_points_on_person"] = int(is_person.sum())
+                if len(index):
+                    write_segment(out, seq, frame, tid, scene_points[index])
+                    counts["segments"] += 1
+                    counts["segment_points"] += int(len(index))
+                    counts["segment_points_on_person"] += int(is_person.sum())
+                write_results(out, [SmplLabel(sequence=seq, frame=frame, tracking_id=tid, betas=person.betas,
+                                              pose=person.pose[k], trans=person.trans[k])])
+                counts["smpl_labels"] += 1
+            truth_people[tid] = record
+        truth_dir = out / "truth" / seq
+        atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
+        atomic_write_json(truth_dir / f"{seq}_{frame:07d}.json",
+                          {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
+                           "n_dropped": sweep.n_dropped, "people": truth_people})
+
+    for kind in ("pointclouds", "images"):
+        write_timestamps(out, seq, frame_seconds, kind=kind)
+    meta = {
+        "seed": int(seed), "sequence": seq, "fps": sc.fps, "first_frame": sc.first_frame,
+        "n_frames": sc.n_frames, "ground_z": scene.ground_z, "objects": scene.object_table(),
+        "walkways": [{"name": w.name, "kind": w.kind, "start_xy": w.start_xy, "end_xy": w.end_xy,
+                      "half_width_m": w.half_width_m} for w in scene.walkways],
+        "pedestrians": [{"tracking_id": p.tracking_id, "object_id": p.object_id, "betas": p.betas,
+                         "walkway": p.walkway, "group": p.group, "motion": p.motion,
+                         "present_frames": int(p.present.sum())} for p in people],
+        "pairs": {n: {"focal_px": c.focal_px, "baseline_m": c.baseline_m, "image_size": c.image_size}
+                  for n, c in calibs.items()},
+    }
+    atomic_write_json(out / "truth" / "meta.json", meta)
+    atomic_write_text(out / "sim_config.yaml",
+                      f"# seed: {int(seed)}\n" + yaml.safe_dump(to_dict(config), sort_keys=False))
+    summary = {"seed": int(seed), "sequence": seq, "frames": sc.n_frames, "pedestrians": len(people), **counts,
+               "segment_precision": (counts["segment_points_on_person"] / counts["segment_points"]
+                                     if counts["segment_points"] else None)}
+    atomic_write_json(out / "summary.json", summary)
+    summary["seconds"] = time.perf_counter() - t_start
+    return summary
