@@ -239,24 +239,25 @@ class MaxMixture:
         self.means = as_f64(means)
         #: L_k^T / sqrt(s): (K, D, D), so that whitened = lt[k] @ (x - mu_k)
         self.lt = as_f64(np.swapaxes(prec_chol, 1, 2) / np.sqrt(covariance_scale))
+        #: Jacobian of the residual per component: (K, D + 1, D), last row zero (read-only views handed out)
+        self._jac = np.zeros((k, d + 1, d))
+        self._jac[:, :d] = self.lt
+        self._jac.setflags(write=False)
         c = -np.log(weights / weights.sum()) - logdet
         self.extra = np.sqrt(2.0 * (c - c.min()))          # (K,) >= 0
         self.c = c - c.min()
 
     def residual(self, x: np.ndarray, want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None, int]:
-        """Max-mixture residual (D+1,), its Jacobian (D+1, D) (or None) and the selected component."""
-        diff = np.asarray(x, dtype=np.float64)[None, :] - self.means           # (K, D)
-        white = np.einsum("kij,kj->ki", self.lt, diff)                         # (K, D)
-        cost = 0.5 * np.einsum("ki,ki->k", white, white) + self.c
+        """Max-mixture residual (D+1,), its Jacobian (D+1, D) (or None) and the selected component.
+
+        The Jacobian is a read-only array shared between calls (copy it before modifying).
+        """
+        diff = np.asarray(x, dtype=np.float64)[None, :, None] - self.means[:, :, None]   # (K, D, 1)
+        white = np.matmul(self.lt, diff)[:, :, 0]                                       # (K, D)
+        cost = 0.5 * (white * white).sum(axis=1) + self.c
         best = int(np.argmin(cost))
-        r = np.empty(self.dim + 1)
-        r[:-1] = white[best]
-        r[-1] = self.extra[best]
-        jac = None
-        if want_jacobian:
-            jac = np.zeros((self.dim + 1, self.dim))
-            jac[:-1] = self.lt[best]
-        return r, jac, best
+        r = np.append(white[best], self.extra[best])
+        return r, (self._jac[best] if want_jacobian else None), best
 
     def negative_log_likelihood(self, x: np.ndarray) -> float:
         """``0.5 ||r(x)||^2`` (max-mixture cost, up to a constant)."""

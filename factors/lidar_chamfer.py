@@ -13,7 +13,13 @@ assignment n(i) is held fixed; the Jacobian uses ``BodyModel.point_jacobians`` o
 Noise: isotropic ``sigma_m`` metres per coordinate, robust per row (Geman-McClure by default, scale in
 whitened units) against points mislabelled as the pedestrian.  ``candidate_vertex_ids`` restricts the
 vertices that can be matched (e.g. a decimated subset, to speed up the tree).  No factor is created for
-zero points (:func:`make_lidar_chamfer_factor` returns ``None``).
+zero points (:func:`make_lidar_chamfer_factor` returns ``None``).  The factor remembers the matches of its
+last evaluation point (a pure memo of a deterministic function: LM evaluates the error at a new estimate
+and then linearises at that same estimate, which then skips the forward pass and the tree).
+
+Like ICP, nearest-vertex correspondences give local minima when the start is off by more than the vertex
+spacing, and a Geman-McClure kernel with a small scale stalls far from the solution: initialise close
+(stereo, translation prior) or anneal the kernel scale (e.g. ``gtsam.GncLMOptimizer``).
 """
 from __future__ import annotations
 
@@ -28,8 +34,13 @@ from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, F
 
 
 def posed_vertices(model: BodyModelLike, state: FrameState, candidate_vertex_ids: np.ndarray | None) -> np.ndarray:
-    """World positions (C, 3) of the candidate vertices (all vertices when None) at ``state``."""
-    if candidate_vertex_ids is not None and hasattr(model, "vertices_subset"):
+    """World positions (C, 3) of the candidate vertices (all vertices when None) at ``state``.
+
+    A small candidate set (< 1/10 of the mesh) uses ``model.vertices_subset`` when the model has it; otherwise
+    the full forward pass is indexed.
+    """
+    if (candidate_vertex_ids is not None and hasattr(model, "vertices_subset")
+            and 10 * candidate_vertex_ids.size < getattr(model, "num_vertices", 0)):
         return np.asarray(model.vertices_subset(state.full_pose, state.betas, state.trans, candidate_vertex_ids))
     verts = np.asarray(model.forward(state.full_pose, state.betas, state.trans).vertices)
     return verts if candidate_vertex_ids is None else verts[candidate_vertex_ids]
@@ -39,16 +50,20 @@ def nearest_vertices(model: BodyModelLike, state: FrameState, world_points: np.n
                      candidate_vertex_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertex id (M,) of the nearest posed vertex of each world point (M, 3), and that vertex's position (M, 3)."""
     verts = posed_vertices(model, state, candidate_vertex_ids)
-    _, nn = cKDTree(verts).query(world_points)
+    _, nn = cKDTree(verts, balanced_tree=False, compact_nodes=False).query(world_points)
     ids = nn if candidate_vertex_ids is None else candidate_vertex_ids[nn]
     return np.asarray(ids, dtype=np.int64), verts[nn]
 
 
 def lidar_chamfer_error(model: BodyModelLike, state: FrameState, world_points: np.ndarray,
-                        candidate_vertex_ids: np.ndarray | None = None, want_jacobians: bool = False
+                        candidate_vertex_ids: np.ndarray | None = None, want_jacobians: bool = False,
+                        matches: tuple[np.ndarray, np.ndarray] | None = None
                         ) -> tuple[np.ndarray, list[np.ndarray] | None]:
-    """Unwhitened residual (3M,) in metres and, when asked, ``[J_root, J_trans, J_body_pose, J_betas]``."""
-    ids, verts = nearest_vertices(model, state, world_points, candidate_vertex_ids)
+    """Unwhitened residual (3M,) in metres and, when asked, ``[J_root, J_trans, J_body_pose, J_betas]``.
+
+    ``matches`` = the output of :func:`nearest_vertices` at this same ``state``, if already known.
+    """
+    ids, verts = nearest_vertices(model, state, world_points, candidate_vertex_ids) if matches is None else matches
     if not want_jacobians:
         return (verts - world_points).reshape(-1), None
     unique, inverse = np.unique(ids, return_inverse=True)
@@ -77,10 +92,17 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
     if cand is not None and cand.size == 0:
         raise ValueError("lidar chamfer: candidate_vertex_ids is empty")
     rows = 3 * pts.shape[0]
+    memo: dict = {}             # last (state bytes -> matches): LM evaluates the error, then linearises there
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         state = read_frame_state(values, this.keys())
-        r, blocks = lidar_chamfer_error(model, state, pts, cand, H is not None)
+        tag = b"".join(a.tobytes() for a in (state.root_rotvec, state.trans, state.body_pose, state.betas))
+        matches = memo.get(tag)
+        if matches is None:
+            matches = nearest_vertices(model, state, pts, cand)
+            memo.clear()
+            memo[tag] = matches
+        r, blocks = lidar_chamfer_error(model, state, pts, cand, H is not None, matches)
         if H is not None:
             set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, state.betas.size])
         return r

@@ -127,11 +127,22 @@ def project_points(world_p: np.ndarray, proj_m: np.ndarray, proj_c: np.ndarray,
     return uv, d_uv / w[:, None, None]
 
 
+def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
+    """(18, 3) world keypoints; ``model.keypoints`` (cheap: few vertices) when the model has it."""
+    if hasattr(model, "keypoints") and callable(model.keypoints):
+        return model.keypoints(state.full_pose, state.betas, state.trans)
+    return model.forward(state.full_pose, state.betas, state.trans).keypoints
+
+
 def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: StereoSetup,
                               want_jacobians: bool = False) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Unwhitened residual (m,) in pixels and, when asked, ``[J_root, J_trans, J_body_pose, J_betas]``."""
-    jac = model.point_jacobians(state.full_pose, state.betas, state.trans)
-    points = np.asarray(jac.points, dtype=np.float64)
+    if want_jacobians:
+        jac = model.point_jacobians(state.full_pose, state.betas, state.trans)
+        points = np.asarray(jac.points, dtype=np.float64)
+    else:                                    # residual only: the keypoints without their Jacobians
+        jac = None
+        points = np.asarray(_keypoints(model, state), dtype=np.float64)
     residuals, maps, index = [], [], []
     for img in setup.images:
         uv, d_uv = project_points(points[img.index], img.proj_m, img.proj_c, setup.min_depth)

@@ -27,7 +27,7 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, set_jacobians
-from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
+from pedx_graph.body.rotation import log_so3
 
 #: Dimension of the temporal difference.
 TEMPORAL_DIM = TRANS_DIM + ROOT_DIM + BODY_POSE_DIM          # 75
@@ -48,6 +48,19 @@ def temporal_difference(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_po
                            np.asarray(body_pose_j, float) - np.asarray(body_pose_i, float)], axis=-1)
 
 
+def _difference_parts(world_R_body_i, trans_i, body_pose_i, world_R_body_j, trans_j, body_pose_j):
+    """d (75,), the step s (3,), R_i^T (3, 3), R_ij = R_i^T R_j (3, 3) and J_r^-1(w) (3, 3) for one pair."""
+    rot_i = as_f64(world_R_body_i)
+    rot_i_t = rot_i.T
+    step = rot_i_t @ (as_f64(trans_j) - as_f64(trans_i))
+    rel = rot_i_t @ as_f64(world_R_body_j)
+    rel_rot = gtsam.Rot3(rel)
+    w = np.asarray(gtsam.Rot3.Logmap(rel_rot))
+    jr_inv = np.asarray(gtsam.Rot3.LogmapDerivative(w))
+    d = np.concatenate([step, w, as_f64(body_pose_j) - as_f64(body_pose_i)])
+    return d, step, rot_i_t, rel, jr_inv
+
+
 def temporal_difference_jacobians(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
                                   world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray
                                   ) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -55,27 +68,19 @@ def temporal_difference_jacobians(world_R_body_i: np.ndarray, trans_i: np.ndarra
 
     Blocks have shapes (75, 3), (75, 3), (75, 69), (75, 3), (75, 3), (75, 69).
     """
-    rot_i = as_f64(world_R_body_i)
-    rot_j = as_f64(world_R_body_j)
-    step = rot_i.T @ (as_f64(trans_j) - as_f64(trans_i))
-    rel = rot_i.T @ rot_j
-    w = log_so3(rel)
-    d = np.concatenate([step, w, as_f64(body_pose_j) - as_f64(body_pose_i)])
-    jr_inv = right_jacobian_inverse(w)
-    j_ri = np.zeros((TEMPORAL_DIM, 3))
-    j_ri[0:3] = hat(step)
-    j_ri[3:6] = -jr_inv @ rel.T
-    j_ti = np.zeros((TEMPORAL_DIM, 3))
-    j_ti[0:3] = -rot_i.T
-    j_rj = np.zeros((TEMPORAL_DIM, 3))
-    j_rj[3:6] = jr_inv
-    j_tj = np.zeros((TEMPORAL_DIM, 3))
-    j_tj[0:3] = rot_i.T
-    j_pi = np.zeros((TEMPORAL_DIM, BODY_POSE_DIM))
-    j_pi[6:] = -np.eye(BODY_POSE_DIM)
-    j_pj = np.zeros((TEMPORAL_DIM, BODY_POSE_DIM))
-    j_pj[6:] = np.eye(BODY_POSE_DIM)
-    return d, [j_ri, j_ti, j_pi, j_rj, j_tj, j_pj]
+    d, step, rot_i_t, rel, jr_inv = _difference_parts(world_R_body_i, trans_i, body_pose_i,
+                                                      world_R_body_j, trans_j, body_pose_j)
+    return d, _chain(np.eye(TEMPORAL_DIM), step, rot_i_t, rel, jr_inv)
+
+
+def _chain(jac_x: np.ndarray, step: np.ndarray, rot_i_t: np.ndarray, rel: np.ndarray,
+           jr_inv: np.ndarray) -> list[np.ndarray]:
+    """``jac_x @ dd/d(key)`` for the six keys, with ``jac_x`` (m, 75) the derivative w.r.t. d."""
+    a_s, a_w, a_p = jac_x[:, 0:3], jac_x[:, 3:6], jac_x[:, 6:]
+    hat_s = np.array([[0.0, -step[2], step[1]], [step[2], 0.0, -step[0]], [-step[1], step[0], 0.0]])
+    a_w_jr = a_w @ jr_inv
+    return [as_f64(a_s @ hat_s - a_w_jr @ rel.T), as_f64(-(a_s @ rot_i_t)), as_f64(-a_p),
+            as_f64(a_w_jr), as_f64(a_s @ rot_i_t), as_f64(a_p)]
 
 
 def temporal_prior_error(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
@@ -83,13 +88,12 @@ def temporal_prior_error(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_p
                          mixture: MaxMixture, frame_gap: int = 1, want_jacobian: bool = False
                          ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Max-mixture residual (76,) of ``d(i, j) / frame_gap`` and its six Jacobian blocks when asked."""
-    d, blocks = temporal_difference_jacobians(world_R_body_i, trans_i, body_pose_i,
-                                              world_R_body_j, trans_j, body_pose_j)
+    d, step, rot_i_t, rel, jr_inv = _difference_parts(world_R_body_i, trans_i, body_pose_i,
+                                                      world_R_body_j, trans_j, body_pose_j)
     r, jac_x, _ = mixture.residual(d / frame_gap, want_jacobian)
     if not want_jacobian:
         return r, None
-    scaled = jac_x / frame_gap                                   # (76, 75)
-    return r, [as_f64(scaled @ b) for b in blocks]
+    return r, _chain(jac_x / frame_gap, step, rot_i_t, rel, jr_inv)
 
 
 def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_i: int,

@@ -49,6 +49,12 @@ def test_noise_free_zero_and_jacobians(model_kind):
     v2 = frame_values(KEYS.as_list(), rot @ gtsam.Rot3.Expmap([0.1, -0.2, 0.05]).matrix(), trans + 0.1,
                       body_pose + rng.normal(scale=0.1, size=69), betas + 0.3)
     assert f.error(v2) > 1.0
+    s2 = FrameState.from_arrays(v2.atRot3(KEYS.root).matrix(), v2.atVector(KEYS.trans),
+                                v2.atVector(KEYS.body_pose), v2.atVector(KEYS.betas))
+    setup = build_stereo_setup(meas, calib)
+    r_only, _ = stereo_reprojection_error(model, s2, setup)
+    r_with, _ = stereo_reprojection_error(model, s2, setup, want_jacobians=True)
+    np.testing.assert_allclose(r_only, r_with, atol=1e-9)            # both evaluation paths agree
     assert_factor_jacobians(f, v2, rtol=1e-5, atol=1e-4)
 
 

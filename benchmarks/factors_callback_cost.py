@@ -1,0 +1,137 @@
+"""Cost of the pedx-graph factors' Python callbacks: graph.linearize / graph.error over 100 factors.
+
+Method: 100 frames of a standing, walking-like pedestrian (seeded random pose near zero), one factor of the
+measured kind per frame (per consecutive pair for the temporal prior), all on one ``NonlinearFactorGraph``;
+``graph.linearize(values)`` (Jacobians requested) and ``graph.error(values)`` (residual only) are timed
+``--repeats`` times and the median divided by the number of factors is reported in microseconds per factor
+(the callbacks dominate; GTSAM's own overhead is included).  Body model: a synthetic SMPL-format model
+(``pedx_graph.body.io.synthetic_model_arrays``) with SMPL's vertex count (6890) unless ``--vertices`` says
+otherwise.  Output: benchmarks/results/factors_callback_cost.{json,md}.
+
+    python benchmarks/factors_callback_cost.py [--frames 100] [--repeats 5] [--vertices 6890]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from factors import (FrameKeys, FrameState, StereoKeypoints, make_heading_prior_factor, make_joint_limit_factor,
+                     make_lidar_chamfer_factor, make_pose_prior_factor, make_shape_prior_factor,
+                     make_stereo_reprojection_factor, make_temporal_prior_factor, make_translation_prior_factor)
+from factors.common import MaxMixture
+from factors.temporal_prior import TEMPORAL_DIM
+from factors.testing import frame_values, make_test_calibration, random_gmm, standing_rotation, synthetic_body_model
+from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
+
+OUT_DIR = Path(__file__).resolve().parent / "results"
+
+
+def build(num_frames: int, num_vertices: int, seed: int):
+    rng = make_rng(seed)
+    model = synthetic_body_model(num_vertices=num_vertices, seed=seed)
+    calib = make_test_calibration()
+    states, values, keys = [], gtsam.Values(), []
+    betas = rng.normal(scale=0.5, size=10)
+    values.insert(gtsam.symbol("b", 0), betas)
+    for i in range(num_frames):
+        k = FrameKeys.for_frame(i)
+        s = FrameState.from_arrays(standing_rotation(2.8 + 0.01 * i), np.array([8.0, 0.4 + 0.05 * i, 0.9]),
+                                   rng.normal(scale=0.15, size=69), betas)
+        v = frame_values(k.as_list(), s.world_R_body, s.trans, s.body_pose, s.betas)
+        values.insert(k.root, v.atRot3(k.root))
+        values.insert(k.trans, v.atVector(k.trans))
+        values.insert(k.body_pose, v.atVector(k.body_pose))
+        states.append(s)
+        keys.append(k)
+    return rng, model, calib, states, values, keys
+
+
+def factor_sets(rng, model, calib, states, keys):
+    pose_mix = MaxMixture(*random_gmm(rng, 8, 69))
+    temp_mix = MaxMixture(*random_gmm(rng, 10, TEMPORAL_DIM))
+    sets = {}
+    lidar = []
+    stereo = []
+    for s in states:
+        out = model.forward(s.full_pose, s.betas, s.trans)
+        left, right = calib.project(out.keypoints)
+        stereo.append(StereoKeypoints(left + rng.normal(size=left.shape), right + rng.normal(size=right.shape),
+                                      np.ones(18, bool), np.ones(18, bool)))
+        ids = rng.choice(out.vertices.shape[0], 300, replace=False)
+        lidar.append(out.vertices[ids] + rng.normal(scale=0.01, size=(300, 3)))
+    sets["stereo_reprojection (36 rows)"] = [make_stereo_reprojection_factor(k, model, m, calib)
+                                             for k, m in zip(keys, stereo)]
+    sets["lidar_chamfer (300 points, all vertices)"] = [make_lidar_chamfer_factor(k, model, p)
+                                                       for k, p in zip(keys, lidar)]
+    cand = np.arange(0, model.num_vertices, 4)
+    sets["lidar_chamfer (300 points, 1/4 of vertices)"] = [
+        make_lidar_chamfer_factor(k, model, p, candidate_vertex_ids=cand) for k, p in zip(keys, lidar)]
+    sets["translation_prior"] = [make_translation_prior_factor(k.trans, k.betas, model, p)
+                                 for k, p in zip(keys, lidar)]
+    sets["heading_prior"] = [make_heading_prior_factor(k.root, 2.8, speed=1.2) for k in keys]
+    sets["pose_prior (K=8)"] = [make_pose_prior_factor(k.body_pose, mixture=pose_mix) for k in keys]
+    sets["joint_limits"] = [make_joint_limit_factor(k.body_pose) for k in keys]
+    sets["shape_prior (native)"] = [make_shape_prior_factor(k.betas) for k in keys]
+    sets["temporal_prior (K=10)"] = [
+        make_temporal_prior_factor(a.root, a.trans, a.body_pose, b.root, b.trans, b.body_pose, mixture=temp_mix)
+        for a, b in zip(keys[:-1], keys[1:])]
+    return sets
+
+
+def time_set(factors, values, repeats):
+    graph = gtsam.NonlinearFactorGraph()
+    for f in factors:
+        graph.add(f)
+    graph.linearize(values)                          # warm-up
+    lin, err = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        graph.linearize(values)
+        lin.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        graph.error(values)
+        err.append(time.perf_counter() - t0)
+    n = len(factors)
+    return {"factors": n, "linearize_us_per_factor": 1e6 * float(np.median(lin)) / n,
+            "error_us_per_factor": 1e6 * float(np.median(err)) / n}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--vertices", type=int, default=6890)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    rng, model, calib, states, values, keys = build(args.frames, args.vertices, args.seed)
+    results = {name: time_set(fs, values, args.repeats)
+               for name, fs in factor_sets(rng, model, calib, states, keys).items()}
+    report = {
+        "method": "median over repeats of graph.linearize / graph.error over one factor per frame, divided by "
+                  "the number of factors (Python callbacks included)",
+        "frames": args.frames, "repeats": args.repeats, "vertices": args.vertices, "seed": args.seed,
+        "hardware": {"machine": platform.machine(), "processor": platform.processor(), "cpus": os.cpu_count(),
+                     "python": platform.python_version(), "gtsam": getattr(gtsam, "__version__", "?")},
+        "results": results,
+    }
+    OUT_DIR.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(OUT_DIR / "factors_callback_cost.json", report)
+    lines = ["# Factor callback cost", "", report["method"] + ".", "",
+             f"{args.frames} frames, synthetic SMPL-format body model with {args.vertices} vertices, "
+             f"{os.cpu_count()} CPUs ({platform.machine()}), seed {args.seed}. Shared machine: expect noise.", "",
+             "| factor | n | linearize µs/factor | error µs/factor |", "|---|---|---|---|"]
+    for name, r in results.items():
+        lines.append(f"| {name} | {r['factors']} | {r['linearize_us_per_factor']:.0f} | {r['error_us_per_factor']:.0f} |")
+    atomic_write_text(OUT_DIR / "factors_callback_cost.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return report
+
+
+if __name__ == "__main__":
+    main()
