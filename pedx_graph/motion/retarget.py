@@ -100,8 +100,65 @@ def _exp(vec: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(vec.reshape(-1, 3)).as_matrix().reshape(vec.shape[:-1] + (3, 3))
 
 
-def smpl_world_rotations(motion: BvhMotion, axes_R_bvh: np.ndarray) -> np.ndarray:
-    """(T, 24, 3, 3) SMPL world rotations by the rest-relative transfer (module docstring)."""
+#: Bones aligned at rest by :func:`smpl_world_rotations`: SMPL joint -> (BVH joint, BVH child joint or
+#: ``"<joint>:end"`` for its End Site), the bone from the SMPL joint to its only child.
+ALIGNED_BONES: dict[str, tuple[str, str]] = {
+    "left_hip": ("lThigh", "lShin"), "left_knee": ("lShin", "lFoot"), "left_ankle": ("lFoot", "lFoot:end"),
+    "right_hip": ("rThigh", "rShin"), "right_knee": ("rShin", "rFoot"), "right_ankle": ("rFoot", "rFoot:end"),
+    "left_shoulder": ("lShldr", "lForeArm"), "left_elbow": ("lForeArm", "lHand"),
+    "right_shoulder": ("rShldr", "rForeArm"), "right_elbow": ("rForeArm", "rHand"),
+    "neck": ("neck", "head"),
+}
+_SMPL_CHILD = {"left_hip": "left_knee", "left_knee": "left_ankle", "left_ankle": "left_foot",
+               "right_hip": "right_knee", "right_knee": "right_ankle", "right_ankle": "right_foot",
+               "left_shoulder": "left_elbow", "left_elbow": "left_wrist",
+               "right_shoulder": "right_elbow", "right_elbow": "right_wrist", "neck": "head"}
+
+
+def _align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Smallest rotation (3, 3) turning direction ``src`` onto direction ``dst``."""
+    a, b = src / np.linalg.norm(src), dst / np.linalg.norm(dst)
+    axis = np.cross(a, b)
+    sin_t, cos_t = np.linalg.norm(axis), float(a @ b)
+    if sin_t < 1e-12:
+        if cos_t > 0:
+            return np.eye(3)
+        perp = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        return _exp(np.pi * perp / np.linalg.norm(perp))
+    return _exp(axis / sin_t * np.arctan2(sin_t, cos_t))
+
+
+def rest_alignment(motion: BvhMotion, rest_joints: np.ndarray, axes_R_bvh: np.ndarray,
+                   scale: float = CMU_BVH_SCALE) -> dict[int, np.ndarray]:
+    """Per SMPL joint of :data:`ALIGNED_BONES`, the rotation ``A_j`` turning the body's rest bone
+    (``J_child - J_j``) onto the BVH rest bone (clip axes). Only the direction matters."""
+    sk = motion.skeleton
+    rest = motion.rest_channels if motion.rest_channels is not None else motion.channels[0]
+    rot, pos = forward_kinematics(sk, rest[None])
+    rot, pos = rot[0], pos[0]
+    out = {}
+    for name, (b, child) in ALIGNED_BONES.items():
+        if child.endswith(":end"):
+            owner = sk.index(child[:-4])
+            if owner not in sk.end_site_offsets:
+                continue
+            child_pos = pos[owner] + rot[owner] @ sk.end_site_offsets[owner]
+        else:
+            child_pos = pos[sk.index(child)]
+        bvh_dir = axes_R_bvh @ (child_pos - pos[sk.index(b)])
+        j, c = SMPL_JOINTS.index(name), SMPL_JOINTS.index(_SMPL_CHILD[name])
+        out[j] = _align(rest_joints[c] - rest_joints[j], bvh_dir)
+    return out
+
+
+def smpl_world_rotations(motion: BvhMotion, axes_R_bvh: np.ndarray,
+                         alignment: dict[int, np.ndarray] | None = None) -> np.ndarray:
+    """(T, 24, 3, 3) SMPL world rotations by the rest-relative transfer (module docstring).
+
+    ``alignment`` (from :func:`rest_alignment`) right-multiplies the transferred rotation of those joints,
+    ``world_R_j(t) = C bvhworld_R_b(t) bvhworld_R_b(0)^T C^T A_j``, so the body's bone points exactly
+    along the BVH bone even where the two rest poses differ (e.g. the Daz forearms point 17 deg forward).
+    """
     sk = motion.skeleton
     missing = [b for b in CMU_TO_SMPL.values() if b not in sk.names]
     if missing:
@@ -116,6 +173,8 @@ def smpl_world_rotations(motion: BvhMotion, axes_R_bvh: np.ndarray) -> np.ndarra
         if name in CMU_TO_SMPL:
             b = sk.index(CMU_TO_SMPL[name])
             world[:, j] = axes_R_bvh @ bvh_rot[:, b] @ bvh_rest[0, b].T @ axes_R_bvh.T
+            if alignment and j in alignment:
+                world[:, j] = world[:, j] @ alignment[j]
             done[j] = True
     # spine2: half-way between spine1 and the chest (spine3)
     s1, s2, s3 = (SMPL_JOINTS.index(n) for n in ("spine1", "spine2", "spine3"))
@@ -139,7 +198,7 @@ def local_from_world(world_R_joint: np.ndarray) -> np.ndarray:
 
 
 def retarget_bvh(motion: BvhMotion, *, scale: float = CMU_BVH_SCALE, rest_joints: np.ndarray | None = None,
-                 name: str | None = None, meta: dict | None = None) -> MotionClip:
+                 align_bones: bool = True, name: str | None = None, meta: dict | None = None) -> MotionClip:
     """Retarget a parsed CMU BVH motion to a :class:`MotionClip` (SMPL tree, metres, Y up).
 
     Pelvis placement: the Daz root ``hip`` is not where SMPL's pelvis joint is (it sits 2.6 cm *below*
@@ -152,19 +211,23 @@ def retarget_bvh(motion: BvhMotion, *, scale: float = CMU_BVH_SCALE, rest_joints
     :func:`generic_rest_joints`). ``meta["hip_height_rest_m"]`` is the BVH figure's rest height of the hip
     joints above its lowest foot point: ``clip.rescaled(body_hip_height / meta["hip_height_rest_m"])`` fits the
     motion to a body of another leg length.
+
+    ``align_bones``: also turn each limb bone of the body's rest pose onto the BVH rest bone
+    (:func:`rest_alignment`), so the poses are right for *this* rest skeleton, not only for the Daz one.
     """
     if motion.rest_channels is None:
         raise RetargetError(f"{motion.source}: the rest-relative transfer needs the T-pose frame; "
                             "read the file with drop_first_frame=True")
     yaw = rest_facing_yaw(motion)
     axes_R_bvh = _yaw_matrix(yaw)
-    world = smpl_world_rotations(motion, axes_R_bvh)
-    local = local_from_world(world)
-    pose = _log(local).reshape(motion.num_frames, 72)
     sk = motion.skeleton
     rest_j = generic_rest_joints() if rest_joints is None else np.asarray(rest_joints, dtype=float)
     if rest_j.shape != (24, 3):
         raise ValueError(f"rest_joints must be (24, 3), got {rest_j.shape}")
+    alignment = rest_alignment(motion, rest_j, axes_R_bvh, scale) if align_bones else None
+    world = smpl_world_rotations(motion, axes_R_bvh, alignment)
+    local = local_from_world(world)
+    pose = _log(local).reshape(motion.num_frames, 72)
     i_lh, i_rh = SMPL_JOINTS.index("left_hip"), SMPL_JOINTS.index("right_hip")
     pelvis_from_hips = rest_j[0] - 0.5 * (rest_j[i_lh] + rest_j[i_rh])
     _, bvh_pos = forward_kinematics(sk, motion.channels)
@@ -360,8 +423,8 @@ def bvh_rest_joints(motion: BvhMotion, scale: float = CMU_BVH_SCALE) -> np.ndarr
     return out - out[0]
 
 
-def retarget_joint_error(motion: BvhMotion, rest_joints: np.ndarray, *,
-                         scale: float = CMU_BVH_SCALE, scale_bones: bool = True) -> RetargetJointError:
+def retarget_joint_error(motion: BvhMotion, rest_joints: np.ndarray, *, scale: float = CMU_BVH_SCALE,
+                         scale_bones: bool = True, align_bones: bool = True) -> RetargetJointError:
     """Joint position error between FK of the retargeted clip and the BVH's own joints.
 
     ``rest_joints`` (24, 3): the body's rest joints (e.g. ``J(betas)`` of a body model); with
@@ -371,7 +434,7 @@ def retarget_joint_error(motion: BvhMotion, rest_joints: np.ndarray, *,
     :data:`CMU_POSITION_PAIRS` without the pelvis.
     """
     rest = scaled_rest_joints(rest_joints, motion, scale) if scale_bones else np.asarray(rest_joints, float)
-    clip = retarget_bvh(motion, scale=scale, rest_joints=rest)
+    clip = retarget_bvh(motion, scale=scale, rest_joints=rest, align_bones=align_bones)
     smpl_pos = smpl_joint_positions(rest, clip.body_pose_aa, clip.pelvis_world)
     _, bvh_pos = forward_kinematics(motion.skeleton, motion.channels)
     axes_R_bvh = _yaw_matrix(clip.meta.get("rest_yaw_rad", rest_facing_yaw(motion)))
