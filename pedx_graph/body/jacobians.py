@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pedx_graph.body.lbs import Kinematics
+from pedx_graph.body.rotation import hat
 
 
 @dataclass(frozen=True)
@@ -99,34 +100,52 @@ def _rotation_part(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, n
     return _split_root_body(_cross_columns(levers, bases[:, None]))
 
 
+def _rotation_part_matmul(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Same as :func:`_rotation_part`, as one small matrix product per joint (fast for many points).
+
+    ``(B[:, m] x a)_c = sum_d hat(B[:, m])[c, d] a_d``: with ``H[j, d, (c, m)] = hat(B_j[:, m])[c, d]`` the
+    block of every point is ``a_j @ H_j``.
+    """
+    num_n, num_p, num_j = levers.shape[:3]
+    hats = hat(np.swapaxes(bases, -1, -2))                           # (N, J, m, c, d)
+    hmat = np.ascontiguousarray(hats.transpose(0, 1, 4, 3, 2)).reshape(num_n, num_j, 3, 9)
+    blocks = np.swapaxes(levers, 1, 2) @ hmat                        # (N, J, P, (c, m))
+    blocks = blocks.reshape(num_n, num_j, num_p, 3, 3)
+    d_root = blocks[:, 0]
+    d_body = blocks[:, 1:].transpose(0, 2, 3, 1, 4).reshape(num_n, num_p, 3, 3 * (num_j - 1))
+    return d_root, d_body
+
+
 def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray, weights: np.ndarray,
-                     desc: np.ndarray, shapedirs: np.ndarray, dt_dbeta: np.ndarray,
-                     posedirs: np.ndarray | None = None, drot_body: np.ndarray | None = None
+                     desc: np.ndarray, shapedirs_flat: np.ndarray, dt_dbeta: np.ndarray,
+                     posedirs_flat: np.ndarray | None = None, drot_body: np.ndarray | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Posed positions (before ``trans``) and Jacobians of P vertices.
 
-    rest_points (N, P, 3) = shaped + pose-corrected rest positions ``x_v``; weights (P, J); shapedirs (P, 3, B);
-    posedirs (P, 3, 9 (J-1)) or None; drot_body (N, J-1, 3, 3, 3) = ``dR_j/dtheta_j`` (needed with posedirs).
+    rest_points (N, P, 3) = shaped + pose-corrected rest positions ``x_v``; weights (P, J); shapedirs_flat
+    (3P, B) and posedirs_flat (3P, 9 (J-1)) or None: the blend shapes of those vertices, rows ordered (vertex,
+    coordinate); drot_body (N, J-1, 3, 3, 3) = ``dR_j/dtheta_j`` (needed with posedirs).
     Returns points (N, P, 3), d_root (N, P, 3, 3), d_body (N, P, 3, 3 (J-1)), d_betas (N, P, 3, B).
     """
     world_rot, origin = kin.world_rot, kin.world_origin
     num_n, num_j = world_rot.shape[:2]
     num_p = rest_points.shape[1]
-    # Position of each vertex under each bone: y_vk = Rg_k x_v + t_k, (N, P, J, 3).
-    under_bone = np.einsum("nkab,npb->npka", world_rot, rest_points) + kin.bone_trans[:, None]
+    # Position of each vertex under each bone: y_vk = Rg_k x_v + t_k, (N, P, J, 3), as one product.
+    rot_cols = world_rot.transpose(0, 3, 1, 2).reshape(num_n, 3, 3 * num_j)           # [n, b, (k, a)]
+    under_bone = (rest_points @ rot_cols).reshape(num_n, num_p, num_j, 3) + kin.bone_trans[:, None]
     weighted = weights[None, :, :, None] * under_bone
     points = weighted.sum(axis=2)
     subtree_w = weights @ desc.T                                     # W_j(v), (P, J)
     levers = desc @ weighted - subtree_w[None, :, :, None] * origin[:, None]
-    d_root, d_body = _rotation_part(levers, bases)
+    d_root, d_body = _rotation_part_matmul(levers, bases)
     blended_rot = (weights @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
-    if posedirs is not None:
-        feats = posedirs.reshape(num_p * 3, num_j - 1, 9).transpose(1, 0, 2)   # (J-1, 3P, 9)
-        dfeat = drot_body.reshape(num_n, num_j - 1, 9, 3)                       # (N, J-1, 9, 3)
-        dq = feats[None] @ dfeat                                               # (N, J-1, 3P, 3)
-        dq = dq.reshape(num_n, num_j - 1, num_p, 3, 3).transpose(0, 2, 3, 1, 4)
+    if posedirs_flat is not None:
+        dq = np.einsum("rjp,njpq->nrjq", posedirs_flat.reshape(3 * num_p, num_j - 1, 9),
+                       drot_body.reshape(num_n, num_j - 1, 9, 3), optimize=True)
         d_body = d_body + blended_rot @ dq.reshape(num_n, num_p, 3, 3 * (num_j - 1))
-    d_betas = blended_rot @ shapedirs[None] + np.einsum("pk,nkcb->npcb", weights, dt_dbeta)
+    num_b = shapedirs_flat.shape[1]
+    d_betas = (blended_rot @ shapedirs_flat.reshape(num_p, 3, num_b)[None]
+               + (weights @ dt_dbeta.reshape(num_n, num_j, 3 * num_b)).reshape(num_n, num_p, 3, num_b))
     return points, d_root, d_body, d_betas
 
 

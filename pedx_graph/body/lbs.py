@@ -18,6 +18,7 @@ The world rotation of joint ``j`` is ``Rg_j = G_j^R`` and its world origin (pose
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,36 +101,45 @@ class Kinematics:
     """(..., J, 3) translation of the skinning transform, ``o_j - Rg_j J_j``."""
 
 
+@functools.lru_cache(maxsize=16)
+def _tree(parents_bytes: bytes) -> tuple[list[tuple[int, int]], np.ndarray, np.ndarray, np.ndarray]:
+    """Cached (child/parent pairs, ancestor mask (J, J), parent index with root -> 0, non-root indices)."""
+    par = np.frombuffer(parents_bytes, dtype=np.int64)
+    ancestors = descendant_mask(par).T.copy()           # ancestors[k, i] = 1 if i is k or above it
+    parent_or_root = np.where(par < 0, 0, par)
+    pairs = [(int(j), int(par[j])) for j in range(1, len(par))]
+    return pairs, ancestors, parent_or_root, np.flatnonzero(par >= 0)
+
+
 def batch_rigid_transform(rot_mats: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray,
                           levels: list[np.ndarray] | None = None) -> Kinematics:
     """Chain local rotations along the kinematic tree (smplx ``batch_rigid_transform``).
 
     rot_mats (..., J, 3, 3), rest_joints (..., J, 3), parents (J,) with parents[0] = -1 and parents[j] < j.
-    ``levels`` (from :func:`depth_levels`) may be passed to avoid recomputing it.
+    World rotations are chained joint by joint (``Rg_j = Rg_parent R_j``, views and in-place products); the
+    posed origins are then one sum over ancestors, ``o_k = sum_{i in chain(k)} Rg_parent(i) (J_i - J_parent(i))``
+    (root term: ``J_0``).  ``levels`` is accepted for backward compatibility and ignored.
     """
     rot_mats = np.asarray(rot_mats, dtype=np.float64)
     rest_joints = np.asarray(rest_joints, dtype=np.float64)
-    parents = np.asarray(parents)
+    pairs, ancestors, parent_or_root, non_root = _tree(np.asarray(parents, dtype=np.int64).tobytes())
     lead = np.broadcast_shapes(rot_mats.shape[:-3], rest_joints.shape[:-2])
-    rot_mats = np.broadcast_to(rot_mats, lead + rot_mats.shape[-3:])
-    rest_joints = np.broadcast_to(rest_joints, lead + rest_joints.shape[-2:])
-    if levels is None:
-        levels = depth_levels(parents)
-    world_rot = np.empty_like(rot_mats)
-    world_origin = np.empty(rest_joints.shape, dtype=np.float64)
-    root = levels[0]
-    world_rot[..., root, :, :] = rot_mats[..., root, :, :]
-    world_origin[..., root, :] = rest_joints[..., root, :]
-    for level in levels[1:]:
-        par = parents[level]
-        parent_rot = world_rot[..., par, :, :]
-        world_rot[..., level, :, :] = parent_rot @ rot_mats[..., level, :, :]
-        bone = rest_joints[..., level, :] - rest_joints[..., par, :]
-        world_origin[..., level, :] = (np.einsum("...ij,...j->...i", parent_rot, bone)
-                                       + world_origin[..., par, :])
-    bone_trans = world_origin - np.einsum("...jab,...jb->...ja", world_rot, rest_joints)
-    return Kinematics(rot_mats=rot_mats, rest_joints=rest_joints, world_rot=world_rot,
-                      world_origin=world_origin, bone_trans=bone_trans)
+    num_j = rot_mats.shape[-3]
+    flat_rot = np.broadcast_to(rot_mats, lead + rot_mats.shape[-3:]).reshape((-1, num_j, 3, 3))
+    flat_joints = np.broadcast_to(rest_joints, lead + rest_joints.shape[-2:]).reshape((-1, num_j, 3))
+    world_rot = flat_rot.copy()
+    for j, par in pairs:
+        np.matmul(world_rot[:, par], flat_rot[:, j], out=world_rot[:, j])
+    bones = flat_joints.copy()                                            # J_i - J_parent(i); root: J_0
+    bones[:, non_root] -= flat_joints[:, parent_or_root[non_root]]
+    rotated = bones.copy()
+    rotated[:, non_root] = (world_rot[:, parent_or_root[non_root]] @ bones[:, non_root, :, None])[..., 0]
+    world_origin = ancestors @ rotated
+    bone_trans = world_origin - (world_rot @ flat_joints[..., None])[..., 0]
+    shape_r, shape_j = lead + (num_j, 3, 3), lead + (num_j, 3)
+    return Kinematics(rot_mats=flat_rot.reshape(shape_r), rest_joints=flat_joints.reshape(shape_j),
+                      world_rot=world_rot.reshape(shape_r), world_origin=world_origin.reshape(shape_j),
+                      bone_trans=bone_trans.reshape(shape_j))
 
 
 def skin(points: np.ndarray, weights: np.ndarray, world_rot: np.ndarray, bone_trans: np.ndarray) -> np.ndarray:

@@ -51,6 +51,17 @@ class BodyOutput:
     """(..., 18, 3) PedX keypoints (PEDX_KEYPOINTS order)."""
 
 
+@dataclass(frozen=True)
+class _VertexSubset:
+    """Model arrays of a few vertices, rows of the flat arrays ordered (vertex, coordinate)."""
+
+    vertex_ids: np.ndarray
+    template_flat: np.ndarray          # (3P,)
+    shapedirs_flat: np.ndarray         # (3P, B)
+    posedirs_flat: np.ndarray | None   # (3P, 207)
+    weights: np.ndarray                # (P, J)
+
+
 class BodyModel:
     """Stateless SMPL-format body model: LBS forward pass, PedX keypoints and analytic Jacobians.
 
@@ -79,6 +90,9 @@ class BodyModel:
         self._joint_template = vertices2joints(self.j_regressor, self.v_template)                   # (J, 3)
         jsd = self.j_regressor @ self.shapedirs.reshape(num_v, -1)                                 # (J, 3B)
         self._joint_shapedirs = np.asarray(jsd).reshape(len(self._parents), 3, -1)                # (J, 3, B)
+        self._kp_subset = None
+        if keypoint_map is not None and keypoint_map.vertex_ids.size:
+            self._kp_subset = self._subset(keypoint_map.vertex_ids)
 
     # ----------------------------------------------------------------------------------- construction
 
@@ -181,12 +195,24 @@ class BodyModel:
         rot_mats = exp_so3(axis_angle)
         return batch_rigid_transform(rot_mats, self.rest_joints(betas), self._parents, self._levels)
 
-    def _rest_points(self, vertex_ids, betas, rot_mats):
+    def _subset(self, vertex_ids: np.ndarray) -> "_VertexSubset":
+        """Model arrays gathered for a few vertices (cached for the keypoint vertices)."""
+        cached = self._kp_subset
+        if cached is not None and np.array_equal(cached.vertex_ids, vertex_ids):
+            return cached
+        rows = (3 * vertex_ids[:, None] + np.arange(3)).ravel()
+        return _VertexSubset(
+            vertex_ids=vertex_ids, template_flat=self._v_template_col[rows, 0],
+            shapedirs_flat=self._shapedirs_flat[rows],
+            posedirs_flat=None if self._posedirs_flat is None else self._posedirs_flat[rows],
+            weights=self.weights[vertex_ids])
+
+    def _rest_points(self, sub: "_VertexSubset", betas, rot_mats):
         """Shaped + pose-corrected rest positions of a few vertices: (N, P, 3)."""
-        x = self.v_template[vertex_ids] + np.einsum("pcb,nb->npc", self.shapedirs[vertex_ids], betas)
-        if self.posedirs is not None:
-            x = x + np.einsum("pcf,nf->npc", self.posedirs[vertex_ids], pose_features(rot_mats))
-        return x
+        flat = betas @ sub.shapedirs_flat.T + sub.template_flat                     # (N, 3P)
+        if sub.posedirs_flat is not None:
+            flat += pose_features(rot_mats) @ sub.posedirs_flat.T
+        return flat.reshape(len(betas), -1, 3)
 
     # --------------------------------------------------------------------------------------- forward
 
@@ -227,8 +253,9 @@ class BodyModel:
         pose, betas, trans, lead = self._prepare(pose, betas, trans)
         vertex_ids = np.asarray(vertex_ids, dtype=np.int64)
         kin = self._kinematics(pose, betas)
-        rest = self._rest_points(vertex_ids, betas, kin.rot_mats)
-        pts = skin(rest, self.weights[vertex_ids], kin.world_rot, kin.bone_trans) + trans[:, None]
+        sub = self._subset(vertex_ids)
+        rest = self._rest_points(sub, betas, kin.rot_mats)
+        pts = skin(rest, sub.weights, kin.world_rot, kin.bone_trans) + trans[:, None]
         return pts.reshape(lead + (len(vertex_ids), 3))
 
     def keypoints(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None) -> np.ndarray:
@@ -238,8 +265,8 @@ class BodyModel:
         kin = self._kinematics(pose, betas)
         verts = np.zeros((pose.shape[0], 0, 3))
         if kp.vertex_ids.size:
-            rest = self._rest_points(kp.vertex_ids, betas, kin.rot_mats)
-            verts = skin(rest, self.weights[kp.vertex_ids], kin.world_rot, kin.bone_trans)
+            sub = self._subset(kp.vertex_ids)
+            verts = skin(self._rest_points(sub, betas, kin.rot_mats), sub.weights, kin.world_rot, kin.bone_trans)
         out = kp.apply(verts, kin.world_origin) + self._trans_gain(kp)[None, :, None] * trans[:, None]
         return out.reshape(lead + (kp.num_keypoints, 3))
 
@@ -261,10 +288,10 @@ class BodyModel:
         return kin, bases, dt_dbeta, drot
 
     def _vertex_terms(self, kin, bases, dt_dbeta, drot, betas, vertex_ids):
-        rest = self._rest_points(vertex_ids, betas, kin.rot_mats)
-        return jac.vertex_jacobians(
-            kin, bases, rest, self.weights[vertex_ids], self._desc, self.shapedirs[vertex_ids], dt_dbeta,
-            None if self.posedirs is None else self.posedirs[vertex_ids], drot)
+        sub = self._subset(vertex_ids)
+        rest = self._rest_points(sub, betas, kin.rot_mats)
+        return jac.vertex_jacobians(kin, bases, rest, sub.weights, self._desc, sub.shapedirs_flat, dt_dbeta,
+                                    sub.posedirs_flat, drot)
 
     def point_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None,
                         vertex_ids: np.ndarray | None = None) -> jac.PointJacobians:

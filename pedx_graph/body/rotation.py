@@ -31,14 +31,15 @@ NEAR_PI = 1e-3
 def hat(omega: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix of ``omega`` (..., 3) -> (..., 3, 3), ``hat(a) @ b = a x b``."""
     omega = np.asarray(omega, dtype=np.float64)
+    out = np.zeros(omega.shape[:-1] + (3, 3))
     x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
-    zero = np.zeros_like(x)
-    return np.stack(
-        [np.stack([zero, -z, y], axis=-1),
-         np.stack([z, zero, -x], axis=-1),
-         np.stack([-y, x, zero], axis=-1)],
-        axis=-2,
-    )
+    out[..., 0, 1] = -z
+    out[..., 0, 2] = y
+    out[..., 1, 0] = z
+    out[..., 1, 2] = -x
+    out[..., 2, 0] = -y
+    out[..., 2, 1] = x
+    return out
 
 
 def vee(mat: np.ndarray) -> np.ndarray:
@@ -71,6 +72,9 @@ def rodrigues_coefficients(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     """
     omega = np.asarray(omega, dtype=np.float64)
     theta, theta2, small = _angle(omega)
+    if not small.any():                     # common case: no Taylor branch needed
+        s, co = np.sin(theta), np.cos(theta)
+        return s / theta, (1.0 - co) / theta2, (theta - s) / (theta2 * theta)
     ts = _safe(theta, small)
     s, co = np.sin(ts), np.cos(ts)
     a = np.where(small, 1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0, s / ts)
@@ -79,27 +83,56 @@ def rodrigues_coefficients(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     return a, b, c
 
 
+def _add_skew(out: np.ndarray, coeff: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``out += coeff * hat(omega)`` in place (coeff (...,), omega (..., 3))."""
+    cx, cy, cz = (coeff * omega[..., 0]), (coeff * omega[..., 1]), (coeff * omega[..., 2])
+    out[..., 0, 1] -= cz
+    out[..., 0, 2] += cy
+    out[..., 1, 0] += cz
+    out[..., 1, 2] -= cx
+    out[..., 2, 0] -= cy
+    out[..., 2, 1] += cx
+    return out
+
+
+def _outer_plus_diag(omega: np.ndarray, outer_coeff: np.ndarray, diag: np.ndarray) -> np.ndarray:
+    """``diag I + outer_coeff omega omega^T``: (..., 3, 3)."""
+    out = (outer_coeff[..., None, None] * omega[..., :, None]) * omega[..., None, :]
+    for i in range(3):
+        out[..., i, i] += diag
+    return out
+
+
 def exp_so3(omega: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``Exp(omega)`` for rotation vectors (..., 3) -> (..., 3, 3) (Rodrigues formula)."""
+    """Rotation matrix ``Exp(omega)`` for rotation vectors (..., 3) -> (..., 3, 3) (Rodrigues formula).
+
+    Evaluated as ``cos(t) I + sin(t)/t K + (1 - cos t)/t^2 omega omega^T`` (using ``K^2 = omega omega^T - t^2 I``).
+    """
     omega = np.asarray(omega, dtype=np.float64)
     a, b, _ = rodrigues_coefficients(omega)
-    k = hat(omega)
-    k2 = k @ k
-    eye = np.broadcast_to(np.eye(3), k.shape)
-    return eye + a[..., None, None] * k + b[..., None, None] * k2
+    cos_t = np.cos(np.sqrt(np.einsum("...i,...i->...", omega, omega)))
+    return _add_skew(_outer_plus_diag(omega, b, cos_t), a, omega)
 
 
 def right_jacobian(omega: np.ndarray) -> np.ndarray:
     """Right Jacobian ``J_r(omega)`` (..., 3) -> (..., 3, 3).
 
     ``J_r = I - (1 - cos t)/t^2 K + (t - sin t)/t^3 K^2`` with ``K = hat(omega)``; so that
-    ``Exp(omega + d) ~= Exp(omega) Exp(J_r d)`` to first order in ``d``.  ``J_r(0) = I``.
+    ``Exp(omega + d) ~= Exp(omega) Exp(J_r d)`` to first order in ``d``.  ``J_r(0) = I``.  Evaluated as
+    ``(1 - c t^2) I - b K + c omega omega^T`` (``b, c`` from :func:`rodrigues_coefficients`).
     """
     omega = np.asarray(omega, dtype=np.float64)
-    _, b, c = rodrigues_coefficients(omega)
-    k = hat(omega)
-    eye = np.broadcast_to(np.eye(3), k.shape)
-    return eye - b[..., None, None] * k + c[..., None, None] * (k @ k)
+    return exp_and_right_jacobian(omega)[1]
+
+
+def exp_and_right_jacobian(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(exp_so3(omega), right_jacobian(omega))`` sharing the coefficient evaluation."""
+    omega = np.asarray(omega, dtype=np.float64)
+    a, b, c = rodrigues_coefficients(omega)
+    theta2 = np.einsum("...i,...i->...", omega, omega)
+    rot = _add_skew(_outer_plus_diag(omega, b, np.cos(np.sqrt(theta2))), a, omega)
+    jr = _add_skew(_outer_plus_diag(omega, c, 1.0 - c * theta2), -b, omega)
+    return rot, jr
 
 
 def left_jacobian(omega: np.ndarray) -> np.ndarray:
