@@ -15,7 +15,9 @@ with the depth ``Z`` chosen per keypoint as the paper describes:
 
 The disparity "at the joint" comes from a :data:`DisparityLookup`.  The default,
 :func:`label_disparity`, is the disparity of the two labels, ``u_l - u_r`` (PedX releases carry labels in
-both images; images may be absent).  Callers with rectified images can pass a lookup built on a dense
+both images; images may be absent), where the right label is flagged visible: like a dense stereo matcher,
+it has no disparity at a joint hidden in the right image (that label is the annotator's guess, several
+times noisier), so such a joint takes the median depth.  Callers with rectified images can pass a lookup built on a dense
 disparity map with :func:`disparity_map_lookup`.  Keypoints not labelled on the left, or frames with no
 depth at all, are filled exactly as in the triangulation baseline
 (:func:`pedx_graph.baselines.triangulation.fill_missing_keypoints`); only ``keypoints_3d`` is meaningful.
@@ -35,11 +37,22 @@ from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 DisparityLookup = Callable[[Track, TrackFrame], np.ndarray]
 
 
-def label_disparity(track: Track, frame: TrackFrame) -> np.ndarray:
+def label_pair_disparity(frame: TrackFrame) -> np.ndarray:
     """(18,) disparity ``u_l - u_r`` of the 2D labels, pixels; NaN unless labelled in both images."""
     if frame.left is None or frame.right is None:
         return np.full(NUM_KEYPOINTS, np.nan)
     return np.asarray(frame.left.keypoints, float)[:, 0] - np.asarray(frame.right.keypoints, float)[:, 0]
+
+
+def label_disparity(track: Track, frame: TrackFrame) -> np.ndarray:
+    """Default :data:`DisparityLookup`: the labels' disparity (18,) where the right label is flagged visible.
+
+    NaN where the keypoint is not labelled in both images or is hidden in the right image.
+    """
+    disp = label_pair_disparity(frame)
+    if frame.right is not None:
+        disp[~np.asarray(frame.right.visible, bool)] = np.nan
+    return disp
 
 
 def sample_disparity_map(disparity_map: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -112,7 +125,7 @@ def disparity_depths(track: Track, frame: TrackFrame,
     use_disp = visible & np.isfinite(disp) & (disp > 1e-3)
     depth[use_disp] = fb / disp[use_disp]
     source[use_disp] = SRC_DISPARITY
-    pair_disp = label_disparity(track, frame)
+    pair_disp = label_pair_disparity(frame)
     use_tri = labelled & ~visible & np.isfinite(pair_disp) & (pair_disp > 1e-3)
     depth[use_tri] = fb / pair_disp[use_tri]
     source[use_tri] = SRC_TRIANGULATED
