@@ -140,19 +140,29 @@ def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray
     d_root, d_body = _rotation_part_matmul(levers, bases)
     blended_rot = (weights @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
     if posedirs_flat is not None:
-        dq = np.einsum("rjp,njpq->nrjq", posedirs_flat.reshape(3 * num_p, num_j - 1, 9),
-                       drot_body.reshape(num_n, num_j - 1, 9, 3), optimize=True)
-        d_body = d_body + blended_rot @ dq.reshape(num_n, num_p, 3, 3 * (num_j - 1))
+        per_joint = posedirs_flat.reshape(3 * num_p, num_j - 1, 9).transpose(1, 0, 2)       # (J-1, 3P, 9)
+        dq = per_joint @ drot_body.reshape(num_n, num_j - 1, 9, 3)                          # (N, J-1, 3P, 3)
+        dq = dq.transpose(0, 2, 1, 3).reshape(num_n, num_p, 3, 3 * (num_j - 1))
+        d_body = d_body + blended_rot @ dq
     num_b = shapedirs_flat.shape[1]
     d_betas = (blended_rot @ shapedirs_flat.reshape(num_p, 3, num_b)[None]
                + (weights @ dt_dbeta.reshape(num_n, num_j, 3 * num_b)).reshape(num_n, num_p, 3, num_b))
     return points, d_root, d_body, d_betas
 
 
+def ancestor_pairs(desc: np.ndarray, joint_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (q, j) with joint ``j`` a strict ancestor of joint ``joint_ids[q]``."""
+    num_j = desc.shape[0]
+    return np.nonzero(desc.T[joint_ids] * (1.0 - np.eye(num_j)[joint_ids]))
+
+
 def joint_jacobians(kin: Kinematics, bases: np.ndarray, joint_ids: np.ndarray, desc: np.ndarray,
-                    joint_shapedirs: np.ndarray, dt_dbeta: np.ndarray
+                    joint_shapedirs: np.ndarray, dt_dbeta: np.ndarray,
+                    pairs: tuple[np.ndarray, np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Posed positions (before ``trans``) and Jacobians of the joints ``joint_ids`` (Q,).
+
+    ``pairs``: :func:`ancestor_pairs` of ``joint_ids`` (computed when not given).
 
     Returns points (N, Q, 3), d_root (N, Q, 3, 3), d_body (N, Q, 3, 3 (J-1)), d_betas (N, Q, 3, B).
     """
@@ -160,7 +170,7 @@ def joint_jacobians(kin: Kinematics, bases: np.ndarray, joint_ids: np.ndarray, d
     num_n, num_j = origin.shape[:2]
     points = origin[:, joint_ids]                                    # (N, Q, 3)
     # Only strict ancestors j of joint i have a non-zero lever o_i - o_j: compute those pairs only.
-    q_idx, j_idx = np.nonzero(desc.T[joint_ids] * (1.0 - np.eye(num_j)[joint_ids]))
+    q_idx, j_idx = ancestor_pairs(desc, joint_ids) if pairs is None else pairs
     levers = points[:, q_idx] - origin[:, j_idx]                     # (N, pairs, 3)
     blocks = np.zeros((num_n, len(joint_ids), num_j, 3, 3))
     blocks[:, q_idx, j_idx] = _cross_columns(levers, bases[:, j_idx])

@@ -125,8 +125,12 @@ def batch_rigid_transform(rot_mats: np.ndarray, rest_joints: np.ndarray, parents
     pairs, ancestors, parent_or_root, non_root = _tree(np.asarray(parents, dtype=np.int64).tobytes())
     lead = np.broadcast_shapes(rot_mats.shape[:-3], rest_joints.shape[:-2])
     num_j = rot_mats.shape[-3]
-    flat_rot = np.broadcast_to(rot_mats, lead + rot_mats.shape[-3:]).reshape((-1, num_j, 3, 3))
-    flat_joints = np.broadcast_to(rest_joints, lead + rest_joints.shape[-2:]).reshape((-1, num_j, 3))
+    if rot_mats.shape[:-3] != lead:
+        rot_mats = np.broadcast_to(rot_mats, lead + rot_mats.shape[-3:])
+    if rest_joints.shape[:-2] != lead:
+        rest_joints = np.broadcast_to(rest_joints, lead + rest_joints.shape[-2:])
+    flat_rot = rot_mats.reshape((-1, num_j, 3, 3))
+    flat_joints = rest_joints.reshape((-1, num_j, 3))
     world_rot = flat_rot.copy()
     for j, par in pairs:
         np.matmul(world_rot[:, par], flat_rot[:, j], out=world_rot[:, j])

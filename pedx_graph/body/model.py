@@ -24,7 +24,7 @@ from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model
 from pedx_graph.body.lbs import (batch_rigid_transform, depth_levels, descendant_mask, pose_features, skin,
                                  skin_frames_last,
                                  vertices2joints)
-from pedx_graph.body.rotation import exp_so3, exp_so3_derivative, right_jacobian
+from pedx_graph.body.rotation import exp_and_right_jacobian, exp_so3, exp_so3_derivative
 
 #: File name of the open default model inside ``pedx_graph/body/data``.
 DEFAULT_MODEL_NAME = "pedx_open_neutral.npz"
@@ -91,8 +91,14 @@ class BodyModel:
         jsd = self.j_regressor @ self.shapedirs.reshape(num_v, -1)                                 # (J, 3B)
         self._joint_shapedirs = np.asarray(jsd).reshape(len(self._parents), 3, -1)                # (J, 3, B)
         self._kp_subset = None
-        if keypoint_map is not None and keypoint_map.vertex_ids.size:
-            self._kp_subset = self._subset(keypoint_map.vertex_ids)
+        if keypoint_map is not None:
+            if keypoint_map.vertex_ids.size:
+                self._kp_subset = self._subset(keypoint_map.vertex_ids)
+            used_j = np.flatnonzero(np.any(keypoint_map.joint_coeffs != 0.0, axis=0))
+            self._kp_joint_pairs = (used_j, jac.ancestor_pairs(self._desc, used_j))
+            self._kp_coeffs = np.concatenate([keypoint_map.joint_coeffs[:, used_j], keypoint_map.vertex_coeffs],
+                                             axis=1)                                     # (K, Q + m)
+            self._kp_gain = self._trans_gain(keypoint_map)
 
     # ----------------------------------------------------------------------------------- construction
 
@@ -180,9 +186,9 @@ class BodyModel:
             raise ValueError(f"trans must have shape (..., 3), got {trans.shape}")
         lead = np.broadcast_shapes(pose.shape[:-1], betas.shape[:-1], trans.shape[:-1])
         num_n = int(np.prod(lead, dtype=np.int64))
-        pose = np.broadcast_to(pose, lead + pose.shape[-1:]).reshape(num_n, -1)
-        betas = np.broadcast_to(betas, lead + betas.shape[-1:]).reshape(num_n, -1)
-        trans = np.broadcast_to(trans, lead + (3,)).reshape(num_n, 3)
+        pose, betas, trans = (
+            (arr if arr.shape[:-1] == lead else np.broadcast_to(arr, lead + arr.shape[-1:])).reshape(num_n, -1)
+            for arr in (pose, betas, trans))
         return pose, betas, trans, lead
 
     def rest_joints(self, betas: np.ndarray) -> np.ndarray:
@@ -278,12 +284,13 @@ class BodyModel:
     # ------------------------------------------------------------------------------------- Jacobians
 
     def _jacobian_setup(self, pose, betas):
-        kin = self._kinematics(pose, betas)
-        body_aa = pose.reshape(pose.shape[0], self.num_joints, 3)[:, 1:]
-        jr_body = right_jacobian(body_aa)
+        axis_angle = pose.reshape(pose.shape[0], self.num_joints, 3)
+        rot_mats, jr = exp_and_right_jacobian(axis_angle)
+        kin = batch_rigid_transform(rot_mats, self.rest_joints(betas), self._parents)
+        jr_body = jr[:, 1:]
         bases = jac.rotation_bases(kin, jr_body)
         dt_dbeta = jac.shape_chain_jacobian(kin, self._joint_shapedirs, self._parents, self._desc)
-        drot = (exp_so3_derivative(body_aa, kin.rot_mats[:, 1:], jr_body) if self.posedirs is not None
+        drot = (exp_so3_derivative(axis_angle[:, 1:], rot_mats[:, 1:], jr_body) if self.posedirs is not None
                 else None)
         return kin, bases, dt_dbeta, drot
 
@@ -311,23 +318,28 @@ class BodyModel:
             gain = np.ones(len(vertex_ids))
         else:
             kp = self._kpmap()
-            used_j = np.flatnonzero(np.any(kp.joint_coeffs != 0.0, axis=0))
-            num_n = pose.shape[0]
-
-            def combine(coeffs, term):        # (K, Q) x (N, Q, ...) -> (N, K, ...) as one matmul
-                return (coeffs @ term.reshape(num_n, term.shape[1], -1)).reshape(
-                    (num_n, coeffs.shape[0]) + term.shape[2:])
-
-            terms = [combine(kp.joint_coeffs[:, used_j], t) for t in jac.joint_jacobians(
-                kin, bases, used_j, self._desc, self._joint_shapedirs, dt_dbeta)]
+            used_j, pairs = self._kp_joint_pairs
+            jterms = jac.joint_jacobians(kin, bases, used_j, self._desc, self._joint_shapedirs, dt_dbeta, pairs)
             if kp.vertex_ids.size:
                 vterms = self._vertex_terms(kin, bases, dt_dbeta, drot, betas, kp.vertex_ids)
-                terms = [acc + combine(kp.vertex_coeffs, t) for acc, t in zip(terms, vterms)]
-            pts, d_root, d_body, d_betas = terms
-            gain = self._trans_gain(kp)
+                terms = [np.concatenate([a, b], axis=1) for a, b in zip(jterms, vterms)]
+            else:
+                terms = list(jterms)
+            # All four quantities through the (K, Q + m) keypoint coefficients in one product.
+            num_n, num_q = pose.shape[0], terms[0].shape[1]
+            widths = [int(np.prod(t.shape[2:])) for t in terms]
+            packed = np.concatenate([t.reshape(num_n, num_q, -1) for t in terms], axis=2)
+            combined = self._kp_coeffs @ packed
+            bounds = np.cumsum([0] + widths)
+            pts, d_root, d_body, d_betas = (
+                combined[:, :, bounds[i]:bounds[i + 1]].reshape((num_n, kp.num_keypoints) + terms[i].shape[2:])
+                for i in range(4))
+            gain = self._kp_gain
         num_p = len(gain)
         pts = pts + gain[None, :, None] * trans[:, None]
-        d_trans = np.broadcast_to(gain[:, None, None] * np.eye(3), lead + (num_p, 3, 3))
+        d_trans = gain[:, None, None] * np.eye(3)
+        if lead:
+            d_trans = np.broadcast_to(d_trans, lead + (num_p, 3, 3))
         return jac.PointJacobians(
             points=pts.reshape(lead + (num_p, 3)), d_root=d_root.reshape(lead + (num_p, 3, 3)),
             d_body_pose=d_body.reshape(lead + (num_p, 3, d_body.shape[-1])), d_trans=d_trans,

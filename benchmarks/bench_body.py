@@ -1,0 +1,148 @@
+"""Speed of the numpy body model: PedX keypoints + analytic Jacobians, and full-mesh LBS.
+
+Method: seeded random poses (axis-angle ~ N(0, 0.3^2) per joint), betas ~ N(0, 1), trans ~ N(0, 1) for
+``--frames`` frames.  Each operation is run once to warm up, then ``--repeats`` times; the minimum and the
+median wall time (``time.perf_counter``) and calling-thread CPU time (``time.thread_time``) are divided by
+the number of frames.  BLAS is limited to one thread (threadpoolctl) so CPU time measures this process's own
+work even on a shared machine.  Operations:
+
+* ``keypoints + Jacobians, batched``: ``BodyModel.point_jacobians(pose, betas, trans)`` over all frames at once
+  (18 keypoints; d_root, d_body_pose, d_trans, d_betas);
+* ``keypoints + Jacobians, one frame per call``: the same, frame by frame (what a per-frame factor does);
+* ``keypoints only, batched``: ``BodyModel.keypoints``;
+* ``full-mesh LBS, batched``: ``BodyModel.forward`` (all vertices, joints, keypoints);
+* ``300-vertex Jacobians, one frame per call``: ``point_jacobians(..., vertex_ids=300 ids)``.
+
+Body model: the open default model when installed (pedx_graph/body/data/pedx_open_neutral.npz), else a synthetic
+SMPL-format model with SMPL's 6890 vertices and non-zero pose correctives (the more expensive case).
+Output: benchmarks/results/bench_body.{json,md}.  Targets: keypoints + Jacobians <= 0.3 ms/frame batched;
+full-mesh LBS <= 3 ms/frame batched.
+
+    python benchmarks/bench_body.py [--frames 100] [--repeats 7] [--seed 0] [--synthetic]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from pedx_graph.body import BodyModel
+from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
+from pedx_graph.body.model import default_model_path
+from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
+
+OUT_DIR = Path(__file__).resolve().parent / "results"
+TARGETS_MS = {"keypoints + Jacobians, batched": 0.3, "full-mesh LBS, batched": 3.0}
+
+
+def load_model(force_synthetic: bool, seed: int) -> tuple[BodyModel, str]:
+    if not force_synthetic and default_model_path().is_file():
+        return BodyModel.load(), "open default model (pedx_open_neutral.npz)"
+    arrays = synthetic_model_arrays(num_vertices=6890, seed=seed, with_keypoint_keys=False)
+    return BodyModel.from_data(validate_model_arrays(arrays, source="synthetic-6890")), (
+        "synthetic SMPL-format model, 6890 vertices, non-zero posedirs, SMPL keypoint ids")
+
+
+def time_op(fn, repeats: int, frames: int) -> dict:
+    fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        fn()
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    per = 1e3 / frames
+    return {"wall_ms_per_frame_min": min(wall) * per, "wall_ms_per_frame_median": float(np.median(wall)) * per,
+            "cpu_ms_per_frame_min": min(cpu) * per, "cpu_ms_per_frame_median": float(np.median(cpu)) * per}
+
+
+def run(frames: int, repeats: int, seed: int, force_synthetic: bool) -> dict:
+    rng = make_rng(seed)
+    model, model_desc = load_model(force_synthetic, seed)
+    pose = rng.normal(scale=0.3, size=(frames, 72))
+    betas = rng.normal(size=(frames, model.num_betas))
+    trans = rng.normal(size=(frames, 3))
+    vertex_ids = rng.choice(model.num_vertices, size=min(300, model.num_vertices), replace=False)
+    single = min(frames, 20)
+
+    def per_frame_jac():
+        for i in range(single):
+            model.point_jacobians(pose[i], betas[i], trans[i])
+
+    def per_frame_vertices():
+        for i in range(single):
+            model.point_jacobians(pose[i], betas[i], trans[i], vertex_ids=vertex_ids)
+
+    ops = {
+        "keypoints + Jacobians, batched": (lambda: model.point_jacobians(pose, betas, trans), frames),
+        "keypoints + Jacobians, one frame per call": (per_frame_jac, single),
+        "keypoints only, batched": (lambda: model.keypoints(pose, betas, trans), frames),
+        "full-mesh LBS, batched": (lambda: model.forward(pose, betas, trans), frames),
+        "300-vertex Jacobians, one frame per call": (per_frame_vertices, single),
+    }
+    results = {}
+    with threadpool_limits(limits=1):
+        for name, (fn, n) in ops.items():
+            results[name] = dict(time_op(fn, repeats, n), frames=n)
+            if name in TARGETS_MS:
+                results[name]["target_ms_per_frame"] = TARGETS_MS[name]
+                results[name]["meets_target_cpu"] = results[name]["cpu_ms_per_frame_min"] <= TARGETS_MS[name]
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+    return {
+        "benchmark": "bench_body",
+        "method": ("min / median over repeats of wall and thread CPU time divided by frames; BLAS limited to one "
+                   "thread; seeded random poses"),
+        "seed": seed, "frames": frames, "repeats": repeats,
+        "model": {"description": model_desc, "num_vertices": model.num_vertices,
+                  "posedirs": model.posedirs is not None, "keypoint_source": model.keypoint_map.source},
+        "hardware": {"machine": platform.machine(), "processor": platform.processor() or None,
+                     "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                     "numpy": np.__version__, "load_average_at_end": list(load) if load else None},
+        "results": results,
+    }
+
+
+def to_markdown(report: dict) -> str:
+    hw = report["hardware"]
+    lines = [
+        "# Body model speed (numpy)",
+        "",
+        f"Method: {report['method']}; {report['frames']} frames, {report['repeats']} repeats, seed {report['seed']}.",
+        f"Model: {report['model']['description']}.",
+        f"Hardware: {hw['cpu_count']} CPUs ({hw['machine']}), Python {hw['python']}, numpy {hw['numpy']}; "
+        f"load average at the end {hw['load_average_at_end']} (a shared machine: wall times are noisy, CPU "
+        f"times less so).",
+        "",
+        "| operation | frames | CPU ms/frame (min) | wall ms/frame (min) | wall ms/frame (median) | target |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, r in report["results"].items():
+        target = (f"<= {r['target_ms_per_frame']} ({'met' if r['meets_target_cpu'] else 'NOT met'})"
+                  if "target_ms_per_frame" in r else "-")
+        lines.append(f"| {name} | {r['frames']} | {r['cpu_ms_per_frame_min']:.3f} | "
+                     f"{r['wall_ms_per_frame_min']:.3f} | {r['wall_ms_per_frame_median']:.3f} | {target} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--synthetic", action="store_true", help="use the synthetic 6890-vertex model")
+    args = parser.parse_args(argv)
+    report = run(args.frames, args.repeats, args.seed, args.synthetic)
+    atomic_write_json(OUT_DIR / "bench_body.json", report)
+    text = to_markdown(report)
+    atomic_write_text(OUT_DIR / "bench_body.md", text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
