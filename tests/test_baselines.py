@@ -214,3 +214,29 @@ def synthetic_track_model_file(tmp_path_factory):
     from pedx_graph.body.io import save_model_npz, synthetic_model_arrays
 
     return save_model_npz(tmp_path_factory.mktemp("model") / "synthetic.npz", synthetic_model_arrays(seed=0))
+
+
+def test_baseline_command_with_workers(tmp_path, scene, synthetic_track_model_file):
+    import argparse
+
+    from pedx_graph.baselines.cli import register
+    from pedx_graph.data.reader import read_smpl_labels
+    from pedx_graph.data.writer import write_tracks
+
+    track, _, _ = scene
+    other = Track(track.sequence, "f" * 32, track.frames[:3], track.calibrations)
+    write_tracks(tmp_path / "data", [track, other])
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    outs = {}
+    for workers in (1, 2):
+        out = tmp_path / f"out{workers}"
+        args = parser.parse_args(["baseline", "triangulation", str(tmp_path / "data"), "--out", str(out),
+                                  "--model", str(synthetic_track_model_file), "--workers", str(workers)])
+        assert args.func(args) == 0
+        outs[workers] = read_smpl_labels(out)
+    assert set(outs[1]) == set(outs[2]) and len(outs[1]) == 2
+    for key, labels in outs[1].items():
+        for a, b in zip(labels, outs[2][key]):
+            np.testing.assert_array_equal(a.extra["keypoints_3d"], b.extra["keypoints_3d"])
+

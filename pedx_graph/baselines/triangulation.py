@@ -26,6 +26,7 @@ midpoint of the output keypoints, and ``extra_track["keypoints_only"]`` is True.
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 
@@ -106,7 +107,9 @@ def fill_missing_keypoints(track: Track, world_keypoints: np.ndarray, source: np
     def centres():
         nonlocal init
         if init is None:
-            init = initialise_track(track)
+            with warnings.catch_warnings():       # all-NaN torso slices of frames without stereo pairs
+                warnings.simplefilter("ignore", RuntimeWarning)
+                init = initialise_track(track)
         return init
 
     # 1. temporal: nearest frame that measured the joint, moved by the body's displacement.
