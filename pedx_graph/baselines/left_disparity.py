@@ -17,9 +17,9 @@ The disparity "at the joint" comes from a :data:`DisparityLookup`.  The default,
 :func:`label_disparity`, is the disparity of the two labels, ``u_l - u_r`` (PedX releases carry labels in
 both images; images may be absent), where the right label is flagged visible: like a dense stereo matcher,
 it has no disparity at a joint hidden in the right image (that label is the annotator's guess, several
-times noisier), so such a joint takes the median depth.  Callers with rectified images can pass a lookup built on a dense
-disparity map with :func:`disparity_map_lookup`.  Keypoints not labelled on the left, or frames with no
-depth at all, are filled exactly as in the triangulation baseline
+times noisier), so such a joint takes the median depth.  Callers with rectified images can pass a lookup
+built on a dense disparity map with :func:`disparity_map_lookup`.  Keypoints not labelled on the left, or
+frames with no depth at all, are filled exactly as in the triangulation baseline
 (:func:`pedx_graph.baselines.triangulation.fill_missing_keypoints`); only ``keypoints_3d`` is meaningful.
 """
 from __future__ import annotations
