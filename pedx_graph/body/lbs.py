@@ -111,14 +111,13 @@ def _tree(parents_bytes: bytes) -> tuple[list[tuple[int, int]], np.ndarray, np.n
     return pairs, ancestors, parent_or_root, np.flatnonzero(par >= 0)
 
 
-def batch_rigid_transform(rot_mats: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray,
-                          levels: list[np.ndarray] | None = None) -> Kinematics:
+def batch_rigid_transform(rot_mats: np.ndarray, rest_joints: np.ndarray, parents: np.ndarray) -> Kinematics:
     """Chain local rotations along the kinematic tree (smplx ``batch_rigid_transform``).
 
     rot_mats (..., J, 3, 3), rest_joints (..., J, 3), parents (J,) with parents[0] = -1 and parents[j] < j.
     World rotations are chained joint by joint (``Rg_j = Rg_parent R_j``, views and in-place products); the
     posed origins are then one sum over ancestors, ``o_k = sum_{i in chain(k)} Rg_parent(i) (J_i - J_parent(i))``
-    (root term: ``J_0``).  ``levels`` is accepted for backward compatibility and ignored.
+    (root term: ``J_0``).
     """
     rot_mats = np.asarray(rot_mats, dtype=np.float64)
     rest_joints = np.asarray(rest_joints, dtype=np.float64)

@@ -5,8 +5,8 @@ Inputs of every method (float arrays, broadcast against each other over leading 
 * ``pose`` (..., 72): axis-angle of the 24 joints; ``pose[..., :3]`` is the root orientation ``world_R_body``
   (``Rot3.Logmap``), the other 69 entries are the body pose, each joint relative to its parent;
 * ``betas`` (..., B) shape coefficients (``B = num_betas``);
-* ``trans`` (..., 3) world translation (metres) added after skinning, so the pelvis lands at
-  ``world_R_body J_0(betas) + trans`` ... exactly as smplx does (``J_0`` is not at the origin in general).
+* ``trans`` (..., 3) world translation (metres) added after skinning, as smplx does: the root rotates about
+  the rest pelvis ``J_0(betas)``, so the pelvis lands at ``J_0(betas) + trans`` (not at ``trans``).
 
 Outputs are in the world frame (the body frame rotated by the root and shifted by ``trans``), metres, float64.
 """
@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from pedx_graph.body import jacobians as jac
 from pedx_graph.body.io import ModelData, load_model_data
 from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model
-from pedx_graph.body.lbs import (batch_rigid_transform, depth_levels, descendant_mask, pose_features, skin,
+from pedx_graph.body.lbs import (batch_rigid_transform, descendant_mask, pose_features, skin,
                                  skin_frames_last,
                                  vertices2joints)
 from pedx_graph.body.rotation import exp_and_right_jacobian, exp_so3, exp_so3_derivative
@@ -29,8 +29,8 @@ from pedx_graph.body.rotation import exp_and_right_jacobian, exp_so3, exp_so3_de
 #: File name of the open default model inside ``pedx_graph/body/data``.
 DEFAULT_MODEL_NAME = "pedx_open_neutral.npz"
 
-#: Frames processed together in the full-mesh forward pass (memory ~ V x 16 x CHUNK doubles, 56 MB for
-#: SMPL; larger chunks amortise reading posedirs, 11 MB per 64 frames... per chunk).
+#: Frames processed together in the full-mesh forward pass: memory ~ 16 V CHUNK doubles (56 MB for SMPL);
+#: larger chunks amortise reading ``posedirs`` (34 MB for SMPL) once per chunk.
 FORWARD_CHUNK = 64
 
 
@@ -84,7 +84,6 @@ class BodyModel:
                                np.ascontiguousarray(self.posedirs.reshape(num_v * 3, -1)))        # (3V, 207)
         self._v_template_col = self.v_template.reshape(num_v * 3, 1)
         self._weights_csr = sp.csr_matrix(self.weights)
-        self._levels = depth_levels(self._parents)
         self._desc = descendant_mask(self._parents)
         # Rest joints are linear in betas: J(beta) = J_template + J_shapedirs . beta.
         self._joint_template = vertices2joints(self.j_regressor, self.v_template)                   # (J, 3)
@@ -199,7 +198,7 @@ class BodyModel:
     def _kinematics(self, pose, betas):
         axis_angle = pose.reshape(pose.shape[0], self.num_joints, 3)
         rot_mats = exp_so3(axis_angle)
-        return batch_rigid_transform(rot_mats, self.rest_joints(betas), self._parents, self._levels)
+        return batch_rigid_transform(rot_mats, self.rest_joints(betas), self._parents)
 
     def _subset(self, vertex_ids: np.ndarray) -> "_VertexSubset":
         """Model arrays gathered for a few vertices (cached for the keypoint vertices)."""
