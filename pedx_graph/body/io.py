@@ -108,13 +108,14 @@ class _ChumpyStub:
 
     def recover(self) -> np.ndarray | None:
         """The array this chumpy object held: its ``x`` (Ch) or ``a`` attribute, else the only array."""
+        state = getattr(self, "_state", {})           # absent when built by copyreg without a state
         for key in ("x", "a"):
-            value = self._state.get(key)
+            value = state.get(key)
             if value is not None:
                 value = _unstub(value)
                 if isinstance(value, np.ndarray) or sp.issparse(value):
                     return value
-        arrays = [v for v in self._state.values() if isinstance(v, np.ndarray)]
+        arrays = [v for v in state.values() if isinstance(v, np.ndarray)]
         return arrays[0] if len(arrays) == 1 else None
 
 
@@ -154,6 +155,16 @@ class _RestrictedUnpickler(pickle.Unpickler):
         raise pickle.UnpicklingError(f"refusing to construct {module}.{name} from a model pickle")
 
 
+def _rebuild_sparse(value):
+    """Rebuild a CSC/CSR matrix from its pickled core arrays (old scipy pickles carry stale attributes)."""
+    state = getattr(value, "__dict__", {})
+    if not all(k in state for k in ("data", "indices", "indptr", "_shape")):
+        return value
+    cls = sp.csc_matrix if type(value).__name__.startswith("csc") else sp.csr_matrix
+    return cls((np.asarray(state["data"]), np.asarray(state["indices"]), np.asarray(state["indptr"])),
+               shape=tuple(int(n) for n in state["_shape"]))
+
+
 def _load_pickle(path: Path) -> dict:
     try:
         with open(path, "rb") as fh:
@@ -171,6 +182,11 @@ def _load_pickle(path: Path) -> dict:
                     f"{path}: key '{key}' is a chumpy object whose array could not be recovered without "
                     f"chumpy.\n{CONVERT_HINT}")
             value = arr
+        if sp.issparse(value):
+            try:
+                value = _rebuild_sparse(value)
+            except (TypeError, ValueError) as exc:
+                raise ModelFormatError(f"{path}: key '{key}' is an unreadable sparse matrix ({exc})") from exc
         out[str(key)] = value
     return out
 
