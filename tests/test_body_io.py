@@ -184,7 +184,9 @@ def _install_fake_chumpy(monkeypatch):
     return Ch, Select
 
 
-def test_chumpy_pickle_is_read_without_chumpy(tmp_path, monkeypatch, synthetic_smpl_arrays):
+@pytest.mark.parametrize("protocol", [0, 2])
+def test_chumpy_pickle_is_read_without_chumpy(protocol, tmp_path, monkeypatch, synthetic_smpl_arrays):
+    """Protocol 0 writes Python-2 names (copy_reg._reconstructor, __builtin__), like the original SMPL files."""
     Ch, Select = _install_fake_chumpy(monkeypatch)
     arrays = _copy(synthetic_smpl_arrays)
     for key in ("pedx_keypoint_names", "pedx_keypoint_vertex_ids", "pedx_keypoint_joint_ids", "provenance"):
@@ -197,7 +199,9 @@ def test_chumpy_pickle_is_read_without_chumpy(tmp_path, monkeypatch, synthetic_s
     payload["bs_style"] = "lbs"
     path = tmp_path / "SMPL_like.pkl"
     with open(path, "wb") as fh:
-        pickle.dump(payload, fh, protocol=2)
+        pickle.dump(payload, fh, protocol=protocol)
+    if protocol == 0:
+        assert b"copy_reg" in path.read_bytes()
     for name in ("chumpy", "chumpy.ch", "chumpy.reordering"):
         monkeypatch.delitem(sys.modules, name)
     assert "chumpy" not in sys.modules
