@@ -150,6 +150,10 @@ def keypoint_map_for_model(data, joints_only: bool = False) -> KeypointMap:
     if data.keypoint_vertex_ids is not None:
         return from_ids(data.keypoint_vertex_ids, data.keypoint_joint_ids, num_joints, "file")
     if data.num_vertices == SMPL_NUM_VERTICES:
+        if data.provenance is not None:
+            log.warning("%s: 6890 vertices and a provenance record but no pedx keypoint keys; assuming the SMPL "
+                        "topology (face keypoints at SMPL vertex ids), which is wrong for a re-meshed model",
+                        data.source)
         return smpl_topology_map(num_joints)
     if joints_only:
         log.warning("%s: no pedx keypoint keys and not the SMPL topology; face keypoints (nose, eyes, mouth) "
