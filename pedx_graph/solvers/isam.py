@@ -1,0 +1,309 @@
+"""iSAM2 over one pedestrian track: frames are added one at a time, the track is finalised at its end.
+
+:class:`IncrementalTrack` wraps one ``gtsam.ISAM2``.  Each :meth:`IncrementalTrack.add_frame` adds the
+factors of one frame (the frame's own terms and the temporal prior to the previous frame) with the initial
+values of its new variables, runs one iSAM2 update and returns the update's wall time.  Per-frame
+variables are relinearised when their linear delta exceeds ``relinearize_threshold`` (rad, m, rad).
+
+The shared shape ``b0`` is linked to every frame factor, so relinearising it re-runs every frame factor
+of the track (a spike growing with the track's length).  It therefore gets its own, looser threshold
+(``ISAM2ThresholdMap``) and is additionally held at its linearisation point (``noRelinKeys``) except on
+every ``shape_relinearize_every``-th update; its linear delta is still solved for at every update, so the
+estimate moves, only the Jacobians of old frames are not recomputed.
+
+:meth:`IncrementalTrack.finalize` runs further iSAM2 updates with ``force_relinearize`` and no held keys
+until the graph error stops decreasing: the smoothed estimate of the whole track (the batch optimum, up to
+the relinearisation thresholds).
+
+:func:`isam_solve` feeds a batch :class:`~pedx_graph.graph.build.TrackProblem` frame by frame (the same
+factors as batch LM: used to check that both reach the same estimate).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from factors.common import BODY_POSE_DIM, FrameKeys
+
+
+@dataclass
+class IsamConfig:
+    """iSAM2 settings of the streaming estimator."""
+
+    relinearize_threshold_rad: float = 0.05
+    """Relinearise a root orientation / body pose when a component of its delta exceeds this, radians."""
+    relinearize_threshold_m: float = 0.02
+    """Relinearise a translation when a component of its delta exceeds this, metres."""
+    shape_relinearize_threshold: float = 0.1
+    """Relinearise the shared shape when a coefficient's delta exceeds this (whitened betas units)."""
+    shape_relinearize_every: int = 10
+    """Hold the shape's linearisation point except on every N-th update (0: never hold)."""
+    relinearize_skip: int = 10
+    """Check relinearisation every N updates (gtsam ``relinearizeSkip``)."""
+    presolve_iterations: int = 4
+    """LM iterations on a new frame's own variables (neighbours and shape held) before it enters iSAM2, so
+    one iSAM2 update per frame starts near the optimum; 0 disables."""
+    finalize: str = "lm"
+    """How an ended track is smoothed: ``lm`` (batch Levenberg-Marquardt over all its factors, warm-started
+    from the iSAM2 estimate) or ``isam`` (extra forced iSAM2 updates; stops within the relinearisation
+    thresholds of the optimum)."""
+    finalize_max_updates: int = 15
+    """At most this many extra updates when a track ends (``finalize = "isam"``)."""
+    finalize_relative_tol: float = 1e-5
+    """Stop finalising when the graph error decreases by less than this fraction."""
+    num_betas: int = 10
+    """Dimension of the shape (must match the body model)."""
+
+
+def make_isam(config: IsamConfig) -> gtsam.ISAM2:
+    """A ``gtsam.ISAM2`` with per-variable-type relinearisation thresholds (symbols r, t, p, b)."""
+    params = gtsam.ISAM2Params()
+    thresholds = gtsam.ISAM2ThresholdMap()
+    thresholds.insert(("r", np.full(3, config.relinearize_threshold_rad)))
+    thresholds.insert(("t", np.full(3, config.relinearize_threshold_m)))
+    thresholds.insert(("p", np.full(BODY_POSE_DIM, config.relinearize_threshold_rad)))
+    thresholds.insert(("b", np.full(config.num_betas, config.shape_relinearize_threshold)))
+    params.setRelinearizeThreshold(thresholds)
+    params.relinearizeSkip = int(config.relinearize_skip)
+    return gtsam.ISAM2(params)
+
+
+def _key_value(values: gtsam.Values, key: int):
+    try:
+        return values.atRot3(key)
+    except RuntimeError:
+        return np.asarray(values.atVector(key), float)
+
+
+def local_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys, max_iterations: int = 5,
+             lambda_initial: float = 1e-2, relative_tol: float = 1e-3, lambda_max: float = 1e6
+             ) -> tuple[gtsam.Values, float, int]:
+    """Levenberg-Marquardt over ``free_keys`` only; every other key of ``values`` is held fixed.
+
+    Held keys get a stiff unit-noise prior on their delta (``1e6 I``) in the damped linear system and a
+    zero step.  Returns ``(values, final error, accepted iterations)``.
+    """
+    free = {int(k) for k in free_keys}
+    zero = values.zeroVectors()
+    dims = {int(k): int(zero.at(k).shape[0]) for k in values.keys()}
+    err = graph.error(values)
+    lam = lambda_initial
+    accepted_iterations = 0
+    for _ in range(max_iterations):
+        linear = graph.linearize(values)
+        accepted = False
+        while lam <= lambda_max:
+            damped = linear.clone()
+            for key, d in dims.items():
+                weight = np.sqrt(lam) if key in free else 1e6
+                damped.add(gtsam.JacobianFactor(key, weight * np.eye(d), np.zeros(d), gtsam.noiseModel.Unit.Create(d)))
+            try:
+                delta = damped.optimize()
+            except RuntimeError:
+                lam *= 10.0
+                continue
+            step = gtsam.VectorValues()
+            for key, d in dims.items():
+                step.insert(key, delta.at(key) if key in free else np.zeros(d))
+            candidate = values.retract(step)
+            new_err = graph.error(candidate)
+            if np.isfinite(new_err) and new_err <= err:
+                decrease = err - new_err
+                values, err, accepted = candidate, new_err, True
+                lam = max(lam / 10.0, 1e-9)
+                break
+            lam *= 10.0
+        if not accepted:
+            break
+        accepted_iterations += 1
+        if decrease <= relative_tol * max(err, 1e-12):
+            break
+    return values, float(err), accepted_iterations
+
+
+@dataclass
+class UpdateStats:
+    """One iSAM2 update."""
+
+    seconds: float
+    relinearized: int
+    """Number of variables relinearised in this update (-1: the batch LM finalisation)."""
+    error_after: float | None = None
+
+
+@dataclass
+class IncrementalTrack:
+    """One iSAM2 over one track (see the module docstring).  Build with :meth:`create`."""
+
+    config: IsamConfig
+    isam: gtsam.ISAM2
+    betas_key: int
+    frame_keys: list[FrameKeys] = field(default_factory=list)
+    updates: list[UpdateStats] = field(default_factory=list)
+    factors: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
+    """Every factor added so far (for errors, diagnostics and marginals)."""
+    finalized: bool = False
+    final_values: gtsam.Values | None = None
+    """The smoothed estimate once :meth:`finalize` ran."""
+
+    @staticmethod
+    def create(config: IsamConfig | None = None, betas_key: int | None = None) -> "IncrementalTrack":
+        config = config or IsamConfig()
+        key = FrameKeys.for_frame(0).betas if betas_key is None else int(betas_key)
+        return IncrementalTrack(config=config, isam=make_isam(config), betas_key=key)
+
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, hold_shape: bool,
+                force: bool = False) -> UpdateStats:
+        t0 = time.perf_counter()
+        params = gtsam.ISAM2UpdateParams()
+        if hold_shape and self.isam.valueExists(self.betas_key):
+            held = gtsam.KeyList()
+            held.push_back(self.betas_key)
+            params.noRelinKeys = held
+        params.force_relinearize = bool(force)
+        result = self.isam.update(graph, values, params)
+        stats = UpdateStats(seconds=time.perf_counter() - t0, relinearized=int(result.getVariablesRelinearized()))
+        return stats
+
+    def add_frame(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph,
+                  new_values: gtsam.Values) -> UpdateStats:
+        """Add one frame: its factors (own terms, temporal prior to the previous frame, and on the first
+        frame the shape prior) and the initial values of the variables not yet in the system."""
+        if self.finalized:
+            raise RuntimeError("cannot add frames to a finalised track")
+        n = len(self.updates) + 1
+        every = self.config.shape_relinearize_every
+        hold = every > 0 and n % every != 0
+        t0 = time.perf_counter()
+        if self.config.presolve_iterations > 0:
+            new_values = self._presolve(factors, new_values)
+        stats = self._update(factors, new_values, hold_shape=hold)
+        stats.seconds = time.perf_counter() - t0
+        self.frame_keys.append(frame_keys)
+        self.updates.append(stats)
+        for j in range(factors.size()):
+            self.factors.add(factors.at(j))
+        return stats
+
+    def _presolve(self, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values) -> gtsam.Values:
+        """Optimise the new variables on the new factors with the existing ones held at their estimate."""
+        free = [int(k) for k in new_values.keys()]
+        local = gtsam.Values(new_values)
+        for key in factors.keyVector():
+            if not local.exists(key):
+                if key in self._rot_keys():
+                    local.insert(key, self.isam.calculateEstimateRot3(key))
+                else:
+                    local.insert(key, np.asarray(self.isam.calculateEstimateVector(key), float).reshape(-1))
+        local, _, _ = local_lm(factors, local, free, max_iterations=self.config.presolve_iterations)
+        out = gtsam.Values()
+        for key in free:
+            out.insert(key, _key_value(local, key))
+        return out
+
+    def _rot_keys(self) -> set[int]:
+        return {int(k.root) for k in self.frame_keys}
+
+    def estimate(self) -> gtsam.Values:
+        """Current estimate of every variable (cost grows with the track; see :meth:`frame_estimate`)."""
+        return self.isam.calculateEstimate()
+
+    def frame_estimate(self, frame_keys: FrameKeys) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Current ``(world_R_body (3, 3), trans (3,), body_pose (69,), betas (B,))`` of one frame."""
+        rot = self.isam.calculateEstimateRot3(frame_keys.root).matrix()
+        trans = np.asarray(self.isam.calculateEstimateVector(frame_keys.trans), float).reshape(-1)
+        body_pose = np.asarray(self.isam.calculateEstimateVector(frame_keys.body_pose), float).reshape(-1)
+        betas = np.asarray(self.isam.calculateEstimateVector(self.betas_key), float).reshape(-1)
+        return rot, trans, body_pose, betas
+
+    def finalize(self, solver_config=None) -> gtsam.Values:
+        """Smooth the whole track (``config.finalize``): batch LM from the iSAM2 estimate, or extra forced
+        iSAM2 updates (shape not held) until the error stops decreasing."""
+        if self.config.finalize == "lm":
+            from pedx_graph.solvers.lm import python_lm
+
+            t0 = time.perf_counter()
+            values, report = python_lm(self.factors, self.isam.calculateEstimate(), solver_config)
+            self.updates.append(UpdateStats(seconds=time.perf_counter() - t0, relinearized=-1,
+                                            error_after=report.final_error))
+            self.finalized = True
+            self.final_values = values
+            return values
+        if self.config.finalize != "isam":
+            raise ValueError(f"finalize must be 'lm' or 'isam', got {self.config.finalize!r}")
+        error = self.factors.error(self.isam.calculateEstimate())
+        for _ in range(self.config.finalize_max_updates):
+            stats = self._update(gtsam.NonlinearFactorGraph(), gtsam.Values(), hold_shape=False, force=True)
+            new_error = self.factors.error(self.isam.calculateEstimate())
+            stats.error_after = float(new_error)
+            self.updates.append(stats)
+            if stats.relinearized == 0 or abs(error - new_error) <= self.config.finalize_relative_tol * max(error, 1e-12):
+                break
+            error = new_error
+        self.finalized = True
+        self.final_values = self.isam.calculateEstimate()
+        return self.final_values
+
+
+@dataclass
+class IsamReport:
+    """What :func:`isam_solve` did."""
+
+    initial_error: float
+    final_error: float
+    update_seconds: list[float]
+    """Wall time of each per-frame update (the streaming latency)."""
+    finalize_seconds: float
+    finalize_updates: int
+    seconds: float
+
+
+def frame_factor_groups(problem) -> list[gtsam.NonlinearFactorGraph]:
+    """The factors of ``problem`` grouped by frame (track-level factors, the shape prior, go to frame 0)."""
+    groups = [gtsam.NonlinearFactorGraph() for _ in problem.keys]
+    for j, frame in enumerate(problem.factor_frames):
+        groups[max(frame, 0)].add(problem.graph.at(j))
+    return groups
+
+
+def initial_frame_values(problem, i: int, previous: tuple | None) -> gtsam.Values:
+    """Initial values of frame ``i``'s new variables: translation from the problem's (LiDAR) initialisation,
+    root and body pose carried over from the previous frame's current estimate (``previous``)."""
+    keys = problem.keys[i]
+    values = gtsam.Values()
+    if previous is None:
+        values.insert(keys.root, problem.initial.atRot3(keys.root))
+        values.insert(keys.body_pose, np.asarray(problem.initial.atVector(keys.body_pose)))
+    else:
+        rot, _, body_pose, _ = previous
+        values.insert(keys.root, gtsam.Rot3(rot))
+        values.insert(keys.body_pose, np.asarray(body_pose))
+    values.insert(keys.trans, np.asarray(problem.initial.atVector(keys.trans)))
+    if i == 0:
+        values.insert(keys.betas, np.asarray(problem.initial.atVector(keys.betas)))
+    return values
+
+
+def isam_solve(problem, config: IsamConfig | None = None, solver_config=None
+               ) -> tuple[gtsam.Values, IsamReport, IncrementalTrack]:
+    """Solve a batch problem with iSAM2, one frame per update, then finalise; same factors as batch LM."""
+    config = config or IsamConfig()
+    t0 = time.perf_counter()
+    track = IncrementalTrack.create(config, betas_key=problem.keys[0].betas)
+    previous = None
+    groups = frame_factor_groups(problem)
+    for i, keys in enumerate(problem.keys):
+        track.add_frame(keys, groups[i], initial_frame_values(problem, i, previous))
+        previous = track.frame_estimate(keys)
+    n_updates = len(track.updates)
+    t1 = time.perf_counter()
+    values = track.finalize(solver_config)
+    return values, IsamReport(initial_error=float(problem.graph.error(problem.initial)),
+                              final_error=float(problem.graph.error(values)),
+                              update_seconds=[u.seconds for u in track.updates[:n_updates]],
+                              finalize_seconds=time.perf_counter() - t1,
+                              finalize_updates=len(track.updates) - n_updates,
+                              seconds=time.perf_counter() - t0), track

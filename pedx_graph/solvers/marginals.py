@@ -1,0 +1,340 @@
+"""Marginal covariances of a track's estimate: per frame (translation, root, body pose, 3D keypoints) and shape.
+
+Gaussian (Laplace) approximation at the estimate: the graph is linearised at ``values`` (robust kernels
+enter through their IRLS weights, the max-mixture priors through their selected component, the chamfer
+term through its current correspondences), giving the information matrix ``Lambda = A^T A`` of the whitened
+Jacobian ``A``.  Never a full joint over all variables: only the joint of each frame's variables with the
+shape,
+
+    z_i = [delta_root_i (3, rad, right perturbation), trans_i (3, m), body_pose_i (69, rad), betas (B)]
+
+is formed, as a (75 + B, 75 + B) block ``Sigma_i`` of ``Lambda^-1``.
+
+Two ways to get ``Sigma_i``:
+
+* ``method="chain"`` (default): the track's graph is a chain of frames (the temporal prior links frame
+  i - 1 and i) plus the shared shape (an "arrow").  A forward pass eliminates frame after frame (each
+  passes information to the next frame and to the shape, exactly like a Kalman filter on ``(x_i, b)``), a
+  backward pass (Rauch-Tung-Striebel) turns the conditionals ``x_i = K_i [x_{i+1}; b] + w_i`` into the joint
+  marginals: ``Sigma_i = K_i Sigma_{i+1} K_i^T + W_i`` on the frame block, ``K_i Sigma_{i+1}[:, b]`` across.
+  O(T (75 + B)^3), about a millisecond per frame.
+* ``method="gtsam"``: ``gtsam.Marginals(graph, values).jointMarginalCovariance(frame keys + shape)`` per
+  frame (slow on long tracks: each query re-eliminates the graph; kept as the reference).
+
+From iSAM2 (:func:`isam_frame_covariance`): ``ISAM2.jointMarginalCovariance`` on the Bayes tree at the
+current linearisation point, at any time.
+
+Keypoint covariances (metres^2, world frame): ``Sigma_k = J_k Sigma_i J_k^T`` with ``J_k = [d_root, d_trans,
+d_body_pose, d_betas]`` (3, 75 + B) of keypoint k from ``BodyModel.point_jacobians`` (right perturbation of
+the root, as the ``Rot3`` retraction).
+
+Under-constrained frames (no LiDAR and one view, a missing term): when a frame's information block is not
+positive definite, a diffuse information ``diffuse_information`` is added on its diagonal so the pass
+carries on, and the frame is reported with ``covariance_status = "under_constrained"``; its covariances are
+written as null when any standard deviation exceeds the limits of :class:`MarginalsConfig`.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve, LinAlgError
+
+from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM
+
+log = logging.getLogger(__name__)
+
+#: Dimension of one frame's variables (root, trans, body pose).
+FRAME_DIM = ROOT_DIM + TRANS_DIM + BODY_POSE_DIM          # 75
+ROOT_SLICE = slice(0, 3)
+TRANS_SLICE = slice(3, 6)
+POSE_SLICE = slice(6, 75)
+
+
+@dataclass
+class MarginalsConfig:
+    """How marginal covariances are computed and reported."""
+
+    method: str = "chain"
+    """``chain`` (forward-backward over the frames, fast) or ``gtsam`` (``gtsam.Marginals`` per frame)."""
+    diffuse_information: float = 1e-6
+    """Added to the diagonal of a frame's information block that is not positive definite (units^-2)."""
+    max_trans_sigma_m: float = 5.0
+    """Above this translation standard deviation (m) a frame's covariances are reported as null."""
+    max_root_sigma_rad: float = 1.5
+    """Above this root-orientation standard deviation (rad) a frame's covariances are reported as null."""
+    body_pose_blocks: bool = True
+    """Write the body pose covariance as 23 per-joint (3, 3) blocks (the full (69, 69) is in the API)."""
+
+
+class NotAChainError(ValueError):
+    """A factor links frames that are not consecutive (the chain method does not apply)."""
+
+
+@dataclass
+class ChainInformation:
+    """Linearised information of a track in chain + arrow block form (75-d frames, one B-d shape)."""
+
+    frame: np.ndarray
+    """(T, 75, 75) information of each frame's variables."""
+    next: np.ndarray
+    """(T - 1, 75, 75) cross information between frame i and i + 1 (rows: frame i)."""
+    frame_shape: np.ndarray
+    """(T, 75, B) cross information between frame i and the shape."""
+    shape: np.ndarray
+    """(B, B) information of the shape."""
+
+
+@dataclass
+class TrackMarginals:
+    """Joint marginal covariance of each frame's variables with the shape."""
+
+    frame_covariances: np.ndarray
+    """(T, 75 + B, 75 + B) over ``[root (3), trans (3), body_pose (69), betas (B)]``."""
+    regularised: np.ndarray
+    """(T,) bool: the frame's information block needed the diffuse regulariser."""
+    seconds: float = 0.0
+    method: str = "chain"
+
+    @property
+    def shape_covariance(self) -> np.ndarray:
+        """(B, B) marginal covariance of the shape."""
+        return self.frame_covariances[0, FRAME_DIM:, FRAME_DIM:]
+
+
+def _key_layout(keys) -> tuple[dict[int, tuple[int, slice]], int]:
+    """Map every frame key to (frame index, slice in the 75-d frame block); and the shape key."""
+    layout = {}
+    for i, k in enumerate(keys):
+        layout[int(k.root)] = (i, ROOT_SLICE)
+        layout[int(k.trans)] = (i, TRANS_SLICE)
+        layout[int(k.body_pose)] = (i, POSE_SLICE)
+    return layout, int(keys[0].betas)
+
+
+def _dims_of(values: gtsam.Values, key: int) -> int:
+    try:
+        values.atRot3(key)
+        return 3
+    except RuntimeError:
+        return int(np.asarray(values.atVector(key)).shape[0])
+
+
+def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int) -> ChainInformation:
+    """Scatter the Hessians ``A^T A`` of the (whitened) linear factors into :class:`ChainInformation`.
+
+    ``keys`` are the track's :class:`FrameKeys` (frame order).  Raises :class:`NotAChainError` when a factor
+    links frames more than one apart.
+    """
+    layout, shape_key = _key_layout(keys)
+    t, d, b = len(keys), FRAME_DIM, num_betas
+    info = ChainInformation(frame=np.zeros((t, d, d)), next=np.zeros((max(t - 1, 0), d, d)),
+                            frame_shape=np.zeros((t, d, b)), shape=np.zeros((b, b)))
+    for j in range(linear.size()):
+        factor = linear.at(j)
+        if factor is None:
+            continue
+        a_mat, _ = factor.jacobian()
+        fkeys = [int(k) for k in factor.keys()]
+        # column ranges of each key in A
+        spans, col = [], 0
+        for k in fkeys:
+            dim = b if k == shape_key else (layout[k][1].stop - layout[k][1].start)
+            spans.append((k, slice(col, col + dim)))
+            col += dim
+        hess = a_mat.T @ a_mat
+        frames = sorted({layout[k][0] for k in fkeys if k != shape_key})
+        if len(frames) == 2 and frames[1] - frames[0] != 1 or len(frames) > 2:
+            raise NotAChainError(f"factor {j} links frames {frames}")
+        for ka, sa in spans:
+            for kb, sb in spans:
+                block = hess[sa, sb]
+                if ka == shape_key and kb == shape_key:
+                    info.shape += block
+                elif ka == shape_key:
+                    continue                          # filled from the transposed pair
+                elif kb == shape_key:
+                    fa, ra = layout[ka]
+                    info.frame_shape[fa][ra, :] += block
+                else:
+                    fa, ra = layout[ka]
+                    fb, rb = layout[kb]
+                    if fa == fb:
+                        info.frame[fa][ra, rb] += block
+                    elif fb == fa + 1:
+                        info.next[fa][ra, rb] += block
+    return info
+
+
+def _chol(matrix: np.ndarray, diffuse: float) -> tuple[tuple, bool]:
+    """Cholesky factor of a symmetric matrix; adds ``diffuse * I`` (once, then 1e3x) when not PD."""
+    sym = 0.5 * (matrix + matrix.T)
+    try:
+        return cho_factor(sym, lower=True, check_finite=True), False
+    except LinAlgError:
+        pass
+    eps = diffuse
+    for _ in range(6):
+        try:
+            return cho_factor(sym + eps * np.eye(len(sym)), lower=True), True
+        except LinAlgError:
+            eps *= 1e3
+    raise LinAlgError("information block is not positive definite even after regularisation")
+
+
+def chain_marginals(info: ChainInformation, diffuse: float = 1e-6) -> TrackMarginals:
+    """Joint marginals ``Sigma_i`` of ``(x_i, betas)`` for every frame by forward elimination + RTS pass."""
+    t0 = time.perf_counter()
+    t, d, b = info.frame.shape[0], FRAME_DIM, info.shape.shape[0]
+    regularised = np.zeros(t, bool)
+    gains, noises = [], []
+    acc_xx = info.frame[0].copy()
+    acc_xb = info.frame_shape[0].copy()
+    acc_bb = info.shape.copy()
+    for i in range(t - 1):
+        factor, regularised[i] = _chol(acc_xx, diffuse)
+        rhs = np.concatenate([info.next[i], acc_xb], axis=1)            # (D, D + B)
+        g = cho_solve(factor, rhs)                                       # Lambda_ii^-1 [L_{i,i+1}, L_ib]
+        gains.append(-g)
+        noises.append(cho_solve(factor, np.eye(d)))
+        cross_next = info.next[i]
+        next_xx = info.frame[i + 1] - cross_next.T @ g[:, :d]
+        next_xb = info.frame_shape[i + 1] - cross_next.T @ g[:, d:]
+        acc_bb = acc_bb - acc_xb.T @ g[:, d:]
+        acc_xx, acc_xb = next_xx, next_xb
+    joint = np.block([[acc_xx, acc_xb], [acc_xb.T, acc_bb]])
+    factor, regularised[t - 1] = _chol(joint, diffuse)
+    covs = np.empty((t, d + b, d + b))
+    covs[t - 1] = cho_solve(factor, np.eye(d + b))
+    for i in range(t - 2, -1, -1):
+        nxt = covs[i + 1]
+        gain = gains[i]                                                 # (D, D + B)
+        cov_xx = gain @ nxt @ gain.T + noises[i]
+        cov_xb = gain @ nxt[:, d:]
+        covs[i, :d, :d] = cov_xx
+        covs[i, :d, d:] = cov_xb
+        covs[i, d:, :d] = cov_xb.T
+        covs[i, d:, d:] = nxt[d:, d:]
+    covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+    return TrackMarginals(frame_covariances=covs, regularised=regularised, seconds=time.perf_counter() - t0,
+                          method="chain")
+
+
+def _frame_query_keys(k) -> list[int]:
+    return [int(k.root), int(k.trans), int(k.body_pose), int(k.betas)]
+
+
+def joint_marginal_matrix(joint, keys: list[int], dims: list[int]) -> np.ndarray:
+    """Assemble a gtsam ``JointMarginal`` into one dense matrix in the order of ``keys``."""
+    offsets = np.concatenate([[0], np.cumsum(dims)])
+    out = np.zeros((offsets[-1], offsets[-1]))
+    for a, ka in enumerate(keys):
+        for c, kc in enumerate(keys):
+            out[offsets[a]:offsets[a + 1], offsets[c]:offsets[c + 1]] = joint.at(ka, kc)
+    return out
+
+
+def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
+                    num_betas: int) -> TrackMarginals:
+    """The same joint marginals with ``gtsam.Marginals`` (one joint query per frame; the reference)."""
+    t0 = time.perf_counter()
+    marginals = gtsam.Marginals(graph, values)
+    dims = [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, num_betas]
+    covs = np.stack([joint_marginal_matrix(marginals.jointMarginalCovariance(_frame_query_keys(k)),
+                                           _frame_query_keys(k), dims) for k in keys])
+    return TrackMarginals(frame_covariances=covs, regularised=np.zeros(len(keys), bool),
+                          seconds=time.perf_counter() - t0, method="gtsam")
+
+
+def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
+                      config: MarginalsConfig | None = None) -> TrackMarginals:
+    """Joint marginals of every frame with the shape (``config.method``; chain falls back to gtsam)."""
+    config = config or MarginalsConfig()
+    num_betas = _dims_of(values, int(keys[0].betas))
+    if config.method == "gtsam":
+        return gtsam_marginals(graph, values, keys, num_betas)
+    if config.method != "chain":
+        raise ValueError(f"marginals method must be 'chain' or 'gtsam', got {config.method!r}")
+    t0 = time.perf_counter()
+    linear = graph.linearize(values)
+    try:
+        info = chain_information(linear, keys, num_betas)
+    except NotAChainError as exc:
+        log.info("marginals: %s; using gtsam.Marginals", exc)
+        return gtsam_marginals(graph, values, keys, num_betas)
+    out = chain_marginals(info, config.diffuse_information)
+    out.seconds = time.perf_counter() - t0
+    return out
+
+
+def isam_frame_covariance(isam: gtsam.ISAM2, frame_keys, num_betas: int) -> np.ndarray:
+    """(75 + B, 75 + B) joint marginal of one frame's variables and the shape from an iSAM2 Bayes tree."""
+    query = _frame_query_keys(frame_keys)
+    joint = isam.jointMarginalCovariance(query)
+    return joint_marginal_matrix(joint, query, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, num_betas])
+
+
+def keypoint_covariances(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
+                         frame_cov: np.ndarray) -> np.ndarray:
+    """(18, 3, 3) covariances (m^2, world) of the keypoints of one frame from its joint marginal (75+B)^2."""
+    jac = model.point_jacobians(np.asarray(pose, float), np.asarray(betas, float), np.asarray(trans, float))
+    full = np.concatenate([np.asarray(jac.d_root), np.asarray(jac.d_trans), np.asarray(jac.d_body_pose),
+                           np.asarray(jac.d_betas)], axis=-1)                 # (18, 3, 75 + B)
+    return np.einsum("kai,ij,kbj->kab", full, frame_cov, full)
+
+
+def frame_fields(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray, frame_cov: np.ndarray,
+                 regularised: bool, config: MarginalsConfig) -> dict:
+    """The per-frame result fields: covariances of trans, root, body pose, keypoints, and a status."""
+    cov_trans = frame_cov[TRANS_SLICE, TRANS_SLICE]
+    cov_root = frame_cov[ROOT_SLICE, ROOT_SLICE]
+    sig_t = float(np.sqrt(max(np.max(np.linalg.eigvalsh(cov_trans)), 0.0)))
+    sig_r = float(np.sqrt(max(np.max(np.linalg.eigvalsh(cov_root)), 0.0)))
+    too_wide = sig_t > config.max_trans_sigma_m or sig_r > config.max_root_sigma_rad
+    status = "under_constrained" if (regularised or too_wide) else "ok"
+    if too_wide:
+        return {"covariance_status": status, "cov_trans": None, "cov_root": None, "cov_body_pose": None,
+                "cov_keypoints_3d": None, "sigma_trans_max_m": sig_t, "sigma_root_max_rad": sig_r}
+    cov_pose = frame_cov[POSE_SLICE, POSE_SLICE]
+    if config.body_pose_blocks:
+        cov_pose = np.stack([cov_pose[3 * j:3 * j + 3, 3 * j:3 * j + 3] for j in range(BODY_POSE_DIM // 3)])
+    return {"covariance_status": status, "cov_trans": cov_trans, "cov_root": cov_root,
+            "cov_body_pose": cov_pose,
+            "cov_keypoints_3d": keypoint_covariances(model, pose, betas, trans, frame_cov),
+            "sigma_trans_max_m": sig_t, "sigma_root_max_rad": sig_r}
+
+
+def marginals_to_fields(marginals: TrackMarginals, estimate, model,
+                        config: MarginalsConfig | None = None) -> tuple[list[dict], dict]:
+    """``(extra_per_frame, extra_track)`` for :class:`TrackResult` from computed marginals and the estimate
+    (``estimate``: anything with ``pose (T, 72)``, ``betas (B,)``, ``trans (T, 3)``)."""
+    config = config or MarginalsConfig()
+    per_frame = [frame_fields(model, estimate.pose[i], estimate.betas, estimate.trans[i],
+                              marginals.frame_covariances[i], bool(marginals.regularised[i]), config)
+                 for i in range(len(estimate.pose))]
+    n_bad = int(sum(f["covariance_status"] != "ok" for f in per_frame))
+    track = {"cov_betas": marginals.shape_covariance, "marginals_method": marginals.method,
+             "marginals_seconds": marginals.seconds, "marginals_under_constrained_frames": n_bad}
+    return per_frame, track
+
+
+def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig | None = None
+                    ) -> tuple[list[dict], dict]:
+    """Per-frame and per-track covariance fields of ``values`` (the solved estimate of ``problem``).
+
+    Never raises on an under-constrained track: failures are reported in the track fields
+    (``marginals_error``) and every frame gets ``covariance_status = "failed"``.
+    """
+    from pedx_graph.graph.build import extract_estimate
+
+    config = config or MarginalsConfig()
+    try:
+        marginals = compute_marginals(problem.graph, values, problem.keys, config)
+    except (RuntimeError, LinAlgError, ValueError) as exc:
+        log.warning("marginals failed: %s", exc)
+        return ([{"covariance_status": "failed"} for _ in problem.keys],
+                {"marginals_error": f"{type(exc).__name__}: {exc}"})
+    return marginals_to_fields(marginals, extract_estimate(problem, values, ctx), ctx.model, config)
