@@ -15,6 +15,7 @@ every mesh occludes every other one and a body occludes itself (the far arm behi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -61,11 +62,16 @@ class CameraView:
     camera: str
     """Camera name (e.g. ``ylw79D0``)."""
 
-    @property
+    @cached_property
     def world_R_rect(self) -> np.ndarray:
+        """(3, 3) orientation of the rectified left frame in the world."""
         return self.calib.world_T_cam[:3, :3] @ self.calib.rect_R_cam.T
 
-    @property
+    @cached_property
+    def _rect_T_world(self) -> np.ndarray:
+        return self.calib.rect_T_world
+
+    @cached_property
     def world_center(self) -> np.ndarray:
         """(3,) optical centre in the world frame."""
         centre = self.calib.world_T_cam[:3, 3].copy()
@@ -79,7 +85,8 @@ class CameraView:
 
     def project(self, world_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(..., 3) world points -> ((..., 2) pixels, (...,) depth along the optical axis in metres)."""
-        rect_p = self.calib.world_to_rect(np.asarray(world_p, dtype=float))
+        rect_T_world = self._rect_T_world
+        rect_p = np.asarray(world_p, dtype=float) @ rect_T_world[:3, :3].T + rect_T_world[:3, 3]
         hom = rect_p @ self.P_rect[:, :3].T + self.P_rect[:, 3]
         depth = rect_p[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):

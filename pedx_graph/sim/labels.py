@@ -80,5 +80,7 @@ def segment_indices_from_projection(uv: np.ndarray, depth: np.ndarray, polygon: 
     if polygon is None or len(uv) == 0:
         return np.zeros(0, dtype=np.int64)
     lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    cand = np.flatnonzero((depth > min_depth_m) & np.all(uv >= lo, axis=1) & np.all(uv <= hi, axis=1))
+    u, v = uv[:, 0], uv[:, 1]
+    cand = np.flatnonzero((u >= lo[0]) & (u <= hi[0]))
+    cand = cand[(v[cand] >= lo[1]) & (v[cand] <= hi[1]) & (depth[cand] > min_depth_m)]
     return cand[points_in_polygon(uv[cand], polygon)]

@@ -22,6 +22,12 @@ order), ``segment_is_person__<tid>`` (M,) bool = the point really comes from tha
 membership); ``keypoints__<tid>`` (18, 3) and ``joints__<tid>`` (24, 3) world positions of every present
 pedestrian.
 
+Per-frame truth JSON: ``people.<tid>`` = ``distance_m`` (horizontal, LiDAR to pelvis),
+``n_lidar_points_on_person`` (sweep points whose ray hit the person), ``labelled``, ``n_segment_points``,
+``n_segment_points_on_person``, and ``views.<camera>`` = ``in_image`` (keypoints projecting into the
+image), ``visible_area_px`` (visible silhouette area), ``n_visible``, ``labelled`` and ``visible`` (18
+characters ``0``/``1``: true visibility of each PEDX_KEYPOINTS joint) for the images where it was labelled.
+
 Same seed and config -> byte-identical files (NPZ members carry a fixed timestamp).
 """
 from __future__ import annotations
@@ -50,7 +56,7 @@ from pedx_graph.data.writer import (
 from pedx_graph.sim import cameras, labels, lidar
 from pedx_graph.sim.config import SimConfig
 from pedx_graph.sim.pedestrians import Pedestrian, plan_pedestrians
-from pedx_graph.sim.scene import RayScene, build_scene
+from pedx_graph.sim.scene import RayScene, build_scene, outward_faces
 from pedx_graph.utils import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 logger = logging.getLogger(__name__)
@@ -104,7 +110,7 @@ def _label_person_in_view(ray_scene: RayScene, view: cameras.CameraView, person:
         return None, record
     uv, vis = labels.keypoint_labels(uv_true, visible, in_image, lab, rng, view.calib.image_size)
     polygon = labels.noisy_polygon(polygon, lab, rng, view.calib.image_size)
-    record.update(labelled=True, visible=visible.astype(int).tolist())
+    record.update(labelled=True, visible="".join("1" if v else "0" for v in visible))
     return _ViewLabel(view.camera, view.side, uv, vis, polygon, int(visible.sum()), area), record
 
 
@@ -136,7 +142,8 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     people = plan_pedestrians(config, scene, body_model, ped_rng, clip_source)
     for person in people:
         person.object_id = scene.add_object("pedestrian", person.tracking_id)
-    faces = np.asarray(body_model.faces, dtype=np.int64)
+    rest_vertices = body_model.forward(np.zeros(72), np.zeros(body_model.num_betas)).vertices
+    faces = outward_faces(rest_vertices, body_model.faces)
     directions = lidar.beam_directions(config.lidar)
 
     views = []
@@ -144,6 +151,9 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         for view in cameras.camera_views(calib):
             if view.side == "left" or config.cameras.label_right_images:
                 views.append(view)
+    # every ray starts at the LiDAR or at a camera centre: back-facing triangles are culled (RayScene)
+    viewpoints = np.stack([np.zeros(3)] + [v.world_center for calib in calibs.values()
+                                           for v in cameras.camera_views(calib)])
 
     counts = {"labels_2d": 0, "segments": 0, "smpl_labels": 0, "segment_points": 0,
               "segment_points_on_person": 0, "lidar_points": 0, "person_lidar_points": 0}
@@ -163,7 +173,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
             body = body_model.forward(person.pose[k], person.betas, person.trans[k])
             bodies[person.tracking_id] = body
             meshes.append((person.object_id, body.vertices, faces))
-        ray_scene = RayScene(meshes)
+        ray_scene = RayScene(meshes, viewpoints)
         sweep = lidar.sweep(ray_scene, config.lidar, lidar_rng, directions)
         scene_points = sweep.world_points
         ply_points = scene_points
@@ -233,7 +243,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
         atomic_write_json(truth_dir / f"{seq}_{frame:07d}.json",
                           {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
-                           "n_dropped": sweep.n_dropped, "people": truth_people})
+                           "n_dropped": sweep.n_dropped, "people": truth_people}, indent=None)
 
     for kind in ("pointclouds", "images"):
         write_timestamps(out, seq, frame_seconds, kind=kind)
