@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
     scene, results = out / "scene", out / "results"
     t0 = time.perf_counter()
     sim_config = SimConfig()
-    sim_config.scene.num_pedestrians = args.pedestrians
-    sim_config.scene.num_frames = args.frames
+    sim_config.scene.n_pedestrians = args.pedestrians
+    sim_config.scene.n_frames = args.frames
     simulate(scene, sim_config, seed=args.seed)
     t1 = time.perf_counter()
     print(f"simulated {args.pedestrians} pedestrians x {args.frames} frames in {t1 - t0:.1f} s -> {scene}")

@@ -90,8 +90,11 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
     config = config or FitConfig()
     ctx = context or _context(config)
     t0 = time.perf_counter()
-    problem = build_track_graph(track, ctx, config)
-    values, report = solve(problem.graph, problem.initial, config.solver)
+    if len(track.frames) == 1:
+        problem, values, report = _single_frame_search(track, ctx, config)
+    else:
+        problem = build_track_graph(track, ctx, config)
+        values, report = solve(problem.graph, problem.initial, config.solver)
     est = extract_estimate(problem, values, ctx)
     return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
                        frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
@@ -99,6 +102,25 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
                        final_error=report.final_error, initial_error=report.initial_error,
                        iterations=report.iterations, seconds=time.perf_counter() - t0,
                        solver=f"lm-{report.backend}")
+
+
+def _single_frame_search(track: Track, ctx, config: FitConfig, n_headings: int = 8):
+    """A single frame has no trajectory heading: start from the triangulated-torso heading and from
+    ``n_headings`` evenly spaced headings, keep the solution of lowest final error."""
+    from pedx_graph.graph.build import build_track_graph
+    from pedx_graph.graph.init import yaw_of
+    from pedx_graph.solvers.lm import solve
+
+    base = build_track_graph(track, ctx, config)
+    candidates = [None] + [np.array([yaw]) for yaw in np.linspace(-np.pi, np.pi, n_headings, endpoint=False)
+                           if abs(np.angle(np.exp(1j * (yaw - yaw_of(base.init.world_R_body[0]))))) > 1e-3]
+    best = None
+    for yaw in candidates:
+        problem = base if yaw is None else build_track_graph(track, ctx, config, yaw_override=yaw)
+        values, report = solve(problem.graph, problem.initial, config.solver)
+        if best is None or report.final_error < best[2].final_error:
+            best = (problem, values, report)
+    return best
 
 
 def _fit_one(args):

@@ -1,0 +1,139 @@
+"""Benchmark of the batch fit: accuracy per distance bin and speed vs track length (seeded).
+
+Accuracy: a simulated scene (held-out CMU motion when ../shared/mocap/cmu exists, else the procedural
+gait), every track fitted with batch LM, MPJPE global and root-relative overall and per distance bin.
+Speed: one pedestrian simulated for 200 frames, its track cut to 25/50/100/200 frames and fitted on one
+core; both LM back-ends (Python-driven over ``graph.linearize`` and gtsam's optimiser) at 50 frames.
+
+    python benchmarks/bench_fit.py [--seed 0] [--pedestrians 10] [--frames 50] [--out benchmarks/results]
+
+Writes ``bench_fit.json`` and ``bench_fit.md`` into ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pedx_graph.data.reader import read_dataset  # noqa: E402
+from pedx_graph.eval.evaluate import evaluate  # noqa: E402
+from pedx_graph.eval.metrics import markdown_table  # noqa: E402
+from pedx_graph.graph.config import FitConfig  # noqa: E402
+from pedx_graph.sim.config import SimConfig  # noqa: E402
+from pedx_graph.sim.simulate import simulate  # noqa: E402
+from pedx_graph.solvers.fit import _context, fit_dataset, fit_track  # noqa: E402
+from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
+
+SHARED_CMU = ROOT.parent / "shared" / "mocap" / "cmu"
+
+
+def hardware() -> str:
+    return f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'unknown cpu'}, " \
+           f"Python {platform.python_version()}, {platform.system()}"
+
+
+def sim_config(pedestrians: int, frames: int) -> SimConfig:
+    cfg = SimConfig()
+    cfg.scene.n_pedestrians = pedestrians
+    cfg.scene.n_frames = frames
+    if SHARED_CMU.is_dir():
+        cfg.motion.motion_dir = str(SHARED_CMU)
+        cfg.motion.split = "holdout"
+    return cfg
+
+
+def accuracy(seed: int, pedestrians: int, frames: int, workers: int, work: Path) -> dict:
+    scene, results = work / "scene", work / "results"
+    t0 = time.perf_counter()
+    simulate(scene, sim_config(pedestrians, frames), seed=seed)
+    t1 = time.perf_counter()
+    summary = fit_dataset(scene, results, FitConfig(), workers=workers)
+    t2 = time.perf_counter()
+    report = evaluate(results, scene)
+    per_track = [t["seconds"] / max(t["frames"], 1) for t in summary["tracks"]]
+    return {"simulate_seconds": t1 - t0, "fit_wall_seconds": t2 - t1, "workers": workers,
+            "tracks": len(summary["tracks"]), "failed": len(summary["failed"]),
+            "frames": summary["total_frames"], "median_ms_per_frame_per_track": 1000 * float(np.median(per_track))
+            if per_track else None, "eval": report,
+            "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait"}
+
+
+def speed(seed: int, work: Path) -> dict:
+    scene = work / "speed_scene"
+    cfg = sim_config(1, 200)
+    simulate(scene, cfg, seed=seed + 1)
+    tracks = sorted(read_dataset(scene), key=len, reverse=True)
+    track = tracks[0]
+    rows = []
+    config = FitConfig()
+    ctx = _context(config)
+    for length in (25, 50, 100, 200):
+        if len(track) < length:
+            continue
+        sub = copy.copy(track)
+        sub.frames = track.frames[:length]
+        res = fit_track(sub, config, ctx)
+        rows.append({"frames": length, "backend": "python", "seconds": res.seconds,
+                     "ms_per_frame": 1000 * res.seconds / length, "iterations": res.iterations,
+                     "final_error": res.final_error})
+        if length == 50:
+            cfg_g = copy.deepcopy(config)
+            cfg_g.solver.backend = "gtsam"
+            res_g = fit_track(sub, cfg_g, ctx)
+            rows.append({"frames": length, "backend": "gtsam", "seconds": res_g.seconds,
+                         "ms_per_frame": 1000 * res_g.seconds / length, "iterations": res_g.iterations,
+                         "final_error": res_g.final_error})
+    return {"track_frames_available": len(track), "rows": rows}
+
+
+def to_markdown(result: dict) -> str:
+    acc = result["accuracy"]
+    lines = ["# Batch fit benchmark", "",
+             f"Command: `{result['command']}`  ", f"Hardware: {result['hardware']}  ",
+             f"Seed {result['seed']}; scene: {result['pedestrians']} pedestrians x {result['frames']} frames, "
+             f"motion: {acc['motion']}; {acc['tracks']} tracks fitted ({acc['failed']} failed), "
+             f"{acc['frames']} frames; fit wall time {acc['fit_wall_seconds']:.1f} s with {acc['workers']} workers.",
+             "", markdown_table(acc["eval"], title="Accuracy (MPJPE, mm)"), "## Speed (one core, one track)", "",
+             "| frames | LM back-end | seconds | ms per frame | iterations | final error |",
+             "|---:|---|---:|---:|---:|---:|"]
+    for row in result["speed"]["rows"]:
+        lines.append(f"| {row['frames']} | {row['backend']} | {row['seconds']:.2f} | {row['ms_per_frame']:.1f} | "
+                     f"{row['iterations']} | {row['final_error']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--pedestrians", type=int, default=10)
+    ap.add_argument("--frames", type=int, default=50)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    ap.add_argument("--skip-speed", action="store_true")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        result = {"command": "python benchmarks/bench_fit.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+                  "hardware": hardware(), "seed": args.seed, "pedestrians": args.pedestrians,
+                  "frames": args.frames,
+                  "accuracy": accuracy(args.seed, args.pedestrians, args.frames, args.workers, work),
+                  "speed": {"rows": []} if args.skip_speed else speed(args.seed, work)}
+    out = Path(args.out)
+    atomic_write_json(out / "bench_fit.json", result)
+    atomic_write_text(out / "bench_fit.md", to_markdown(result))
+    print(to_markdown(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
