@@ -18,13 +18,14 @@ E_tp (Eq. 10)              :mod:`factors.temporal_prior`       :func:`make_tempo
 =========================  ===============================  ============================================
 """
 from factors.common import FrameKeys, FrameState, MaxMixture, make_noise, read_frame_state
-from factors.heading_prior import heading_sigma, make_heading_prior_factor
+from factors.heading_prior import heading_sigma, make_heading_prior_factor, trajectory_headings
 from factors.joint_limits import DEFAULT_JOINT_LIMITS, JointLimit, make_joint_limit_factor
 from factors.lidar_chamfer import make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
 from factors.shape_prior import make_shape_prior_factor
 from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
-from factors.temporal_prior import TEMPORAL_DIM, make_temporal_prior_factor, temporal_difference
+from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, sequence_differences,
+                                    temporal_difference)
 from factors.translation_prior import make_translation_prior_factor
 
 __all__ = [
@@ -32,9 +33,9 @@ __all__ = [
     "make_stereo_reprojection_factor", "StereoKeypoints",
     "make_lidar_chamfer_factor",
     "make_translation_prior_factor",
-    "make_heading_prior_factor", "heading_sigma",
+    "make_heading_prior_factor", "heading_sigma", "trajectory_headings",
     "make_pose_prior_factor",
     "make_joint_limit_factor", "JointLimit", "DEFAULT_JOINT_LIMITS",
     "make_shape_prior_factor",
-    "make_temporal_prior_factor", "temporal_difference", "TEMPORAL_DIM",
+    "make_temporal_prior_factor", "temporal_difference", "sequence_differences", "TEMPORAL_DIM",
 ]

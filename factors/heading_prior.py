@@ -55,6 +55,40 @@ def heading_sigma(speed: float, sigma0_rad: float, v0: float) -> float:
     return float(sigma0_rad * max(1.0, v0 / max(float(speed), MIN_SPEED_CLAMP)))
 
 
+def trajectory_headings(timestamps: np.ndarray, world_p_track: np.ndarray,
+                        half_window_s: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-plane heading and speed of a LiDAR track, for the heading prior's measurement.
+
+    ``timestamps`` (T,) seconds (increasing), ``world_p_track`` (T, 3) e.g. the per-frame means of the
+    instance's LiDAR points (world, metres).  For frame t the displacement is taken between the first and last
+    frames within ``half_window_s`` seconds on either side (one-sided at the ends; the immediate neighbours
+    when none is that close): ``heading = unit(dxy)`` (T, 2) and ``speed = |dxy| / dt`` (T,) m/s.  A frame
+    without a neighbour, or with zero displacement, gets speed 0 and heading (1, 0) (no factor is made).
+    """
+    ts = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+    pts = np.asarray(world_p_track, dtype=np.float64).reshape(-1, 3)
+    if ts.size != pts.shape[0]:
+        raise ValueError(f"trajectory_headings: {ts.size} timestamps for {pts.shape[0]} positions")
+    if ts.size > 1 and np.any(np.diff(ts) <= 0):
+        raise ValueError("trajectory_headings: timestamps must be strictly increasing")
+    n = ts.size
+    headings = np.tile([1.0, 0.0], (n, 1))
+    speeds = np.zeros(n)
+    for t in range(n):
+        lo = int(np.searchsorted(ts, ts[t] - half_window_s, side="left"))
+        hi = int(np.searchsorted(ts, ts[t] + half_window_s, side="right")) - 1
+        lo = min(lo, max(t - 1, 0))
+        hi = max(hi, min(t + 1, n - 1))
+        if hi == lo:
+            continue
+        dxy = pts[hi, :2] - pts[lo, :2]
+        dist = float(np.hypot(dxy[0], dxy[1]))
+        if dist > 0:
+            headings[t] = dxy / dist
+            speeds[t] = dist / (ts[hi] - ts[lo])
+    return headings, speeds
+
+
 def heading_prior_error(world_R_body: np.ndarray, world_heading: np.ndarray,
                         want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Signed angle (1,) from the unit heading (2,) to the body's ground-plane forward; Jacobian (1, 3)."""

@@ -48,6 +48,22 @@ def temporal_difference(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_po
                            np.asarray(body_pose_j, float) - np.asarray(body_pose_i, float)], axis=-1)
 
 
+def sequence_differences(world_R_body: np.ndarray, trans: np.ndarray, body_pose: np.ndarray,
+                         step: int = 1) -> np.ndarray:
+    """``temporal_difference`` between frames t and t + ``step`` of one sequence: (T - step, 75).
+
+    Inputs: rotations (T, 3, 3), trans (T, 3) metres, body poses (T, 69) radians, at the frame rate the prior
+    is meant for (training data resampled to the PedX frame rate).
+    """
+    rot = np.asarray(world_R_body, dtype=np.float64)
+    tr = np.asarray(trans, dtype=np.float64)
+    bp = np.asarray(body_pose, dtype=np.float64)
+    if not (rot.shape[0] == tr.shape[0] == bp.shape[0]) or step < 1:
+        raise ValueError(f"sequence_differences: inconsistent lengths {rot.shape[0]}, {tr.shape[0]}, "
+                         f"{bp.shape[0]} or step {step} < 1")
+    return temporal_difference(rot[:-step], tr[:-step], bp[:-step], rot[step:], tr[step:], bp[step:])
+
+
 def _difference_parts(world_R_body_i, trans_i, body_pose_i, world_R_body_j, trans_j, body_pose_j):
     """d (75,), the step s (3,), R_i^T (3, 3), R_ij = R_i^T R_j (3, 3) and J_r^-1(w) (3, 3) for one pair."""
     rot_i = as_f64(world_R_body_i)

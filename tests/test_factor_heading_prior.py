@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from factors.heading_prior import (heading_prior_error, heading_sigma, heading_vector,
-                                   make_heading_prior_factor)
+                                   make_heading_prior_factor, trajectory_headings)
 from factors.testing import assert_factor_jacobians, random_rot3
 
 
@@ -64,3 +64,20 @@ def test_speed_handling():
         make_heading_prior_factor(0, np.zeros(2), speed=1.0)
     with pytest.raises(ValueError):
         make_heading_prior_factor(0, 0.0, speed=float("nan"))
+
+
+def test_trajectory_headings_walk_and_stand():
+    ts = np.arange(20) * 0.1
+    direction = np.array([np.cos(2.0), np.sin(2.0), 0.0])
+    walk = np.array([1.0, 2.0, 0.9]) + 1.4 * ts[:, None] * direction
+    heading, speed = trajectory_headings(ts, walk)
+    np.testing.assert_allclose(heading, np.tile(direction[:2], (20, 1)), atol=1e-12)
+    np.testing.assert_allclose(speed, 1.4, rtol=1e-9)
+    stand = np.tile([3.0, 1.0, 0.9], (20, 1))
+    heading, speed = trajectory_headings(ts, stand)
+    assert np.all(speed == 0.0) and np.all(np.isfinite(heading))
+    assert all(make_heading_prior_factor(0, h, s) is None for h, s in zip(heading, speed))
+    _, speed1 = trajectory_headings(np.array([0.0]), stand[:1])
+    assert speed1[0] == 0.0
+    with pytest.raises(ValueError, match="increasing"):
+        trajectory_headings(np.array([0.0, 0.0]), stand[:2])

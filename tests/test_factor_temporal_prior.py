@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from factors.common import MaxMixture
-from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, temporal_difference,
+from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, sequence_differences,
+                                    temporal_difference,
                                     temporal_difference_jacobians, temporal_prior_error)
 from factors.testing import assert_factor_jacobians, random_gmm, random_rot3
 
@@ -33,6 +34,10 @@ def test_difference_definition_and_invariance():
     np.testing.assert_allclose(batch, np.stack([d, d]), atol=1e-12)
     d1, _ = temporal_difference_jacobians(ri.matrix(), ti, pi, rj.matrix(), tj, pj)
     np.testing.assert_allclose(d1, d, atol=1e-12)
+    seq = sequence_differences(np.stack([ri.matrix(), rj.matrix(), ri.matrix()]), np.stack([ti, tj, ti]),
+                               np.stack([pi, pj, pi]))
+    assert seq.shape == (2, TEMPORAL_DIM)
+    np.testing.assert_allclose(seq[0], d, atol=1e-12)
 
 
 def _values_and_keys(rng):
