@@ -77,3 +77,22 @@ def test_one_frame_levenberg_marquardt_recovers_truth():
     assert np.max(np.linalg.norm(kp_est - out.keypoints, axis=1)) < 0.01        # metres
     cov = gtsam.Marginals(graph, result).marginalCovariance(keys.trans)
     assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_robust_noise_reweights_each_row_in_linearization():
+    """Scalar scheme: per-row IRLS weights sqrt(w(r_i)), Geman-McClure w = c^4 / (c^2 + r^2)^2."""
+    r = np.array([0.5, 0.5, 0.5, 10.0])
+    jac = np.arange(8.0).reshape(4, 2) + 1.0
+
+    def err(this, values, H):
+        if H is not None:
+            H[0] = jac
+        return r
+
+    f = gtsam.CustomFactor(make_noise(1.0, dim=4, robust="gemanmcclure", robust_scale=1.0), [1], err)
+    v = gtsam.Values()
+    v.insert(1, np.zeros(2))
+    a, b = f.linearize(v).jacobian()
+    sw = 1.0 / (1.0 + r ** 2)
+    np.testing.assert_allclose(a, sw[:, None] * jac, rtol=1e-12)
+    np.testing.assert_allclose(b, -sw * r, rtol=1e-12)
