@@ -153,8 +153,8 @@ def stack_point_jacobians(lin_map: np.ndarray, jac: Any, index: np.ndarray | Non
 
     ``lin_map`` (N, m, 3) maps a point's world-position perturbation to its m residual rows (e.g. the
     projection derivative, or the identity); ``jac`` carries ``d_root, d_trans, d_body_pose, d_betas`` of
-    shape (P, 3, k), of which the points ``index`` (N,) are used (all when None).  Returns ``[J_root, J_trans, J_body_pose, J_betas]``, each (N*m, k), rows ordered
-    point by point.
+    shape (P, 3, k), of which the points ``index`` (N,) are used (all when None).  Returns
+    ``[J_root, J_trans, J_body_pose, J_betas]``, each (N*m, k), rows ordered point by point.
     """
     out = []
     for name in ("d_root", "d_trans", "d_body_pose", "d_betas"):
