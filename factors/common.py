@@ -263,3 +263,66 @@ class MaxMixture:
         """``0.5 ||r(x)||^2`` (max-mixture cost, up to a constant)."""
         r, _, _ = self.residual(x)
         return 0.5 * float(r @ r)
+
+
+def group_robust_weights(norms: np.ndarray, kernel: str, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``g(n) = sqrt(2 rho(n)) / n`` and ``h(n) = g'(n) / n`` for whitened group norms ``n`` (G,).
+
+    ``rho`` is GTSAM's kernel (``mEstimator``) with scale ``c``: Geman-McClure ``c^2 n^2 / (2 (c^2 + n^2))``,
+    Huber ``n^2/2`` (n <= c) else ``c n - c^2/2``, Cauchy ``c^2/2 log(1 + n^2/c^2)``, ``"none"``: ``n^2/2``.
+    Both are finite at ``n = 0`` (``g(0) = 1``).  See :func:`robustify_groups`.
+    """
+    n = np.asarray(norms, dtype=np.float64)
+    c = float(scale)
+    kernel = kernel.lower()
+    if kernel == "none":
+        return np.ones_like(n), np.zeros_like(n)
+    if not c > 0:
+        raise ValueError(f"robust scale must be > 0, got {scale}")
+    if kernel == "gemanmcclure":
+        q = c * c + n * n
+        return c / np.sqrt(q), -c / (q * np.sqrt(q))
+    if kernel == "huber":
+        out = n > c
+        ns = np.where(out, n, 2.0 * c)                           # safe values where inside
+        root = np.sqrt(2.0 * c * ns - c * c)
+        g = np.where(out, root / ns, 1.0)
+        h = np.where(out, c * (c - ns) / (ns ** 3 * root), 0.0)
+        return g, h
+    if kernel == "cauchy":
+        x = (n / c) ** 2
+        small = x < 1e-6
+        xs = np.where(small, 1.0, x)
+        ns = np.where(small, 1.0, n)
+        big_l = np.log1p(xs)
+        sq = np.sqrt(big_l)
+        g = np.where(small, 1.0 - x / 4.0, c * sq / ns)
+        h = np.where(small, -1.0 / (2.0 * c * c),
+                     c * (ns * ns / ((c * c + ns * ns) * sq) - sq) / ns ** 3)
+        return g, h
+    raise ValueError(f"unknown robust kernel {kernel!r}; expected one of {ROBUST_KERNELS}")
+
+
+def robustify_groups(white: np.ndarray, kernel: str, scale: float,
+                     blocks: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Robust kernel on groups of whitened rows (e.g. the 3 rows of one LiDAR point), inside a factor.
+
+    ``white`` (G, d) whitened residuals, ``blocks`` Jacobians of ``white`` flattened, each (G*d, k).  Each
+    group ``r`` becomes ``s = g(|r|) r`` so that ``0.5 |s|^2 = rho(|r|)`` (rotation invariant, unlike a
+    per-row kernel), with Jacobian ``ds/dr = g I + h r r^T`` (:func:`group_robust_weights`).  Use with a unit
+    noise model.  Returns ``s`` flattened (G*d,) and the transformed blocks.
+    """
+    white = np.asarray(white, dtype=np.float64)
+    norms = np.sqrt((white * white).sum(axis=1))
+    g, h = group_robust_weights(norms, kernel, scale)
+    s = (g[:, None] * white).reshape(-1)
+    if blocks is None:
+        return s, None
+    out = []
+    num_g, d = white.shape
+    for block in blocks:
+        jr = np.asarray(block, dtype=np.float64).reshape(num_g, d, -1)
+        rt_j = np.einsum("gd,gdk->gk", white, jr)
+        new = g[:, None, None] * jr + h[:, None, None] * white[:, :, None] * rt_j[:, None, :]
+        out.append(as_f64(new.reshape(num_g * d, -1)))
+    return s, out

@@ -10,8 +10,10 @@ frame, metres.  For each point its nearest posed model vertex ``n(i)`` is found 
 Point-to-point: the residual is the full 3D offset to the nearest vertex (not the distance along a
 normal), so it is smooth at zero distance (r_i = 0 has a regular Jacobian).  Within one evaluation the
 assignment n(i) is held fixed; the Jacobian uses ``BodyModel.point_jacobians`` of the matched vertices only.
-Noise: isotropic ``sigma_m`` metres per coordinate, robust per row (Geman-McClure by default, scale in
-whitened units) against points mislabelled as the pedestrian.  ``candidate_vertex_ids`` restricts the
+Noise: isotropic ``sigma_m`` metres per coordinate; robust (Geman-McClure by default, scale in whitened
+units) against points mislabelled as the pedestrian, by default on each point's 3D distance
+(``rho(|r_i| / sigma_m)``, rotation invariant, :func:`factors.common.robustify_groups`), optionally per
+coordinate row.  ``candidate_vertex_ids`` restricts the
 vertices that can be matched (e.g. a decimated subset, to speed up the tree).  No factor is created for
 zero points (:func:`make_lidar_chamfer_factor` returns ``None``).  The factor remembers the matches of its
 last evaluation point (a pure memo of a deterministic function: LM evaluates the error at a new estimate
@@ -30,7 +32,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list, make_noise, read_frame_state, set_jacobians, stack_point_jacobians)
+                            frame_key_list, make_noise, read_frame_state, robustify_groups, set_jacobians,
+                            stack_point_jacobians)
 
 
 def posed_vertices(model: BodyModelLike, state: FrameState, candidate_vertex_ids: np.ndarray | None) -> np.ndarray:
@@ -75,11 +78,14 @@ def lidar_chamfer_error(model: BodyModelLike, state: FrameState, world_points: n
 
 def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, world_points: np.ndarray,
                               sigma_m: float = 0.03, robust: str = "gemanmcclure", robust_scale: float = 3.0,
-                              candidate_vertex_ids: np.ndarray | None = None) -> gtsam.CustomFactor | None:
+                              candidate_vertex_ids: np.ndarray | None = None,
+                              robust_per_point: bool = True) -> gtsam.CustomFactor | None:
     """LiDAR-to-mesh factor on ``keys = [root, trans, body_pose, betas]``; ``None`` when there are no points.
 
     ``world_points`` (M, 3) metres, world frame; ``sigma_m`` metres per coordinate; ``robust_scale`` in
-    whitened units.
+    whitened units.  ``robust_per_point`` (default): the kernel acts on each point's whitened 3D distance
+    (rotation invariant; applied inside the callback, unit noise model, so ``unwhitenedError`` returns the
+    robustified whitened residual); otherwise on each coordinate row through GTSAM's ``Robust`` noise model.
     """
     pts = as_f64(world_points).reshape(-1, 3) if np.size(world_points) else np.zeros((0, 3))
     if pts.shape[0] == 0:
@@ -103,9 +109,16 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
             memo.clear()
             memo[tag] = matches
         r, blocks = lidar_chamfer_error(model, state, pts, cand, H is not None, matches)
+        if robust_per_point:
+            inv = 1.0 / sigma_m
+            r, blocks = robustify_groups(r.reshape(-1, 3) * inv, robust, robust_scale,
+                                         None if blocks is None else [b * inv for b in blocks])
         if H is not None:
             set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, state.betas.size])
         return r
 
-    noise = make_noise(sigma_m, dim=rows, robust=robust, robust_scale=robust_scale)
+    if robust_per_point:
+        noise = gtsam.noiseModel.Unit.Create(rows)
+    else:
+        noise = make_noise(sigma_m, dim=rows, robust=robust, robust_scale=robust_scale)
     return gtsam.CustomFactor(noise, frame_key_list(keys), error)

@@ -69,3 +69,22 @@ def test_no_points_and_bad_input():
         make_lidar_chamfer_factor(KEYS, model, np.array([[0.0, np.nan, 1.0]]))
     with pytest.raises(ValueError, match="sigma_m"):
         make_lidar_chamfer_factor(KEYS, model, np.ones((2, 3)), sigma_m=0.0)
+
+
+@pytest.mark.parametrize("kernel", ["gemanmcclure", "huber", "cauchy"])
+def test_per_point_robust_jacobians_and_invariance(kernel):
+    rng = np.random.default_rng(5)
+    model = ToyBodyModel()
+    s = _state(rng, model)
+    verts = model.forward(s.full_pose, s.betas, s.trans).vertices
+    pts = verts[:30] + rng.normal(scale=0.01, size=(30, 3))
+    pts[0] += [0.3, 0.0, 0.0]                                   # an outlier, 0.3 m off
+    f = make_lidar_chamfer_factor(KEYS, model, pts, sigma_m=0.02, robust=kernel, robust_scale=2.0)
+    v = frame_values(KEYS.as_list(), s.world_R_body, s.trans, s.body_pose, s.betas)
+    assert_factor_jacobians(f, v, rtol=1e-5, atol=1e-6)
+    # per point: rho of the 3D distance, whatever the direction of the offset
+    one_a = make_lidar_chamfer_factor(KEYS, model, verts[:1] + [0.3, 0.0, 0.0], sigma_m=0.02, robust=kernel,
+                                      robust_scale=2.0, candidate_vertex_ids=np.array([0]))
+    one_b = make_lidar_chamfer_factor(KEYS, model, verts[:1] + 0.3 / np.sqrt(3.0), sigma_m=0.02, robust=kernel,
+                                      robust_scale=2.0, candidate_vertex_ids=np.array([0]))
+    assert one_a.error(v) == pytest.approx(one_b.error(v), rel=1e-9)
