@@ -39,7 +39,14 @@ def render_frame(out_dir: str | Path, frame: int, path: str | Path, pair: str | 
     person_ids = {o["name"]: o["id"] for o in meta["objects"] if o["kind"] == "pedestrian"}
 
     fig, (ax_top, ax_img) = plt.subplots(1, 2, figsize=(15, 6.6), gridspec_kw={"width_ratios": [1.0, 1.15]})
-    # ---- top view
+    # ---- top view (x_plot = world y, y_plot = world x)
+    for w in meta["walkways"]:
+        a, b = np.array(w["start_xy"]), np.array(w["end_xy"])
+        d = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-d[1], d[0]]) * w["half_width_m"]
+        quad = np.array([a + n, b + n, b - n, a - n])
+        ax_top.add_patch(MplPolygon(quad[:, ::-1], closed=True, lw=0,
+                                    color="gold" if w["kind"] == "crosswalk" else "0.9", alpha=0.5, zorder=0))
     near = (np.abs(points[:, 0] - 15) < 40) & (np.abs(points[:, 1]) < 40)
     ax_top.scatter(points[near, 1], points[near, 0], s=0.15, c="0.7", lw=0, rasterized=True)
     for name, c in calibs.items():

@@ -259,7 +259,12 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
                 pool = crosswalks if rng.random() < sc.crosswalk_prob else sidewalks
                 walkway = pool[int(rng.integers(len(pool)))]
                 sign = 1.0 if rng.random() < 0.5 else -1.0
-                along = rng.uniform(0.0, walkway.length_m)
+                # keep the whole path on the walkway when it fits (the anchor is the middle frame)
+                half_path = 0.5 * speed * (n_frames - 1) / sc.fps + 0.5
+                if walkway.length_m > 2 * half_path:
+                    along = rng.uniform(half_path, walkway.length_m - half_path)
+                else:
+                    along = rng.uniform(0.0, walkway.length_m)
                 across = rng.uniform(-0.6, 0.6) * walkway.half_width_m
             else:
                 walkway, sign = lead[0], lead[1]
