@@ -1,0 +1,196 @@
+"""Diagnostics of a fitted track: where the residuals are, which rows the robust losses rejected, and what
+each frame's information leaves poorly constrained.  Written to the summary to spot bad labels.
+
+Residuals, per factor at the estimate (``r`` the unwhitened residual, ``Sigma^-1/2`` the base noise):
+
+* ``chi2 = ||Sigma^-1/2 r||^2`` (whitened squared norm, without the robust kernel), summed per factor kind
+  and per frame, with the number of rows, so ``chi2 / rows`` ~ 1 for a consistent measurement;
+* ``cost`` = the factor's contribution to the graph error (with the robust kernel);
+* ``outlier_rows`` = rows whose robust weight ``w(r_row) < outlier_weight`` (for Geman-McClure with scale c:
+  ``|r_row| > c`` whitened), i.e. measurements the robust loss effectively switched off.
+
+Weakest directions, per frame, from the joint marginal covariance of the frame with the shape
+(:mod:`pedx_graph.solvers.marginals`):
+
+* ``sigma_depth_m``, ``sigma_lateral_m``, ``sigma_vertical_m``: translation standard deviations in the
+  sensor-ray frame (ground-plane direction from the LiDAR at the world origin to the pedestrian, its left,
+  world up); ``sigma_heading_rad``: the root's rotation about world up (``e_z^T R Sigma_root R^T e_z``);
+* ``weakest``: the eigenvector of the largest eigenvalue of the *normalised* covariance (root / 0.1 rad,
+  translation / 0.05 m, body pose / 0.2 rad, shape / 0.5), reported as the share of each block in it
+  (``root``, ``trans_depth``, ``trans_lateral``, ``trans_vertical``, ``body_pose``, ``shape``) and its
+  normalised standard deviation.
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from factors.translation_prior import sensor_ray_frame
+from pedx_graph.solvers.marginals import FRAME_DIM, POSE_SLICE, ROOT_SLICE, TRANS_SLICE
+
+
+@dataclass
+class DiagnosticsConfig:
+    """Thresholds and reference scales of the diagnostics."""
+
+    outlier_weight: float = 0.25
+    """A residual row counts as an outlier when its robust weight is below this."""
+    ref_root_rad: float = 0.1
+    """Reference scale of the root orientation when ranking weak directions, radians."""
+    ref_trans_m: float = 0.05
+    """Reference scale of the translation, metres."""
+    ref_body_pose_rad: float = 0.2
+    """Reference scale of the body pose, radians."""
+    ref_shape: float = 0.5
+    """Reference scale of the shape coefficients."""
+    worst_frames: int = 5
+    """How many frames to list as the worst (highest chi2 per row) in the track summary."""
+
+
+def _factor_residual(factor, values: gtsam.Values, outlier_weight: float) -> tuple[float, float, int, int]:
+    """(chi2, cost, rows, outlier rows) of one nonlinear factor at ``values``."""
+    cost = float(factor.error(values))
+    if not hasattr(factor, "unwhitenedError"):
+        return 2.0 * cost, cost, 0, 0
+    r = np.asarray(factor.unwhitenedError(values), float).reshape(-1)
+    model = factor.noiseModel()
+    if isinstance(model, gtsam.noiseModel.Robust):
+        base, kernel = model.noise(), model.robust()
+    else:
+        base, kernel = model, None
+    white = np.asarray(base.whiten(r), float).reshape(-1)
+    outliers = 0
+    if kernel is not None:
+        outliers = int(sum(kernel.weight(float(abs(x))) < outlier_weight for x in white))
+    return float(white @ white), cost, int(r.size), outliers
+
+
+def residual_tables(problem, values: gtsam.Values, config: DiagnosticsConfig | None = None
+                    ) -> tuple[list[dict], dict]:
+    """Per-frame and per-track residual totals by factor kind (see the module docstring)."""
+    config = config or DiagnosticsConfig()
+    n = len(problem.keys)
+    frames = [defaultdict(lambda: {"chi2": 0.0, "cost": 0.0, "rows": 0, "outlier_rows": 0}) for _ in range(n)]
+    track = defaultdict(lambda: {"chi2": 0.0, "cost": 0.0, "rows": 0, "outlier_rows": 0})
+    for j in range(problem.graph.size()):
+        factor = problem.graph.at(j)
+        if factor is None:
+            continue
+        kind, frame = problem.factor_kinds[j], problem.factor_frames[j]
+        chi2, cost, rows, outliers = _factor_residual(factor, values, config.outlier_weight)
+        targets = [track] + ([frames[frame]] if frame >= 0 else [])
+        for t in targets:
+            t[kind]["chi2"] += chi2
+            t[kind]["cost"] += cost
+            t[kind]["rows"] += rows
+            t[kind]["outlier_rows"] += outliers
+    return [dict(f) for f in frames], dict(track)
+
+
+def weak_directions(frame_cov: np.ndarray, world_R_body: np.ndarray, world_p_pelvis: np.ndarray,
+                    config: DiagnosticsConfig | None = None) -> dict:
+    """Standard deviations along the viewing ray / heading and the weakest normalised direction."""
+    config = config or DiagnosticsConfig()
+    cov_t = frame_cov[TRANS_SLICE, TRANS_SLICE]
+    world_R_ray = sensor_ray_frame(world_p_pelvis)
+    ray_cov = world_R_ray.T @ cov_t @ world_R_ray
+    up_in_body = world_R_body.T @ np.array([0.0, 0.0, 1.0])        # heading = rotation about world up
+    var_heading = float(up_in_body @ frame_cov[ROOT_SLICE, ROOT_SLICE] @ up_in_body)
+    nb = frame_cov.shape[0] - FRAME_DIM
+    scale = np.concatenate([np.full(3, config.ref_root_rad), np.full(3, config.ref_trans_m),
+                            np.full(69, config.ref_body_pose_rad), np.full(nb, config.ref_shape)])
+    # translation expressed in the ray frame before normalising
+    rot = np.eye(FRAME_DIM + nb)
+    rot[TRANS_SLICE, TRANS_SLICE] = world_R_ray.T
+    norm_cov = (rot @ frame_cov @ rot.T) / np.outer(scale, scale)
+    evals, evecs = np.linalg.eigh(0.5 * (norm_cov + norm_cov.T))
+    v = evecs[:, -1] ** 2
+    share = {"root": float(v[ROOT_SLICE].sum()), "trans_depth": float(v[3]), "trans_lateral": float(v[4]),
+             "trans_vertical": float(v[5]), "body_pose": float(v[POSE_SLICE].sum()),
+             "shape": float(v[FRAME_DIM:].sum())}
+    dominant = max(share, key=share.get)
+    return {"sigma_depth_m": float(np.sqrt(max(ray_cov[0, 0], 0.0))),
+            "sigma_lateral_m": float(np.sqrt(max(ray_cov[1, 1], 0.0))),
+            "sigma_vertical_m": float(np.sqrt(max(ray_cov[2, 2], 0.0))),
+            "sigma_heading_rad": float(np.sqrt(max(var_heading, 0.0))),
+            "weakest": {"dominant": dominant, "normalised_sigma": float(np.sqrt(max(evals[-1], 0.0))),
+                        "share": share}}
+
+
+def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
+                      config: DiagnosticsConfig | None = None) -> tuple[list[dict], dict]:
+    """``(extra_per_frame, extra_track)``: residual tables and, when covariances are available (``marginals``
+    given, or ``ctx`` given so they can be computed), the weakest directions of every frame."""
+    from pedx_graph.solvers.marginals import compute_marginals
+
+    config = config or DiagnosticsConfig()
+    per_frame_tables, track_table = residual_tables(problem, values, config)
+    per_frame = [{"residuals": t} for t in per_frame_tables]
+    if marginals is None and ctx is not None:
+        try:
+            marginals = compute_marginals(problem.graph, values, problem.keys)
+        except Exception as exc:  # diagnostics never fail a track
+            marginals = None
+            track_table = dict(track_table)
+            per_frame[0]["weak_directions_error"] = f"{type(exc).__name__}: {exc}"
+    if marginals is not None and ctx is not None:
+        betas = np.asarray(values.atVector(problem.keys[0].betas), float)
+        pelvis_rest = ctx.model.rest_joints(betas)[0]
+        for i, k in enumerate(problem.keys):
+            rot = values.atRot3(k.root).matrix()
+            pelvis = pelvis_rest + np.asarray(values.atVector(k.trans), float)
+            per_frame[i]["weak_directions"] = weak_directions(marginals.frame_covariances[i], rot, pelvis, config)
+    # frames ranked by chi2 per row (all kinds)
+    scores = []
+    for i, t in enumerate(per_frame_tables):
+        rows = sum(v["rows"] for v in t.values())
+        chi2 = sum(v["chi2"] for v in t.values())
+        scores.append((chi2 / rows if rows else 0.0, i))
+    worst = [{"frame_index": i, "chi2_per_row": s} for s, i in sorted(scores, reverse=True)[:config.worst_frames]]
+    summary = {"residuals": track_table, "worst_frames": worst,
+               "outlier_rows": int(sum(v["outlier_rows"] for v in track_table.values()))}
+    if marginals is not None:
+        sb = marginals.shape_covariance
+        summary["shape_sigma_max"] = float(np.sqrt(max(np.max(np.linalg.eigvalsh(sb)), 0.0)))
+    return per_frame, {"diagnostics": summary}
+
+
+def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, diagnostics: bool = True,
+                 marginals_config=None, diagnostics_config: DiagnosticsConfig | None = None
+                 ) -> tuple[list[dict], dict]:
+    """Marginal covariances and diagnostics of one solved track, sharing one marginals computation:
+    ``(extra_per_frame, extra_track)`` ready for :class:`~pedx_graph.solvers.fit.TrackResult`."""
+    import logging
+
+    from scipy.linalg import LinAlgError
+
+    from pedx_graph.graph.build import extract_estimate
+    from pedx_graph.solvers.marginals import compute_marginals, marginals_to_fields
+
+    per_frame: list[dict] = [{} for _ in problem.keys]
+    track: dict = {}
+    computed = None
+    if marginals or diagnostics:
+        try:
+            computed = compute_marginals(problem.graph, values, problem.keys, marginals_config)
+        except (RuntimeError, LinAlgError, ValueError) as exc:
+            logging.getLogger(__name__).warning("marginals failed: %s", exc)
+            track["marginals_error"] = f"{type(exc).__name__}: {exc}"
+            for f in per_frame:
+                f["covariance_status"] = "failed"
+    if marginals and computed is not None:
+        fields, track_fields = marginals_to_fields(computed, extract_estimate(problem, values, ctx), ctx.model,
+                                                   marginals_config)
+        track.update(track_fields)
+        for f, g in zip(per_frame, fields):
+            f.update(g)
+    if diagnostics:
+        fields, track_fields = track_diagnostics(problem, values, ctx if computed is not None else None,
+                                                 computed, diagnostics_config)
+        track.update(track_fields)
+        for f, g in zip(per_frame, fields):
+            f.update(g)
+    return per_frame, track

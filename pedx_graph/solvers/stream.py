@@ -1,0 +1,324 @@
+"""Streaming estimation: frames arrive in timestamp order across all tracks; one iSAM2 per active track.
+
+:class:`StreamingEstimator` (the live API)::
+
+    est = StreamingEstimator(ctx, config)
+    current = est.add_frame(timestamp, {tracking_id: TrackFrame, ...}, calibrations)   # -> {tid: FrameEstimate}
+    results = est.finish()                                                            # -> [TrackResult]
+
+A track begins when its id is first seen and ends when it has not been seen for ``track_timeout_s``
+(or at :meth:`StreamingEstimator.finish`); an ended track is finalised (smoothed over all its frames,
+:meth:`IncrementalTrack.finalize`) and returned as a :class:`~pedx_graph.solvers.fit.TrackResult` with
+marginal covariances and diagnostics.
+
+Causality: a frame's factors use only that frame and earlier ones.  They are the batch graph's factors
+(:mod:`pedx_graph.graph.build`, same noise, same seeded LiDAR subsample per track) except the heading prior,
+whose trajectory heading is estimated from the frames up to now (a one-sided window of ``half_window_s``)
+instead of a centred one.  New variables start from the previous frame's estimate (root, body pose) and
+the frame's LiDAR / stereo centre (translation), then a few LM iterations on the new frame alone
+(``IsamConfig.presolve_iterations``) before the iSAM2 update.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from factors.common import FrameKeys
+from factors.heading_prior import make_heading_prior_factor
+from factors.joint_limits import make_joint_limit_factor
+from factors.lidar_chamfer import make_lidar_chamfer_factor
+from factors.pose_prior import make_pose_prior_factor
+from factors.shape_prior import make_shape_prior_factor
+from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
+from factors.temporal_prior import make_temporal_prior_factor
+from factors.translation_prior import make_translation_prior_factor
+from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
+from pedx_graph.graph.build import _hip_weights, _robust, _subsample
+from pedx_graph.graph.config import FitConfig
+from pedx_graph.graph.init import initialise_track
+from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class StreamConfig:
+    """Settings of the streaming estimator (besides the estimator's :class:`FitConfig`)."""
+
+    isam: IsamConfig = field(default_factory=IsamConfig)
+    """iSAM2 settings."""
+    track_timeout_s: float = 1.0
+    """A track not seen for this long (seconds of stream time) ends and is finalised."""
+    heading_half_window_s: float = 0.35
+    """Trajectory heading from the frames of the last ``heading_half_window_s`` seconds (one-sided)."""
+    causal_covariance: bool = False
+    """Also give each causal estimate its translation and keypoint covariances (iSAM2 joint marginal)."""
+    marginals: bool = True
+    """Marginal covariances of each finalised track."""
+    diagnostics: bool = True
+    """Residual / information diagnostics of each finalised track."""
+
+
+@dataclass
+class FrameEstimate:
+    """The current (causal) estimate of one pedestrian in one frame."""
+
+    tracking_id: str
+    frame: int
+    timestamp: float
+    pose: np.ndarray
+    """(72,) axis-angle, root first."""
+    betas: np.ndarray
+    """(B,) the track's current shape."""
+    trans: np.ndarray
+    """(3,) metres."""
+    world_keypoints: np.ndarray
+    """(18, 3) metres, world frame."""
+    update_seconds: float
+    """Wall time of this frame's update (presolve + iSAM2)."""
+    extra: dict = field(default_factory=dict)
+    """Covariances when ``causal_covariance`` is on."""
+
+
+@dataclass
+class _ActiveTrack:
+    sequence: str
+    tracking_id: str
+    calibrations: dict
+    smoother: IncrementalTrack
+    rng: np.random.Generator
+    frames: list[TrackFrame] = field(default_factory=list)
+    keys: list[FrameKeys] = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)
+    factor_frames: list[int] = field(default_factory=list)
+    centres: list[np.ndarray] = field(default_factory=list)
+    last_seen: float = -np.inf
+    previous: tuple | None = None
+
+
+class StreamingEstimator:
+    """Causal per-frame estimates of every visible pedestrian; smoothed tracks when they end."""
+
+    def __init__(self, ctx, config: FitConfig | None = None, stream_config: StreamConfig | None = None,
+                 sequence: str = ""):
+        self.ctx = ctx
+        self.config = config or FitConfig()
+        self.stream_config = stream_config or StreamConfig()
+        self.stream_config.isam.num_betas = ctx.model.num_betas
+        self.sequence = sequence
+        self.active: dict[str, _ActiveTrack] = {}
+        self.finished: list = []
+        self._pelvis_rest0 = ctx.model.rest_joints(np.zeros(ctx.model.num_betas))[0]
+
+    # --- factors of one new frame (mirrors pedx_graph.graph.build.build_track_graph) ---------------------
+    def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: Track):
+        noise, terms, ctx, model = self.config.noise, self.config.terms, self.ctx, self.ctx.model
+        k = state.keys[i]
+        graph = gtsam.NonlinearFactorGraph()
+
+        def add(factor, kind):
+            if factor is not None:
+                graph.add(factor)
+                state.kinds.append(kind)
+                state.factor_frames.append(i if kind != "shape_prior" else -1)
+
+        init = initialise_track(window, min_speed_mps=noise.heading_min_speed_mps,
+                                half_window_s=self.stream_config.heading_half_window_s)
+        left = fr.left if terms.left_reprojection else None
+        right = fr.right if terms.right_reprojection else None
+        if left is not None or right is not None:
+            add(make_stereo_reprojection_factor(
+                k, model, StereoKeypoints.from_views(left, right), state.calibrations[fr.pair],
+                sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
+                keypoint_weights=_hip_weights(self.config), robust=_robust(noise.reprojection_loss),
+                robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
+        points = _subsample(fr.world_lidar_points, noise.lidar_max_points, state.rng)
+        if terms.lidar_chamfer and len(points):
+            add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
+                                          robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
+                                          candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
+        if terms.translation_prior and len(points) >= 3:
+            add(make_translation_prior_factor(k.trans, k.betas, model, points, num_betas=model.num_betas,
+                                              depth_offset_m=noise.translation_depth_offset_m,
+                                              sigma_ray_m=noise.translation_ray_sigma_m,
+                                              sigma_lateral_m=noise.translation_sigma_m,
+                                              sigma_vertical_m=noise.translation_vertical_sigma_m),
+                "translation_prior")
+        heading, speed = float(init.heading_yaw[-1]), float(init.speed_mps[-1])
+        if terms.heading_prior and np.isfinite(heading):
+            add(make_heading_prior_factor(k.root, heading, speed, sigma0_rad=noise.heading_sigma_rad,
+                                          v0=noise.heading_min_speed_mps * 2,
+                                          min_speed=noise.heading_min_speed_mps), "heading_prior")
+        if terms.pose_prior:
+            add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture), "pose_prior")
+            add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits")
+        if terms.temporal_prior and i > 0:
+            kp = state.keys[i - 1]
+            gap = max(1, int(round((fr.timestamp - state.frames[i - 1].timestamp) / ctx.temporal_dt)))
+            add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
+                                           mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior")
+        if i == 0:
+            add(make_shape_prior_factor(k.betas, num_betas=model.num_betas, sigma=noise.shape_sigma),
+                "shape_prior")
+        return graph, init
+
+    def _initial_values(self, state: _ActiveTrack, i: int, init) -> gtsam.Values:
+        k = state.keys[i]
+        values = gtsam.Values()
+        if state.previous is None:
+            values.insert(k.root, gtsam.Rot3(init.world_R_body[-1]))
+            values.insert(k.body_pose, self.ctx.template_body_pose.copy())
+            betas = np.zeros(self.ctx.model.num_betas)
+            values.insert(k.betas, betas)
+        else:
+            rot, _, body_pose, betas = state.previous
+            values.insert(k.root, gtsam.Rot3(rot))
+            values.insert(k.body_pose, np.asarray(body_pose))
+        pelvis_rest = self.ctx.model.rest_joints(betas)[0]
+        values.insert(k.trans, np.asarray(init.world_p_centre[-1] - pelvis_rest, dtype=float))
+        return values
+
+    def _best_facing(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: FrameKeys) -> gtsam.Values:
+        """First frame without a trajectory heading: the torso-based facing can be reversed (front/back), so
+        both it and its half-turn are solved on the frame alone and the lower error is kept."""
+        from pedx_graph.solvers.isam import local_lm
+
+        iters = max(self.stream_config.isam.presolve_iterations, 1)
+        best = None
+        for turn in (0.0, np.pi):
+            candidate = gtsam.Values(values)
+            candidate.update(keys.root, gtsam.Rot3.Rz(turn).compose(values.atRot3(keys.root)))
+            solved, error, _ = local_lm(graph, candidate, list(candidate.keys()), max_iterations=iters)
+            if best is None or error < best[1]:
+                best = (solved, error)
+        return best[0]
+
+    # --- public API ----------------------------------------------------------------------------------------
+    def add_frame(self, timestamp: float, observations: dict[str, TrackFrame],
+                  calibrations: dict[str, StereoCalibration]) -> dict[str, FrameEstimate]:
+        """Add one synchronised sample: ``observations`` maps tracking id -> that pedestrian's measurements.
+
+        Returns the current (causal) estimate of every pedestrian observed in this sample.  Tracks not seen
+        for ``track_timeout_s`` end here (finalised; collect them with :meth:`pop_finished`).
+        """
+        self._end_stale(timestamp)
+        out = {}
+        for tid, fr in observations.items():
+            try:
+                out[tid] = self._add_observation(timestamp, tid, fr, calibrations)
+            except Exception as exc:        # one bad observation never stops the stream
+                log.warning("stream: %s frame %s: %s: %s", tid, fr.frame, type(exc).__name__, exc)
+        return out
+
+    def _add_observation(self, timestamp, tid, fr, calibrations) -> FrameEstimate:
+        state = self.active.get(tid)
+        if state is None:
+            state = _ActiveTrack(sequence=self.sequence, tracking_id=tid, calibrations=dict(calibrations),
+                                 smoother=IncrementalTrack.create(self.stream_config.isam),
+                                 rng=np.random.default_rng(self.config.seed))
+            self.active[tid] = state
+        state.calibrations.update(calibrations)
+        i = len(state.frames)
+        state.frames.append(fr)
+        state.keys.append(FrameKeys.for_frame(i))
+        n_kinds = len(state.kinds)
+        t0 = time.perf_counter()
+        try:
+            window = [f for f in state.frames[-16:]
+                      if fr.timestamp - f.timestamp <= self.stream_config.heading_half_window_s + 1e-9]
+            graph, init = self._frame_factors(state, i, fr, Track(self.sequence, tid, window, state.calibrations))
+            values = self._initial_values(state, i, init)
+            if i == 0 and not np.isfinite(init.heading_yaw[-1]):
+                values = self._best_facing(graph, values, state.keys[0])
+            state.smoother.add_frame(state.keys[i], graph, values)
+        except Exception:
+            state.frames.pop()
+            state.keys.pop()
+            del state.kinds[n_kinds:], state.factor_frames[n_kinds:]
+            if not state.frames:
+                self.active.pop(tid, None)
+            raise
+        state.last_seen = timestamp
+        state.previous = state.smoother.frame_estimate(state.keys[i])
+        seconds = time.perf_counter() - t0
+        rot, trans, body_pose, betas = state.previous
+        pose = np.concatenate([gtsam.Rot3.Logmap(gtsam.Rot3(rot)), body_pose])
+        kps = np.asarray(self.ctx.model.keypoints(pose, betas, trans))
+        extra = {}
+        if self.stream_config.causal_covariance:
+            extra = self._causal_covariance(state, i, pose, betas, trans)
+        return FrameEstimate(tracking_id=tid, frame=fr.frame, timestamp=float(timestamp), pose=pose, betas=betas,
+                             trans=trans, world_keypoints=kps, update_seconds=seconds, extra=extra)
+
+    def _causal_covariance(self, state, i, pose, betas, trans) -> dict:
+        from pedx_graph.solvers.marginals import MarginalsConfig, frame_fields, isam_frame_covariance
+
+        try:
+            cov = isam_frame_covariance(state.smoother.isam, state.keys[i], len(betas))
+        except RuntimeError as exc:
+            return {"covariance_status": f"failed: {exc}"}
+        fields = frame_fields(self.ctx.model, pose, betas, trans, cov, False, MarginalsConfig())
+        return {k: fields[k] for k in ("covariance_status", "cov_trans", "cov_root", "cov_keypoints_3d")}
+
+    def _end_stale(self, now: float) -> None:
+        for tid in [t for t, s in self.active.items() if now - s.last_seen > self.stream_config.track_timeout_s]:
+            self.end_track(tid)
+
+    def end_track(self, tracking_id: str):
+        """Finalise one track now: smoothed estimate, marginals, diagnostics -> :class:`TrackResult`."""
+        state = self.active.pop(tracking_id)
+        result = self._finalise(state)
+        if result is not None:
+            self.finished.append(result)
+        return result
+
+    def pop_finished(self) -> list:
+        """Track results finalised since the last call."""
+        out, self.finished = self.finished, []
+        return out
+
+    def finish(self) -> list:
+        """End every active track; returns all results not yet popped."""
+        for tid in list(self.active):
+            self.end_track(tid)
+        return self.pop_finished()
+
+    def _finalise(self, state: _ActiveTrack):
+        from pedx_graph.graph.build import TrackProblem, extract_estimate
+        from pedx_graph.solvers.fit import TrackResult
+
+        if not state.frames:
+            return None
+        t0 = time.perf_counter()
+        n_updates = len(state.smoother.updates)
+        latencies = np.array([u.seconds for u in state.smoother.updates[:n_updates]])
+        values = state.smoother.finalize(self.config.solver)
+        finalize_s = time.perf_counter() - t0
+        problem = TrackProblem(graph=state.smoother.factors, initial=values, keys=state.keys, init=None,
+                               factor_kinds=state.kinds, factor_frames=state.factor_frames)
+        est = extract_estimate(problem, values, self.ctx)
+        extra_frames = [{} for _ in state.frames]
+        extra_track = {
+            "stream_updates": int(len(latencies)),
+            "stream_update_ms_median": float(np.median(latencies) * 1e3),
+            "stream_update_ms_p90": float(np.percentile(latencies, 90) * 1e3),
+            "stream_update_ms_max": float(latencies.max() * 1e3),
+            "stream_finalize_seconds": finalize_s,
+        }
+        if self.stream_config.marginals or self.stream_config.diagnostics:
+            from pedx_graph.solvers.diagnostics import track_extras
+
+            extra_frames, track_fields = track_extras(problem, values, self.ctx, self.stream_config.marginals,
+                                                      self.stream_config.diagnostics)
+            extra_track.update(track_fields)
+        graph_error = float(problem.graph.error(values))
+        return TrackResult(sequence=state.sequence, tracking_id=state.tracking_id,
+                           frames=[fr.frame for fr in state.frames], pose=est.pose, betas=est.betas,
+                           trans=est.trans, world_keypoints=est.world_keypoints, final_error=graph_error,
+                           initial_error=float("nan"), iterations=len(state.smoother.updates),
+                           seconds=float(latencies.sum()) + finalize_s, solver="isam2-stream",
+                           extra_per_frame=extra_frames, extra_track=extra_track)
