@@ -88,21 +88,10 @@ def _cross_columns(levers: np.ndarray, bases: np.ndarray) -> np.ndarray:
     return np.stack([a2 * b1 - a1 * b2, a0 * b2 - a2 * b0, a1 * b0 - a0 * b1], axis=-2)
 
 
-def _split_root_body(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, P, J, 3, 3) per-joint blocks -> d_root (N, P, 3, 3), d_body (N, P, 3, 3 (J-1))."""
-    num_n, num_p, num_j = jac.shape[:3]
-    d_body = np.moveaxis(jac[:, :, 1:], 2, 3).reshape(num_n, num_p, 3, 3 * (num_j - 1))
-    return jac[:, :, 0], d_body
-
-
 def _rotation_part(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """From lever arms a (N, P, J, 3) and bases (N, J, 3, 3): d_root (N, P, 3, 3), d_body (N, P, 3, 3(J-1))."""
-    return _split_root_body(_cross_columns(levers, bases[:, None]))
+    """d_root (N, P, 3, 3) and d_body (N, P, 3, 3 (J-1)) from lever arms a (N, P, J, 3) and bases (N, J, 3, 3).
 
-
-def _rotation_part_matmul(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Same as :func:`_rotation_part`, as one small matrix product per joint (fast for many points).
-
+    Block (p, j) is ``-hat(a_pj) B_j``, computed as one small matrix product per joint:
     ``(B[:, m] x a)_c = sum_d hat(B[:, m])[c, d] a_d``: with ``H[j, d, (c, m)] = hat(B_j[:, m])[c, d]`` the
     block of every point is ``a_j @ H_j``.
     """
@@ -137,7 +126,7 @@ def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray
     points = weighted.sum(axis=2)
     subtree_w = weights @ desc.T                                     # W_j(v), (P, J)
     levers = desc @ weighted - subtree_w[None, :, :, None] * origin[:, None]
-    d_root, d_body = _rotation_part_matmul(levers, bases)
+    d_root, d_body = _rotation_part(levers, bases)
     blended_rot = (weights @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
     if posedirs_flat is not None:
         per_joint = posedirs_flat.reshape(3 * num_p, num_j - 1, 9).transpose(1, 0, 2)       # (J-1, 3P, 9)
@@ -172,8 +161,14 @@ def joint_jacobians(kin: Kinematics, bases: np.ndarray, joint_ids: np.ndarray, d
     # Only strict ancestors j of joint i have a non-zero lever o_i - o_j: compute those pairs only.
     q_idx, j_idx = ancestor_pairs(desc, joint_ids) if pairs is None else pairs
     levers = points[:, q_idx] - origin[:, j_idx]                     # (N, pairs, 3)
-    blocks = np.zeros((num_n, len(joint_ids), num_j, 3, 3))
-    blocks[:, q_idx, j_idx] = _cross_columns(levers, bases[:, j_idx])
-    d_root, d_body = _split_root_body(blocks)
+    blocks = _cross_columns(levers, bases[:, j_idx])                 # (N, pairs, 3, 3)
+    num_q = len(joint_ids)
+    at_root = j_idx == 0
+    d_root = np.zeros((num_n, num_q, 3, 3))
+    d_root[:, q_idx[at_root]] = blocks[:, at_root]
+    d_body = np.zeros((num_n, num_q, 3, num_j - 1, 3))
+    # advanced indices separated by a slice put the pair axis first: (pairs, N, 3, 3)
+    d_body[:, q_idx[~at_root], :, j_idx[~at_root] - 1] = np.moveaxis(blocks[:, ~at_root], 1, 0)
+    d_body = d_body.reshape(num_n, num_q, 3, 3 * (num_j - 1))
     d_betas = dt_dbeta[:, joint_ids] + kin.world_rot[:, joint_ids] @ joint_shapedirs[joint_ids][None]
     return points, d_root, d_body, d_betas
