@@ -247,6 +247,22 @@ class MaxMixture:
         self.extra = np.sqrt(2.0 * (c - c.min()))          # (K,) >= 0
         self.c = c - c.min()
 
+    @classmethod
+    def from_gmm(cls, gmm: Any, covariance_scale: float = 1.0) -> "MaxMixture":
+        """From any object with ``weights``, ``means`` and ``precisions_cholesky`` (or ``prec_chol``), e.g.
+        ``pedx_graph.priors``' ``GaussianMixturePrior`` or a fitted scikit-learn ``GaussianMixture``
+        (``covariance_type="full"``)."""
+        chol = getattr(gmm, "precisions_cholesky", None)
+        if chol is None:
+            chol = getattr(gmm, "precisions_cholesky_", None)
+        if chol is None:
+            chol = getattr(gmm, "prec_chol")
+        weights = getattr(gmm, "weights", None)
+        weights = getattr(gmm, "weights_") if weights is None else weights
+        means = getattr(gmm, "means", None)
+        means = getattr(gmm, "means_") if means is None else means
+        return cls(weights, means, chol, covariance_scale=covariance_scale)
+
     def residual(self, x: np.ndarray, want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None, int]:
         """Max-mixture residual (D+1,), its Jacobian (D+1, D) (or None) and the selected component.
 

@@ -79,3 +79,17 @@ def test_bad_inputs_raise():
         MaxMixture(weights, means, chol[:, :4])
     with pytest.raises(ValueError, match="needs"):
         make_pose_prior_factor(0)
+
+
+def test_matches_priors_package_residual():
+    """MaxMixture.from_gmm on pedx_graph.priors' GaussianMixturePrior gives the same max-mixture residual."""
+    gmm_mod = pytest.importorskip("pedx_graph.priors.gmm")
+    rng = np.random.default_rng(6)
+    weights, means, chol = random_gmm(rng, 3, D)
+    cov = np.linalg.inv(chol @ np.swapaxes(chol, 1, 2))
+    prior = gmm_mod.GaussianMixturePrior(name="pose", weights=weights, means=means, covariances=cov,
+                                         precisions_cholesky=chol, dims=tuple(f"d{i}" for i in range(D)))
+    mix = MaxMixture.from_gmm(prior)
+    for _ in range(3):
+        x = means[rng.integers(3)] + rng.normal(scale=0.1, size=D)
+        np.testing.assert_allclose(mix.residual(x)[0], prior.residual(x)[0], atol=1e-10)

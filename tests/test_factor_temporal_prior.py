@@ -92,3 +92,27 @@ def test_bad_inputs():
     w5, m5, c5 = random_gmm(rng, 2, 5)
     with pytest.raises(ValueError, match="75"):
         make_temporal_prior_factor(*range(6), w5, m5, c5)
+
+
+def test_matches_the_priors_training_definition():
+    """pedx_graph.priors trains the temporal GMM on the same 75-d difference (pelvis steps == trans steps)."""
+    train = pytest.importorskip("pedx_graph.priors.train")
+    if not hasattr(train, "temporal_difference"):
+        pytest.skip("pedx_graph.priors.train has no temporal_difference")
+    rng = np.random.default_rng(40)
+    rot = np.stack([random_rot3(rng).matrix() for _ in range(6)])
+    trans = rng.normal(size=(6, 3))
+    pose = rng.normal(scale=0.3, size=(6, 69))
+    ours = sequence_differences(rot, trans, pose)
+    theirs = train.temporal_difference(rot[:-1], trans[:-1], pose[:-1], rot[1:], trans[1:], pose[1:])
+    np.testing.assert_allclose(ours, theirs, atol=1e-10)
+
+
+def test_mixture_from_sklearn_like_object():
+    from types import SimpleNamespace
+    rng = np.random.default_rng(41)
+    weights, means, chol = random_gmm(rng, 2, TEMPORAL_DIM)
+    a = MaxMixture.from_gmm(SimpleNamespace(weights_=weights, means_=means, precisions_cholesky_=chol))
+    b = MaxMixture.from_gmm(SimpleNamespace(weights=weights, means=means, precisions_cholesky=chol))
+    x = rng.normal(size=TEMPORAL_DIM)
+    np.testing.assert_allclose(a.residual(x)[0], b.residual(x)[0])
