@@ -88,21 +88,24 @@ def _cross_columns(levers: np.ndarray, bases: np.ndarray) -> np.ndarray:
     return np.stack([a2 * b1 - a1 * b2, a0 * b2 - a2 * b0, a1 * b0 - a0 * b1], axis=-2)
 
 
-def _rotation_part(levers: np.ndarray, bases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """d_root (N, P, 3, 3) and d_body (N, P, 3, 3 (J-1)) from lever arms a (N, P, J, 3) and bases (N, J, 3, 3).
+def _rotation_blocks(levers: np.ndarray, bases: np.ndarray) -> np.ndarray:
+    """Blocks ``-hat(a_pj) B_j`` (N, J, P, 3, 3) from lever arms a (N, P, J, 3) and bases B (N, J, 3, 3).
 
-    Block (p, j) is ``-hat(a_pj) B_j``, computed as one small matrix product per joint:
-    ``(B[:, m] x a)_c = sum_d hat(B[:, m])[c, d] a_d``: with ``H[j, d, (c, m)] = hat(B_j[:, m])[c, d]`` the
-    block of every point is ``a_j @ H_j``.
+    Computed as one small matrix product per joint: ``(B[:, m] x a)_c = sum_d hat(B[:, m])[c, d] a_d``, so with
+    ``H[j, d, (c, m)] = hat(B_j[:, m])[c, d]`` the block of every point is ``a_j @ H_j``.
     """
     num_n, num_p, num_j = levers.shape[:3]
     hats = hat(np.swapaxes(bases, -1, -2))                           # (N, J, m, c, d)
     hmat = np.ascontiguousarray(hats.transpose(0, 1, 4, 3, 2)).reshape(num_n, num_j, 3, 9)
     blocks = np.swapaxes(levers, 1, 2) @ hmat                        # (N, J, P, (c, m))
-    blocks = blocks.reshape(num_n, num_j, num_p, 3, 3)
-    d_root = blocks[:, 0]
+    return blocks.reshape(num_n, num_j, num_p, 3, 3)
+
+
+def _split_blocks(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, J, P, 3, 3) blocks -> d_root (N, P, 3, 3), d_body (N, P, 3, 3 (J-1)) (column 3 (j-1) + m)."""
+    num_n, num_j, num_p = blocks.shape[:3]
     d_body = blocks[:, 1:].transpose(0, 2, 3, 1, 4).reshape(num_n, num_p, 3, 3 * (num_j - 1))
-    return d_root, d_body
+    return blocks[:, 0], d_body
 
 
 def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray, weights: np.ndarray,
@@ -123,16 +126,17 @@ def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray
     rot_cols = world_rot.transpose(0, 3, 1, 2).reshape(num_n, 3, 3 * num_j)           # [n, b, (k, a)]
     under_bone = (rest_points @ rot_cols).reshape(num_n, num_p, num_j, 3) + kin.bone_trans[:, None]
     weighted = weights[None, :, :, None] * under_bone
-    points = weighted.sum(axis=2)
     subtree_w = weights @ desc.T                                     # W_j(v), (P, J)
     levers = desc @ weighted - subtree_w[None, :, :, None] * origin[:, None]
-    d_root, d_body = _rotation_part(levers, bases)
+    # The root's subtree is every joint, so its lever is p - W_0 o_0: the points come for free.
+    points = levers[:, :, 0] + subtree_w[None, :, 0, None] * origin[:, None, 0]
+    blocks = _rotation_blocks(levers, bases)                         # (N, J, P, 3, 3)
     blended_rot = (weights @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
     if posedirs_flat is not None:
         per_joint = posedirs_flat.reshape(3 * num_p, num_j - 1, 9).transpose(1, 0, 2)       # (J-1, 3P, 9)
         dq = per_joint @ drot_body.reshape(num_n, num_j - 1, 9, 3)                          # (N, J-1, 3P, 3)
-        dq = dq.transpose(0, 2, 1, 3).reshape(num_n, num_p, 3, 3 * (num_j - 1))
-        d_body = d_body + blended_rot @ dq
+        blocks[:, 1:] += blended_rot[:, None] @ dq.reshape(num_n, num_j - 1, num_p, 3, 3)
+    d_root, d_body = _split_blocks(blocks)
     num_b = shapedirs_flat.shape[1]
     d_betas = (blended_rot @ shapedirs_flat.reshape(num_p, 3, num_b)[None]
                + (weights @ dt_dbeta.reshape(num_n, num_j, 3 * num_b)).reshape(num_n, num_p, 3, num_b))
