@@ -205,7 +205,7 @@ class StreamingEstimator:
         Returns the current (causal) estimate of every pedestrian observed in this sample.  Tracks not seen
         for ``track_timeout_s`` end here (finalised; collect them with :meth:`pop_finished`).
         """
-        self._end_stale(timestamp)
+        self._end_stale(timestamp, keep=observations.keys())
         out = {}
         for tid, fr in observations.items():
             try:
@@ -264,8 +264,10 @@ class StreamingEstimator:
         fields = frame_fields(self.ctx.model, pose, betas, trans, cov, False, MarginalsConfig())
         return {k: fields[k] for k in ("covariance_status", "cov_trans", "cov_root", "cov_keypoints_3d")}
 
-    def _end_stale(self, now: float) -> None:
-        for tid in [t for t, s in self.active.items() if now - s.last_seen > self.stream_config.track_timeout_s]:
+    def _end_stale(self, now: float, keep=()) -> None:
+        keep = set(keep)
+        for tid in [t for t, s in self.active.items()
+                    if t not in keep and now - s.last_seen > self.stream_config.track_timeout_s]:
             self.end_track(tid)
 
     def end_track(self, tracking_id: str):

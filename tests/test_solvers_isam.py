@@ -1,0 +1,123 @@
+"""iSAM2 (pedx_graph.solvers.isam) and the streaming estimator against batch LM on tiny synthetic tracks."""
+import gtsam
+import numpy as np
+import pytest
+
+from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
+from pedx_graph.graph.build import build_track_graph, extract_estimate
+from pedx_graph.graph.config import SolverConfig
+from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig, isam_solve, local_lm
+from pedx_graph.solvers.lm import python_lm
+from pedx_graph.solvers.marginals import gtsam_marginals, isam_frame_covariance
+
+TIGHT = SolverConfig(max_iterations=100, relative_error_tol=1e-8)
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return synthetic_context()
+
+
+@pytest.fixture(scope="module")
+def smooth_case(ctx):
+    """4 frames, chamfer off (a single optimum: solver agreement is then well defined), batch LM solution."""
+    config = synthetic_config(lidar_chamfer=False)
+    track, truth = synthetic_track(ctx, 4, seed=0)
+    problem = build_track_graph(track, ctx, config)
+    values, report = python_lm(problem.graph, problem.initial, TIGHT)
+    return problem, values, report, truth
+
+
+def test_isam_with_lm_finalisation_equals_batch(ctx, smooth_case):
+    problem, batch, report, _ = smooth_case
+    values, isam_report, track = isam_solve(problem, IsamConfig(), TIGHT)
+    a, b = extract_estimate(problem, batch, ctx), extract_estimate(problem, values, ctx)
+    assert isam_report.final_error == pytest.approx(report.final_error, rel=1e-5)
+    np.testing.assert_allclose(b.world_keypoints, a.world_keypoints, atol=1e-3)        # metres
+    np.testing.assert_allclose(b.betas, a.betas, atol=1e-3)
+    assert len(isam_report.update_seconds) == len(problem.keys)
+    assert track.finalized and track.factors.size() == problem.graph.size()
+
+
+def test_pure_isam_finalisation_reaches_batch_within_thresholds(ctx, smooth_case):
+    problem, batch, report, _ = smooth_case
+    values, isam_report, _ = isam_solve(problem, IsamConfig(finalize="isam"))
+    assert isam_report.final_error <= report.final_error * 1.01
+    a, b = extract_estimate(problem, batch, ctx), extract_estimate(problem, values, ctx)
+    assert np.max(np.linalg.norm(a.world_keypoints - b.world_keypoints, axis=-1)) < 0.03
+
+
+def test_isam_marginals_equal_batch_marginals(smooth_case):
+    problem, _, _, _ = smooth_case
+    _, _, track = isam_solve(problem, IsamConfig(finalize="isam"))
+    theta = track.isam.getLinearizationPoint()        # the Bayes tree is the graph linearised here
+    batch = gtsam_marginals(problem.graph, theta, problem.keys, 10)
+    for i, keys in enumerate(problem.keys):
+        cov = isam_frame_covariance(track.isam, keys, 10)
+        np.testing.assert_allclose(cov, batch.frame_covariances[i], rtol=1e-6,
+                                   atol=1e-9 * np.abs(batch.frame_covariances[i]).max())
+        np.testing.assert_allclose(track.isam.marginalCovariance(keys.trans),
+                                   gtsam.Marginals(problem.graph, theta).marginalCovariance(keys.trans), rtol=1e-6)
+
+
+def test_local_lm_holds_fixed_keys():
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    graph.add(gtsam.BetweenFactorVector(1, 2, np.array([1.0, 0.0]), noise))
+    graph.add(gtsam.PriorFactorVector(2, np.array([5.0, 5.0]), noise))
+    values = gtsam.Values()
+    values.insert(1, np.zeros(2))
+    values.insert(2, np.zeros(2))
+    out, error, _ = local_lm(graph, values, [2], max_iterations=10)
+    np.testing.assert_allclose(out.atVector(1), [0.0, 0.0])
+    np.testing.assert_allclose(out.atVector(2), [3.0, 2.5], atol=1e-4)     # midway: x1 + (1, 0) and (5, 5)
+
+
+def test_shape_is_held_between_relinearisations(ctx):
+    config = synthetic_config(lidar_chamfer=False)
+    track, _ = synthetic_track(ctx, 3, seed=1)
+    problem = build_track_graph(track, ctx, config)
+    values, report, smoother = isam_solve(problem, IsamConfig(shape_relinearize_every=100, finalize="isam",
+                                                              presolve_iterations=2))
+    assert np.isfinite(report.final_error)
+    assert all(u.seconds >= 0 for u in smoother.updates)
+    with pytest.raises(RuntimeError, match="finalised"):
+        smoother.add_frame(problem.keys[0], gtsam.NonlinearFactorGraph(), gtsam.Values())
+
+
+def test_streaming_two_interleaved_tracks(ctx):
+    from pedx_graph.solvers.stream import StreamConfig, StreamingEstimator
+
+    config = synthetic_config()
+    a, truth_a = synthetic_track(ctx, 4, seed=0)
+    b, truth_b = synthetic_track(ctx, 3, seed=3, distance_m=13.0)
+    b.tracking_id = "pedB"
+    stream = StreamingEstimator(ctx, config, StreamConfig(track_timeout_s=0.05, causal_covariance=True),
+                                sequence="synthetic")
+    by_time = {}
+    for tr in (a, b):
+        for fr in tr.frames:
+            by_time.setdefault(fr.timestamp, {})[tr.tracking_id] = fr
+    # track b is seen at frames 0..2 only; a keeps going: b must end (timeout) before the stream does
+    seen = []
+    for ts in sorted(by_time):
+        current = stream.add_frame(ts, by_time[ts], a.calibrations)
+        seen.append(sorted(current))
+        for est in current.values():
+            assert est.world_keypoints.shape == (18, 3) and est.update_seconds > 0
+            assert est.extra["cov_keypoints_3d"].shape == (18, 3, 3)
+    assert seen[0] == sorted([a.tracking_id, "pedB"]) and seen[3] == [a.tracking_id]
+    ended_early = stream.pop_finished()
+    assert [r.tracking_id for r in ended_early] == ["pedB"]
+    results = ended_early + stream.finish()
+    assert sorted(r.tracking_id for r in results) == sorted([a.tracking_id, "pedB"])
+    for r in results:
+        truth = truth_a if r.tracking_id == a.tracking_id else truth_b
+        mpjpe = np.linalg.norm(r.world_keypoints - truth["keypoints"], axis=-1).mean()
+        assert mpjpe < 0.05
+        assert r.extra_track["stream_updates"] == len(r.frames)
+        assert r.extra_per_frame[0]["covariance_status"] == "ok"
+        assert np.asarray(r.extra_per_frame[0]["cov_keypoints_3d"]).shape == (18, 3, 3)
+        assert "diagnostics" in r.extra_track
+        labels = r.to_labels()
+        assert len(labels) == len(r.frames)
