@@ -128,8 +128,13 @@ def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.n
 
 
 def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
-                      yaw_override: np.ndarray | None = None) -> TrackProblem:
-    """The factor graph and initial values of ``track`` (see the module docstring)."""
+                      yaw_override: np.ndarray | None = None,
+                      initial: gtsam.Values | None = None) -> TrackProblem:
+    """The factor graph and initial values of ``track`` (see the module docstring).
+
+    ``yaw_override`` (T,) replaces the initial headings; ``initial`` replaces all initial values (e.g. the
+    result of an earlier stage on the same track).
+    """
     if len(track.frames) == 0:
         raise ValueError(f"track {track.sequence}/{track.tracking_id} has no frames")
     noise, terms = config.noise, config.terms
@@ -191,6 +196,8 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
             add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
                                            mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior", i)
     add(make_shape_prior_factor(keys[0].betas, num_betas=nb, sigma=noise.shape_sigma), "shape_prior", -1)
+    if initial is not None:
+        values = gtsam.Values(initial)
     return TrackProblem(graph=graph, initial=values, keys=keys, init=init, factor_kinds=kinds,
                         factor_frames=frames_of)
 
