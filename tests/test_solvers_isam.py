@@ -121,3 +121,32 @@ def test_streaming_two_interleaved_tracks(ctx):
         assert "diagnostics" in r.extra_track
         labels = r.to_labels()
         assert len(labels) == len(r.frames)
+
+
+def test_stream_dataset_writes_causal_and_smoothed_results(ctx, tmp_path):
+    import argparse
+    import json
+
+    from pedx_graph.data.reader import read_smpl_labels
+    from pedx_graph.data.writer import write_tracks
+    from pedx_graph.solvers.stream import StreamConfig, stream_dataset
+    from pedx_graph.solvers.stream_cli import register
+
+    a, _ = synthetic_track(ctx, 3, seed=0)
+    b, _ = synthetic_track(ctx, 2, seed=6, distance_m=12.0)
+    b.tracking_id = "ped6"
+    write_tracks(tmp_path / "data", [a, b])
+    out = tmp_path / "results"
+    summary = stream_dataset(tmp_path / "data", out, synthetic_config(), StreamConfig(), ctx=ctx)
+    assert summary["total_frames"] == 5 and not summary["failed"]
+    assert sorted(t["tracking_id"] for t in summary["tracks"]) == sorted([a.tracking_id, "ped6"])
+    assert summary["update_ms"]["median"] > 0
+    smoothed = read_smpl_labels(out)
+    causal = read_smpl_labels(out / "causal")
+    assert sum(len(v) for v in smoothed.values()) == 5 and sum(len(v) for v in causal.values()) == 5
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk["tracks"][0]["diagnostics"]["residuals"]
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["stream", "DATA", "--out", "OUT", "--causal-covariance"])
+    assert args.causal_covariance and callable(args.func)

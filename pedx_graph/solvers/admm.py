@@ -21,6 +21,7 @@ shape on the joint graph (same objective as batch LM).
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -201,15 +202,25 @@ def _assemble(problem, states: dict, beta: np.ndarray) -> gtsam.Values:
 
 def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: AdmmConfig | None = None,
                    marginals: bool = False, diagnostics: bool = False):
-    """Fit one track with ADMM (same graph and outputs as :func:`pedx_graph.solvers.fit.fit_track`)."""
+    """Fit one track with ADMM (same graph, staging and outputs as :func:`pedx_graph.solvers.fit.fit_track`;
+    ``iterations`` counts the ADMM iterations of both stages)."""
     from pedx_graph.graph.build import build_track_graph, extract_estimate
     from pedx_graph.solvers.fit import TrackResult, _context
 
     config = config or FitConfig()
     ctx = context or _context(config)
     t0 = time.perf_counter()
-    problem = build_track_graph(track, ctx, config)
+    stage_iterations = 0
+    initial = None
+    if config.terms.lidar_chamfer:
+        # staged as the batch fit: first without the chamfer term, then every term from that estimate
+        coarse_cfg = dataclasses.replace(config, terms=dataclasses.replace(config.terms, lidar_chamfer=False))
+        coarse = build_track_graph(track, ctx, coarse_cfg)
+        initial, coarse_report = admm_solve(coarse, coarse_cfg, admm, track=track, ctx=ctx)
+        stage_iterations = coarse_report.iterations
+    problem = build_track_graph(track, ctx, config, initial=initial)
     values, report = admm_solve(problem, config, admm, track=track, ctx=ctx)
+    report.iterations += stage_iterations
     est = extract_estimate(problem, values, ctx)
     extra_frames, extra_track = [], {}
     if marginals or diagnostics:
