@@ -86,12 +86,17 @@ def test_under_constrained_track_reports_and_carries_on(ctx):
 def test_diagnostics_flag_a_bad_label(ctx):
     track, _ = synthetic_track(ctx, 4, seed=5)
     track.frames[2].left.keypoints[4] += np.array([60.0, -40.0])        # one wrong click, frame 2
-    problem = build_track_graph(track, ctx, synthetic_config())
+    pts = track.frames[1].world_lidar_points
+    pts[:4] += np.array([0.0, 0.0, 0.8])                                  # four mislabelled points, frame 1
+    config = synthetic_config()
+    problem = build_track_graph(track, ctx, config)
     values, _ = python_lm(problem.graph, problem.initial, SolverConfig(max_iterations=30))
-    per_frame, track_fields = track_diagnostics(problem, values, ctx)
+    per_frame, track_fields = track_diagnostics(problem, values, ctx, fit_config=config)
     summary = track_fields["diagnostics"]
     assert per_frame[2]["residuals"]["stereo_reprojection"]["outlier_rows"] >= 1
     assert all(per_frame[i]["residuals"]["stereo_reprojection"]["outlier_rows"] == 0 for i in (0, 1, 3))
+    chamfer = [per_frame[i]["residuals"]["lidar_chamfer"]["outlier_rows"] for i in range(4)]
+    assert chamfer[1] >= 3 * 3 and chamfer[1] == max(chamfer)
     assert summary["worst_frames"][0]["frame_index"] == 2
     weak = per_frame[0]["weak_directions"]
     assert weak["sigma_depth_m"] > 0 and weak["sigma_heading_rad"] > 0

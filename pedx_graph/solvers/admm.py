@@ -226,7 +226,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     if marginals or diagnostics:
         from pedx_graph.solvers.diagnostics import track_extras
 
-        extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics)
+        extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics, fit_config=config)
     extra_track.update({"admm_iterations": report.iterations, "admm_converged": report.converged,
                         "admm_primal_residual": report.primal_residuals[-1] if report.primal_residuals else None,
                         "admm_dual_residual": report.dual_residuals[-1] if report.dual_residuals else None})

@@ -50,8 +50,16 @@ class DiagnosticsConfig:
     """How many frames to list as the worst (highest chi2 per row) in the track summary."""
 
 
-def _factor_residual(factor, values: gtsam.Values, outlier_weight: float) -> tuple[float, float, int, int]:
-    """(chi2, cost, rows, outlier rows) of one nonlinear factor at ``values``."""
+def _factor_residual(factor, values: gtsam.Values, outlier_weight: float,
+                     in_factor_robust: tuple[str, float, int] | None = None) -> tuple[float, float, int, int]:
+    """(chi2, cost, rows, outlier rows) of one nonlinear factor at ``values``.
+
+    ``in_factor_robust = (kernel, scale, group)``: the factor applies the kernel itself to groups of
+    ``group`` whitened rows (``factors.common.robustify_groups``, unit noise model), so its residual ``s``
+    has ``0.5 |s_g|^2 = rho(|r_g|)``; a group is an outlier when ``rho(|r_g|) > rho(scale)`` (it lies beyond
+    the kernel's scale, where Geman-McClure's weight drops below 1/4) and all its rows are counted.  For
+    such factors ``chi2`` is the robustified ``|s|^2``.
+    """
     cost = float(factor.error(values))
     if not hasattr(factor, "unwhitenedError"):
         return 2.0 * cost, cost, 0, 0
@@ -65,13 +73,32 @@ def _factor_residual(factor, values: gtsam.Values, outlier_weight: float) -> tup
     outliers = 0
     if kernel is not None:
         outliers = int(sum(kernel.weight(float(abs(x))) < outlier_weight for x in white))
+    elif in_factor_robust is not None and in_factor_robust[0].lower() not in ("none", ""):
+        from factors.common import group_robust_weights
+
+        name, scale, group = in_factor_robust
+        g_c, _ = group_robust_weights(np.array([scale]), name.replace("_", ""), scale)
+        rho_c = 0.5 * float(g_c[0] * scale) ** 2
+        if white.size % group == 0:
+            rho = 0.5 * (white.reshape(-1, group) ** 2).sum(axis=1)
+            outliers = int(group * np.count_nonzero(rho > rho_c))
     return float(white @ white), cost, int(r.size), outliers
 
 
-def residual_tables(problem, values: gtsam.Values, config: DiagnosticsConfig | None = None
-                    ) -> tuple[list[dict], dict]:
-    """Per-frame and per-track residual totals by factor kind (see the module docstring)."""
+def in_factor_robust_kinds(fit_config) -> dict:
+    """Factor kinds that robustify inside the factor: kind -> (kernel, scale, rows per group)."""
+    if fit_config is None:
+        return {}
+    noise = fit_config.noise
+    return {"lidar_chamfer": (noise.lidar_loss, float(noise.lidar_loss_scale), 3)}
+
+
+def residual_tables(problem, values: gtsam.Values, config: DiagnosticsConfig | None = None,
+                    fit_config=None) -> tuple[list[dict], dict]:
+    """Per-frame and per-track residual totals by factor kind (see the module docstring).  ``fit_config``
+    (:class:`FitConfig`) tells which kinds carry their robust kernel inside the factor."""
     config = config or DiagnosticsConfig()
+    inside = in_factor_robust_kinds(fit_config)
     n = len(problem.keys)
     frames = [defaultdict(lambda: {"chi2": 0.0, "cost": 0.0, "rows": 0, "outlier_rows": 0}) for _ in range(n)]
     track = defaultdict(lambda: {"chi2": 0.0, "cost": 0.0, "rows": 0, "outlier_rows": 0})
@@ -80,7 +107,7 @@ def residual_tables(problem, values: gtsam.Values, config: DiagnosticsConfig | N
         if factor is None:
             continue
         kind, frame = problem.factor_kinds[j], problem.factor_frames[j]
-        chi2, cost, rows, outliers = _factor_residual(factor, values, config.outlier_weight)
+        chi2, cost, rows, outliers = _factor_residual(factor, values, config.outlier_weight, inside.get(kind))
         targets = [track] + ([frames[frame]] if frame >= 0 else [])
         for t in targets:
             t[kind]["chi2"] += chi2
@@ -121,13 +148,13 @@ def weak_directions(frame_cov: np.ndarray, world_R_body: np.ndarray, world_p_pel
 
 
 def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
-                      config: DiagnosticsConfig | None = None) -> tuple[list[dict], dict]:
+                      config: DiagnosticsConfig | None = None, fit_config=None) -> tuple[list[dict], dict]:
     """``(extra_per_frame, extra_track)``: residual tables and, when covariances are available (``marginals``
     given, or ``ctx`` given so they can be computed), the weakest directions of every frame."""
     from pedx_graph.solvers.marginals import compute_marginals
 
     config = config or DiagnosticsConfig()
-    per_frame_tables, track_table = residual_tables(problem, values, config)
+    per_frame_tables, track_table = residual_tables(problem, values, config, fit_config)
     per_frame = [{"residuals": t} for t in per_frame_tables]
     if marginals is None and ctx is not None:
         try:
@@ -159,7 +186,7 @@ def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
 
 
 def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, diagnostics: bool = True,
-                 marginals_config=None, diagnostics_config: DiagnosticsConfig | None = None
+                 marginals_config=None, diagnostics_config: DiagnosticsConfig | None = None, fit_config=None
                  ) -> tuple[list[dict], dict]:
     """Marginal covariances and diagnostics of one solved track, sharing one marginals computation:
     ``(extra_per_frame, extra_track)`` ready for :class:`~pedx_graph.solvers.fit.TrackResult`."""
@@ -189,7 +216,7 @@ def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, dia
             f.update(g)
     if diagnostics:
         fields, track_fields = track_diagnostics(problem, values, ctx if computed is not None else None,
-                                                 computed, diagnostics_config)
+                                                 computed, diagnostics_config, fit_config)
         track.update(track_fields)
         for f, g in zip(per_frame, fields):
             f.update(g)

@@ -315,7 +315,7 @@ class StreamingEstimator:
             from pedx_graph.solvers.diagnostics import track_extras
 
             extra_frames, track_fields = track_extras(problem, values, self.ctx, self.stream_config.marginals,
-                                                      self.stream_config.diagnostics)
+                                                      self.stream_config.diagnostics, fit_config=self.config)
             extra_track.update(track_fields)
         graph_error = float(problem.graph.error(values))
         return TrackResult(sequence=state.sequence, tracking_id=state.tracking_id,
