@@ -287,10 +287,9 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
             if _collides(xy, present, people) and attempt < 199:
                 continue
             break
-        # feet on the ground at every frame
-        out = body_model.forward(pose, betas, trans)
+        # feet on the ground at every frame (lowest foot vertex; walking always has a foot down)
         trans = trans.copy()
-        trans[:, 2] += scene.ground_z - out.vertices[..., 2].min(axis=-1)
+        trans[:, 2] += scene.ground_z - _lowest_foot_z(body_model, pose, betas, trans)
         if new_group:
             lead = (walkway, sign, along, across, speed)
         n_in_group += 1
@@ -298,6 +297,20 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
                                  walkway=walkway.name, group=group, motion=clip.name,
                                  rest_pelvis=np.asarray(rest_joints[0], dtype=float)))
     return people
+
+
+#: SMPL joints whose skinning marks a vertex as part of a foot: ankles and feet.
+_FOOT_JOINTS = (7, 8, 10, 11)
+
+
+def _lowest_foot_z(body_model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray) -> np.ndarray:
+    """(F,) lowest z of the foot vertices (skinning weight > 0.5 on ankles/feet), else of the whole mesh."""
+    weights = getattr(getattr(body_model, "data", None), "weights", None)
+    if weights is not None:
+        foot = np.flatnonzero(np.asarray(weights)[:, _FOOT_JOINTS].sum(axis=1) > 0.5)
+        if len(foot) >= 8:
+            return body_model.vertices_subset(pose, betas, trans, foot)[..., 2].min(axis=-1)
+    return body_model.forward(pose, betas, trans).vertices[..., 2].min(axis=-1)
 
 
 def _collides(xy: np.ndarray, present: np.ndarray, people: list[Pedestrian], min_gap_m: float = 0.55) -> bool:

@@ -33,6 +33,7 @@ Same seed and config -> byte-identical files (NPZ members carry a fixed timestam
 from __future__ import annotations
 
 import io
+import json
 import logging
 import time
 import zipfile
@@ -43,16 +44,10 @@ import numpy as np
 import yaml
 
 from pedx_graph.config import to_dict
-from pedx_graph.data.labels2d import Label2D
+from pedx_graph.data.labels2d import Label2D, label2d_path, label2d_to_json
+from pedx_graph.data.smpl_labels import smpl_label_path, smpl_label_to_json
 from pedx_graph.data.types import SmplLabel, StereoCalibration
-from pedx_graph.data.writer import (
-    write_calibration,
-    write_label2d,
-    write_results,
-    write_scene_points,
-    write_segment,
-    write_timestamps,
-)
+from pedx_graph.data.writer import write_calibration, write_scene_points, write_segment, write_timestamps
 from pedx_graph.sim import cameras, labels, lidar
 from pedx_graph.sim.config import SimConfig
 from pedx_graph.sim.pedestrians import Pedestrian, plan_pedestrians
@@ -60,6 +55,23 @@ from pedx_graph.sim.scene import RayScene, build_scene, outward_faces
 from pedx_graph.utils import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 logger = logging.getLogger(__name__)
+
+
+def write_json_compact(path: Path, obj) -> Path:
+    """Atomic compact JSON (C encoder; ``obj`` must hold only plain Python types)."""
+    return atomic_write_bytes(path, (json.dumps(obj, separators=(",", ":")) + "\n").encode("utf-8"))
+
+
+def write_label2d(root: Path, label: Label2D) -> Path:
+    """A 2D label file in the release layout (the data package's JSON object, written compact)."""
+    path = label2d_path(root, label.sequence, label.camera, label.frame, label.tracking_id)
+    return write_json_compact(path, label2d_to_json(label))
+
+
+def write_smpl(root: Path, label: SmplLabel) -> Path:
+    """An SMPL label file in the release layout (the data package's JSON object, written compact)."""
+    return write_json_compact(smpl_label_path(root, label.sequence, label.frame, label.tracking_id),
+                              smpl_label_to_json(label))
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
@@ -235,15 +247,15 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
                     counts["segments"] += 1
                     counts["segment_points"] += int(len(index))
                     counts["segment_points_on_person"] += int(is_person.sum())
-                write_results(out, [SmplLabel(sequence=seq, frame=frame, tracking_id=tid, betas=person.betas,
-                                              pose=person.pose[k], trans=person.trans[k])])
+                write_smpl(out, SmplLabel(sequence=seq, frame=frame, tracking_id=tid, betas=person.betas,
+                                          pose=person.pose[k], trans=person.trans[k]))
                 counts["smpl_labels"] += 1
             truth_people[tid] = record
         truth_dir = out / "truth" / seq
         atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
-        atomic_write_json(truth_dir / f"{seq}_{frame:07d}.json",
-                          {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
-                           "n_dropped": sweep.n_dropped, "people": truth_people}, indent=None)
+        write_json_compact(truth_dir / f"{seq}_{frame:07d}.json",
+                           {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
+                            "n_dropped": sweep.n_dropped, "people": truth_people})
 
     for kind in ("pointclouds", "images"):
         write_timestamps(out, seq, frame_seconds, kind=kind)
