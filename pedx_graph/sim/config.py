@@ -41,15 +41,17 @@ class StereoPairConfig:
     """Viewing direction about world z: 0 = forward (+x), 90 = left (+y)."""
     pitch_deg: float = -2.0
     """Tilt of the optical axis, negative = looking down."""
-    left_camera_xyz: tuple[float, float, float] = (0.3, 0.25, -0.15)
-    """Position of the left (reference) camera's centre in the world (LiDAR) frame, metres."""
+    left_camera_xyz: tuple[float, float, float] = (0.27, 0.0, -0.08)
+    """Position of the left (reference) camera's centre in the world (LiDAR) frame, metres.  Default as in
+    KITTI's rig: 0.27 m ahead of and 0.08 m below the LiDAR, no sideways offset (the LiDAR/camera parallax
+    decides how many background points a polygon catches past the silhouette edge)."""
     rectification_deg: tuple[float, float, float] = (0.3, -0.2, 0.1)
     """Rotation vector (degrees) of ``rect_R_cam`` (``R_rect_00``): raw left camera -> rectified frame."""
 
 
 def _left_pair() -> StereoPairConfig:
     return StereoPairConfig(name=LEFT_PAIR, image_size=(3645, 2687), yaw_deg=90.0,
-                            left_camera_xyz=(-0.25, 0.5, -0.15), rectification_deg=(-0.2, 0.25, -0.15))
+                            left_camera_xyz=(0.0, 0.27, -0.08), rectification_deg=(-0.2, 0.25, -0.15))
 
 
 @dataclass
