@@ -80,8 +80,8 @@ class EstimatorContext:
         model = BodyModel.load(config.body_model or None)
         pose_prior = load_pose_prior()
         temporal_prior = load_temporal_prior()
-        pose_mixture = MaxMixture(pose_prior.weights, pose_prior.means, pose_prior.prec_chol)
-        temporal_mixture = MaxMixture(temporal_prior.weights, temporal_prior.means, temporal_prior.prec_chol)
+        pose_mixture = MaxMixture.from_gmm(pose_prior)
+        temporal_mixture = MaxMixture.from_gmm(temporal_prior)
         template = pose_prior.means[int(np.argmax(pose_prior.weights))].copy()
         rest = model.forward(np.zeros(72), np.zeros(model.num_betas), np.zeros(3)).vertices
         ids = farthest_point_subset(rest, config.chamfer_vertices, seed=0)
