@@ -52,10 +52,7 @@ def load_pose_mixture(covariance_scale: float = 1.0):
     from pedx_graph.priors import load_pose_prior
 
     prior = load_pose_prior()
-    prec_chol = getattr(prior, "prec_chol", None)
-    if prec_chol is None:
-        prec_chol = prior.precisions_cholesky
-    mixture = MaxMixture(prior.weights, prior.means, prec_chol, covariance_scale=covariance_scale)
+    mixture = MaxMixture.from_gmm(prior, covariance_scale=covariance_scale)
     return mixture, np.asarray(prior.means[int(np.argmax(prior.weights))], dtype=float).copy()
 
 
