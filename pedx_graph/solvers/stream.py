@@ -39,10 +39,13 @@ from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.build import _hip_weights, _robust, _subsample
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.graph.init import initialise_track
+from pedx_graph.graph.init import initialise_track, triangulate_frame
+from pedx_graph.keypoints import PEDX_KEYPOINTS
 from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig
 
 log = logging.getLogger(__name__)
+
+_TORSO = [PEDX_KEYPOINTS.index(name) for name in ("lsho", "rsho", "lhip", "rhip")]
 
 
 @dataclass
@@ -85,6 +88,20 @@ class FrameEstimate:
 
 
 @dataclass
+class _FrameInit:
+    """Causal initialisation of the newest frame of a track."""
+
+    world_p_centre: np.ndarray
+    """(3,) pelvis estimate, metres."""
+    world_R_body: np.ndarray
+    """(3, 3) upright orientation."""
+    heading_yaw: float
+    """Trajectory heading (rad), NaN when unknown."""
+    speed_mps: float
+    """Trajectory speed, m/s."""
+
+
+@dataclass
 class _ActiveTrack:
     sequence: str
     tracking_id: str
@@ -95,9 +112,10 @@ class _ActiveTrack:
     keys: list[FrameKeys] = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)
     factor_frames: list[int] = field(default_factory=list)
-    centres: list[np.ndarray] = field(default_factory=list)
     last_seen: float = -np.inf
     previous: tuple | None = None
+    last_pelvis: np.ndarray | None = None
+    """Pelvis of the frame before ``previous`` (constant-velocity prediction of unplaceable frames)."""
 
 
 class StreamingEstimator:
@@ -126,8 +144,7 @@ class StreamingEstimator:
                 state.kinds.append(kind)
                 state.factor_frames.append(i if kind != "shape_prior" else -1)
 
-        init = initialise_track(window, min_speed_mps=noise.heading_min_speed_mps,
-                                half_window_s=self.stream_config.heading_half_window_s)
+        init = self._causal_init(state, window)
         left = fr.left if terms.left_reprojection else None
         right = fr.right if terms.right_reprojection else None
         if left is not None or right is not None:
@@ -148,7 +165,7 @@ class StreamingEstimator:
                                               sigma_lateral_m=noise.translation_sigma_m,
                                               sigma_vertical_m=noise.translation_vertical_sigma_m),
                 "translation_prior")
-        heading, speed = float(init.heading_yaw[-1]), float(init.speed_mps[-1])
+        heading, speed = init.heading_yaw, init.speed_mps
         if terms.heading_prior and np.isfinite(heading):
             add(make_heading_prior_factor(k.root, heading, speed, sigma0_rad=noise.heading_sigma_rad,
                                           v0=noise.heading_min_speed_mps * 2,
@@ -166,11 +183,30 @@ class StreamingEstimator:
                 "shape_prior")
         return graph, init
 
+    def _causal_init(self, state: _ActiveTrack, window: Track) -> _FrameInit:
+        """Centre, orientation, heading and speed of the newest frame from the recent frames only.
+
+        A frame with neither LiDAR points nor a stereo-labelled torso (so nothing to place it) takes its
+        centre from the previous estimates (constant velocity) when the track has any; a track's first
+        frame must be placeable (``ValueError``)."""
+        newest = window.frames[-1]
+        lidar = np.asarray(newest.world_lidar_points, float).reshape(-1, 3)
+        placeable = len(lidar) >= 3 or bool(np.isfinite(triangulate_frame(window, newest)[_TORSO]).any())
+        if placeable or state.previous is None:
+            init = initialise_track(window, min_speed_mps=self.config.noise.heading_min_speed_mps,
+                                    half_window_s=self.stream_config.heading_half_window_s)
+            return _FrameInit(init.world_p_centre[-1], init.world_R_body[-1], float(init.heading_yaw[-1]),
+                              float(init.speed_mps[-1]))
+        rot, trans, _, betas = state.previous
+        pelvis = self.ctx.model.rest_joints(betas)[0] + trans
+        step = pelvis - state.last_pelvis if state.last_pelvis is not None else np.zeros(3)
+        return _FrameInit(pelvis + step, rot, float("nan"), 0.0)
+
     def _initial_values(self, state: _ActiveTrack, i: int, init) -> gtsam.Values:
         k = state.keys[i]
         values = gtsam.Values()
         if state.previous is None:
-            values.insert(k.root, gtsam.Rot3(init.world_R_body[-1]))
+            values.insert(k.root, gtsam.Rot3(init.world_R_body))
             values.insert(k.body_pose, self.ctx.template_body_pose.copy())
             betas = np.zeros(self.ctx.model.num_betas)
             values.insert(k.betas, betas)
@@ -179,7 +215,7 @@ class StreamingEstimator:
             values.insert(k.root, gtsam.Rot3(rot))
             values.insert(k.body_pose, np.asarray(body_pose))
         pelvis_rest = self.ctx.model.rest_joints(betas)[0]
-        values.insert(k.trans, np.asarray(init.world_p_centre[-1] - pelvis_rest, dtype=float))
+        values.insert(k.trans, np.asarray(init.world_p_centre - pelvis_rest, dtype=float))
         return values
 
     def _best_facing(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: FrameKeys) -> gtsam.Values:
@@ -232,7 +268,7 @@ class StreamingEstimator:
                       if fr.timestamp - f.timestamp <= self.stream_config.heading_half_window_s + 1e-9]
             graph, init = self._frame_factors(state, i, fr, Track(self.sequence, tid, window, state.calibrations))
             values = self._initial_values(state, i, init)
-            if i == 0 and not np.isfinite(init.heading_yaw[-1]):
+            if i == 0 and not np.isfinite(init.heading_yaw):
                 values = self._best_facing(graph, values, state.keys[0])
             state.smoother.add_frame(state.keys[i], graph, values)
         except Exception:
@@ -243,6 +279,8 @@ class StreamingEstimator:
                 self.active.pop(tid, None)
             raise
         state.last_seen = timestamp
+        if state.previous is not None:
+            state.last_pelvis = self.ctx.model.rest_joints(state.previous[3])[0] + state.previous[1]
         state.previous = state.smoother.frame_estimate(state.keys[i])
         seconds = time.perf_counter() - t0
         rot, trans, body_pose, betas = state.previous

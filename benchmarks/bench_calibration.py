@@ -1,0 +1,207 @@
+"""Calibration of the marginal covariances on simulated data: NEES and 95 % ellipsoid coverage.
+
+For every fitted frame (batch LM, staged, as ``pedx-graph fit``) and its joint marginal covariance
+(``pedx_graph.solvers.marginals``, chain method), with ``e`` the error of the estimate against the
+simulator's truth (same body model):
+
+* keypoints: ``NEES_k = e_k^T Sigma_k^-1 e_k`` for each of the 18 keypoints (3 dof), ``Sigma_k`` the
+  propagated keypoint covariance;
+* translation: ``NEES = e_t^T Sigma_trans^-1 e_t`` (3 dof), SMPL ``trans``;
+
+reported per distance bin (horizontal distance of the true pelvis from the LiDAR) as the mean NEES / dof
+(calibrated: 1; goal 0.8-1.25) and the fraction inside the 95 % ellipsoid (``NEES <= chi2_3(0.95) =
+7.815``; goal 92-97 %).  A consistent estimator has NEES ~ chi2_3 only if the model is right, so variants
+switch off one suspected cause at a time: ``default`` (shipped config), ``matched_noise`` (the config's
+noise set to the simulator's: 2 px visible / 8 px occluded clicks, 2 cm LiDAR range noise),
+``gaussian`` (no robust losses).
+
+    python benchmarks/bench_calibration.py [--seed 0] [--pedestrians 10] [--frames 50] [--variants ...]
+
+Writes ``bench_calibration.json`` and ``bench_calibration.md`` into ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
+from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
+from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin  # noqa: E402
+from pedx_graph.graph.build import extract_estimate  # noqa: E402
+from pedx_graph.graph.config import FitConfig  # noqa: E402
+from pedx_graph.sim.simulate import simulate  # noqa: E402
+from pedx_graph.solvers.fit import _context, solve_staged  # noqa: E402
+from pedx_graph.solvers.marginals import TRANS_SLICE, compute_marginals, keypoint_covariances  # noqa: E402
+from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
+
+CHI2_3_95 = 7.814727903251178
+
+
+def variant_config(name: str) -> FitConfig:
+    config = FitConfig()
+    if name == "default":
+        return config
+    if name == "matched_noise":
+        config.noise.keypoint_sigma_px = 2.0
+        config.noise.occluded_keypoint_sigma_px = 8.0
+        config.noise.lidar_sigma_m = 0.02
+        return config
+    if name == "gaussian":
+        config.noise.reprojection_loss = "none"
+        config.noise.lidar_loss = "none"
+        return config
+    raise ValueError(f"unknown variant {name!r}")
+
+
+def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(N,) ``e^T Sigma^-1 e`` for errors (N, 3) and covariances (N, 3, 3)."""
+    return np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+
+
+def collect(tracks, truth, config, ctx) -> dict:
+    """Per-frame NEES arrays of one variant: keypoints (N, 18), translation (N,), distances (N,)."""
+    kp_nees, tr_nees, dist, visible, kp_err = [], [], [], [], []
+    failed, seconds = 0, 0.0
+    for tr in tracks:
+        t0 = time.perf_counter()
+        try:
+            problem, values, _ = solve_staged(tr, ctx, config)
+            marg = compute_marginals(problem.graph, values, problem.keys)
+        except Exception:
+            failed += 1
+            continue
+        seconds += time.perf_counter() - t0
+        est = extract_estimate(problem, values, ctx)
+        labels = {lab.frame: lab for lab in truth.get((tr.sequence, tr.tracking_id), [])}
+        for i, fr in enumerate(tr.frames):
+            lab = labels.get(fr.frame)
+            if lab is None or marg.regularised[i]:
+                continue
+            true_kp = np.asarray(ctx.model.keypoints(lab.pose, lab.betas, lab.trans))
+            cov_kp = keypoint_covariances(ctx.model, est.pose[i], est.betas, est.trans[i],
+                                          marg.frame_covariances[i])
+            e = est.world_keypoints[i] - true_kp
+            kp_nees.append(nees(e, cov_kp))
+            kp_err.append(np.linalg.norm(e, axis=1))
+            et = est.trans[i] - lab.trans
+            tr_nees.append(float(nees(et[None], marg.frame_covariances[i][None, TRANS_SLICE, TRANS_SLICE])[0]))
+            pelvis = true_kp[[12, 13]].mean(axis=0)
+            dist.append(float(np.hypot(pelvis[0], pelvis[1])))
+            vis = np.zeros(18, bool)
+            for view in (fr.left, fr.right):
+                if view is not None:
+                    vis |= np.asarray(view.visible, bool) & view.labelled
+            visible.append(vis)
+    return {"kp_nees": np.array(kp_nees).reshape(-1, 18), "tr_nees": np.array(tr_nees), "dist": np.array(dist),
+            "visible": np.array(visible).reshape(-1, 18), "kp_err": np.array(kp_err).reshape(-1, 18),
+            "failed_tracks": failed, "fit_seconds": seconds}
+
+
+def stats(values: np.ndarray, dof: int = 3) -> dict:
+    values = np.asarray(values, float).reshape(-1)
+    if values.size == 0:
+        return {"n": 0, "mean_nees_over_dof": None, "median_nees_over_dof": None, "coverage95": None}
+    return {"n": int(values.size), "mean_nees_over_dof": float(values.mean() / dof),
+            "median_nees_over_dof": float(np.median(values) / dof),
+            "coverage95": float(np.mean(values <= CHI2_3_95))}
+
+
+def summarise(data: dict) -> dict:
+    bins = np.array([distance_bin(d) for d in data["dist"]], dtype=object)
+    out = {"frames": int(len(data["dist"])), "failed_tracks": data["failed_tracks"],
+           "fit_seconds": data["fit_seconds"],
+           "overall": {"keypoints": stats(data["kp_nees"]), "keypoints_visible": stats(data["kp_nees"][data["visible"]]),
+                       "keypoints_occluded": stats(data["kp_nees"][~data["visible"]]),
+                       "translation": stats(data["tr_nees"]),
+                       "keypoint_error_mm_mean": float(data["kp_err"].mean() * 1000) if data["kp_err"].size else None},
+           "per_distance": {}}
+    for lo, hi in DISTANCE_BINS:
+        key = f"{lo:g}-{hi:g}"
+        sel = bins == key
+        out["per_distance"][key] = {"frames": int(sel.sum()), "keypoints": stats(data["kp_nees"][sel]),
+                                    "translation": stats(data["tr_nees"][sel])}
+    # worst keypoints (mean NEES / dof)
+    if data["kp_nees"].size:
+        from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+        per_kp = data["kp_nees"].mean(axis=0) / 3
+        out["per_keypoint_mean_nees_over_dof"] = {name: float(v) for name, v in zip(PEDX_KEYPOINTS, per_kp)}
+    return out
+
+
+def _f(x, spec=".2f"):
+    return "-" if x is None else format(x, spec)
+
+
+def to_markdown(result: dict) -> str:
+    lines = ["# Calibration of the marginal covariances (simulated data)", "",
+             f"Command: `{result['command']}`  ", f"Hardware: {result['hardware']}  ",
+             f"Scene: seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames "
+             f"({result['motion']}); batch LM (staged) + chain marginals per track. NEES / dof should be 1 "
+             "(goal 0.8-1.25); coverage of the 95 % ellipsoid 92-97 %.", ""]
+    for name, res in result["variants"].items():
+        o = res["overall"]
+        lines += [f"## Variant `{name}`", "",
+                  f"{res['frames']} frames, {res['failed_tracks']} tracks failed; mean keypoint error "
+                  f"{_f(o['keypoint_error_mm_mean'], '.1f')} mm.", "",
+                  "| set | n | mean NEES/dof | median NEES/dof | 95 % coverage |", "|---|---:|---:|---:|---:|"]
+        for label, key in (("keypoints (all 18)", "keypoints"), ("keypoints labelled visible", "keypoints_visible"),
+                           ("keypoints not visible", "keypoints_occluded"), ("translation", "translation")):
+            s = o[key]
+            lines.append(f"| {label} | {s['n']} | {_f(s['mean_nees_over_dof'])} | {_f(s['median_nees_over_dof'])} | "
+                         f"{_f(None if s['coverage95'] is None else 100 * s['coverage95'], '.1f')} % |")
+        lines += ["", "| distance (m) | frames | keypoints NEES/dof | keypoints coverage | translation NEES/dof | "
+                  "translation coverage |", "|---|---:|---:|---:|---:|---:|"]
+        for key, row in res["per_distance"].items():
+            k, t = row["keypoints"], row["translation"]
+            lines.append(f"| {key} | {row['frames']} | {_f(k['mean_nees_over_dof'])} | "
+                         f"{_f(None if k['coverage95'] is None else 100 * k['coverage95'], '.1f')} % | "
+                         f"{_f(t['mean_nees_over_dof'])} | {_f(None if t['coverage95'] is None else 100 * t['coverage95'], '.1f')} % |")
+        lines.append("")
+    if result.get("notes"):
+        lines += ["## Findings", ""] + [f"- {n}" for n in result["notes"]]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--pedestrians", type=int, default=10)
+    ap.add_argument("--frames", type=int, default=50)
+    ap.add_argument("--variants", nargs="+", default=["default", "matched_noise", "gaussian"])
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    args = ap.parse_args(argv)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+    ctx = _context(FitConfig())
+    result = {"command": "python benchmarks/bench_calibration.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "hardware": hardware(), "seed": args.seed, "pedestrians": args.pedestrians, "frames": args.frames,
+              "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait", "variants": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = Path(tmp) / "scene"
+        simulate(scene, sim_config(args.pedestrians, args.frames), seed=args.seed)
+        tracks = [t for t in read_dataset(scene) if len(t.frames) >= 2]
+        truth = read_smpl_labels(scene)
+        for name in args.variants:
+            data = collect(tracks, truth, variant_config(name), ctx)
+            result["variants"][name] = summarise(data)
+            print(name, result["variants"][name]["overall"], flush=True)
+    out = Path(args.out)
+    atomic_write_json(out / "bench_calibration.json", result)
+    atomic_write_text(out / "bench_calibration.md", to_markdown(result))
+    print(to_markdown(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
