@@ -23,9 +23,12 @@ What it does (all frames and units are stated; metres throughout):
 3. Converts anny's frame (Z up, facing -Y, subject's left at +X) to SMPL's body frame (Y up, facing +Z,
    left at +X): ``smpl_p = SMPL_R_ANNY @ anny_p`` with ``SMPL_R_ANNY = [[1,0,0],[0,0,1],[0,-1,0]]``,
    and subtracts each sample's pelvis (anny ``root`` bone head), so J_pelvis(beta) ~ 0 for every shape.
-4. Decimates the mean T-pose mesh (anny topology ``anny-noeyes-notongue``, watertight, 13348 vertices)
-   to 6890 vertices with ``fast_simplification`` and carries every sample over by barycentric
-   projection of the decimated vertices onto the mean full-resolution mesh.
+4. Decimates the mean T-pose mesh (anny topology ``anny-noeyes-notongue``, watertight, 13348 vertices,
+   mirror-symmetric) to 6890 vertices: the body keeps anny's resolution, the head, fingers and toes
+   (``DETAIL_GROUPS``, by LBS weight) are decimated with ``fast_simplification`` to fixed shares of the
+   rest, on one half with the midline and seams kept, then mirrored (the result is mirror-symmetric).
+   Every sample is carried over by barycentric projection of the decimated vertices onto the mean
+   full-resolution mesh.
 5. Merges anny's 104 bone skinning weights onto SMPL's 24 joints (``BONE_TO_JOINT``), projected the
    same way; rows renormalised to sum to one.
 6. PCA over the fitting samples: ``v_template`` = mean, ``shapedirs[:, :, k] = sigma_k * u_k`` (the
@@ -126,6 +129,15 @@ def _joint_from_bones() -> dict[str, tuple[str, ...]]:
 
 #: SMPL joint name -> anny bone heads averaged for its position.
 JOINT_FROM_BONES: dict[str, tuple[str, ...]] = _joint_from_bones()
+
+#: Decimation groups: name -> (SMPL joints whose LBS weight defines the region, share of the vertex budget
+#: left after the body keeps anny's full resolution). Anny's mesh spends most vertices on the head
+#: (including the mouth cavity), the fingers and the toes; plain QEM decimation kept that imbalance.
+DETAIL_GROUPS: dict[str, tuple[tuple[str, ...], float]] = {
+    "head": (("head",), 0.55),
+    "hands": (("left_hand", "right_hand"), 0.30),
+    "feet": (("left_foot", "right_foot"), 0.15),
+}
 
 #: PedX keypoint -> SMPL joint index (the keypoints not listed are mesh vertices).
 PEDX_JOINT_IDS: dict[str, int] = {
@@ -279,15 +291,94 @@ def to_smpl_frame(anny_p: np.ndarray) -> np.ndarray:
     return anny_p @ SMPL_R_ANNY.T
 
 
-def decimate(vertices: np.ndarray, faces: np.ndarray, n_vertices: int):
-    """Decimate a closed triangle mesh to ``n_vertices`` (genus 0: F = 2V - 4); drops unused vertices."""
+def face_groups(faces: np.ndarray, joint_weights: np.ndarray) -> np.ndarray:
+    """(F,) decimation group of each face: 0 = body, k >= 1 = the k-th entry of ``DETAIL_GROUPS``.
+
+    A face joins the group with the largest LBS weight summed over its three corners
+    (``joint_weights`` (V, 24), SMPL joint order)."""
+    score = np.zeros((len(joint_weights), len(DETAIL_GROUPS) + 1))
+    for k, (joints, _) in enumerate(DETAIL_GROUPS.values(), start=1):
+        score[:, k] = joint_weights[:, [SMPL_JOINTS.index(j) for j in joints]].sum(axis=1)
+    score[:, 0] = 1.0 - score[:, 1:].sum(axis=1)
+    return np.argmax(score[faces].sum(axis=1), axis=1)
+
+
+def _decimate_patch(vertices: np.ndarray, faces: np.ndarray, n_target: int):
+    """Decimate an open patch to ``n_target`` vertices keeping its border vertices fixed.
+
+    Edge collapses keep the Euler characteristic chi = V - E + F; with b border vertices (= border edges)
+    and 3F = 2E - b, a patch of V vertices has F = 2V - b - 2 chi triangles: the decimation target.
+    Returns (vertices, faces) of the patch (unused vertices dropped).
+    """
     import fast_simplification
-    target_faces = 2 * n_vertices - 4
-    dec_v, dec_f = fast_simplification.simplify(vertices, faces.astype(np.int32), target_count=target_faces)
-    used = np.unique(dec_f)
-    remap = -np.ones(len(dec_v), dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return dec_v[used], remap[dec_f]
+    used = np.unique(faces)
+    v, f = vertices[used], np.searchsorted(used, faces)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(edges, axis=0, return_counts=True)
+    n_border = len(np.unique(uniq[count == 1]))
+    chi = len(v) - len(uniq) + len(f)
+    if n_target >= len(v):
+        return v, f
+    for extra in (0, 1, -1, 2, -2):
+        dec_v, dec_f = fast_simplification.simplify(v, f.astype(np.int32), preserve_border=True,
+                                                    target_count=2 * n_target - n_border - 2 * chi + extra)
+        kept = np.unique(dec_f)
+        if len(kept) == n_target:
+            break
+    return dec_v[kept], np.searchsorted(kept, dec_f)
+
+
+def decimate_symmetric(vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray, n_vertices: int,
+                       tol: float = 1e-6):
+    """Mirror-symmetric, region-budgeted decimation of a closed, mirror-symmetric mesh (mirror plane x = 0).
+
+    The left half (faces with a vertex at x > tol; no face may cross x = 0) is split into the face
+    ``groups`` (0 = body, k = ``DETAIL_GROUPS`` entry k). The body keeps anny's resolution; each detail
+    group is decimated with ``fast_simplification`` to its share of the remaining vertex budget, keeping
+    its border (the midline and the seams between groups) fixed, so the patches stitch back exactly
+    (shared vertices are bit-identical). The half is then mirrored (x -> -x, reversed winding) and joined
+    along the midline. ``n_vertices`` counts the whole mesh: half = (n_vertices + midline) / 2.
+    Returns (vertices (V, 3), faces (F, 3) int64); the left half's vertices come first.
+    """
+    x = vertices[:, 0]
+    fx = x[faces]
+    if np.any((fx > tol).any(axis=1) & (fx < -tol).any(axis=1)):
+        raise ValueError("a face crosses the mirror plane; symmetric decimation needs a midline edge loop")
+    left = (fx > tol).any(axis=1)
+    half_faces, half_groups = faces[left], groups[left]
+    snapped = vertices.copy()
+    snapped[np.abs(x) <= tol, 0] = 0.0
+    n_groups = len(DETAIL_GROUPS) + 1
+    member = np.zeros((len(vertices), n_groups), dtype=bool)
+    for g in range(n_groups):
+        member[np.unique(half_faces[half_groups == g]), g] = True
+    in_half = member.any(axis=1)
+    n_mid = int((in_half & (np.abs(x) <= tol)).sum())
+    shared = int((member.sum(axis=1) - 1).clip(0).sum())          # seam vertices counted twice or more
+    target_half = (n_vertices + n_mid + 1) // 2
+    n_body = int(member[:, 0].sum())
+    spare = target_half + shared - n_body
+    shares = np.array([share for _, share in DETAIL_GROUPS.values()], dtype=float)
+    targets = np.floor(spare * shares / shares.sum()).astype(int)
+    targets[0] += spare - targets.sum()
+    if spare <= 0 or np.any(targets < member[:, 1:].sum(axis=0) // 20):
+        raise ValueError(f"vertex budget {n_vertices} too small for the body at full resolution ({n_body})")
+    parts = [_decimate_patch(snapped, half_faces[half_groups == 0], n_body)]
+    parts += [_decimate_patch(snapped, half_faces[half_groups == g], int(targets[g - 1]))
+              for g in range(1, n_groups)]
+    all_v = np.vstack([p[0] for p in parts])
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts])
+    all_f = np.vstack([p[1] + o for p, o in zip(parts, offsets[:-1])])
+    half_v, first, inverse = np.unique(all_v, axis=0, return_index=True, return_inverse=True)
+    half_f = inverse.reshape(-1)[all_f]
+    mid = np.abs(half_v[:, 0]) <= tol
+    if int(mid.sum()) != n_mid:
+        raise RuntimeError(f"decimation moved midline vertices ({int(mid.sum())} of {n_mid} left)")
+    mirror_id = np.arange(len(half_v))
+    mirror_id[~mid] = len(half_v) + np.arange(int((~mid).sum()))
+    out_v = np.vstack([half_v, half_v[~mid] * np.array([-1.0, 1.0, 1.0])])
+    out_f = np.vstack([half_f, mirror_id[half_f][:, ::-1]])
+    return out_v, out_f.astype(np.int64)
 
 
 def barycentric_projection(src_vertices: np.ndarray, src_faces: np.ndarray, points: np.ndarray):
@@ -418,11 +509,12 @@ def build(args) -> tuple[dict, dict]:
 
     # Decimate the mean mesh, carry everything over by barycentric projection.
     mean_full = verts_full[:n_fit].mean(axis=0)
-    dec_v, dec_f = decimate(mean_full, faces_full, args.n_vertices)
+    weights_full = merge_weights(data["bone_weights"], labels)
+    dec_v, dec_f = decimate_symmetric(mean_full, faces_full, face_groups(faces_full, weights_full), args.n_vertices)
     tri, bary, proj_dist = barycentric_projection(mean_full, faces_full, dec_v)
     corners = faces_full[tri]                                       # (V, 3) full-mesh vertex ids
     verts = np.einsum("vk,nvkd->nvd", bary, verts_full[:, corners])   # (N, V, 3)
-    weights = np.einsum("vk,vkj->vj", bary, merge_weights(data["bone_weights"], labels)[corners])
+    weights = np.einsum("vk,vkj->vj", bary, weights_full[corners])
     weights /= weights.sum(axis=1, keepdims=True)
 
     # PCA shape space on the fitting samples.
