@@ -70,7 +70,7 @@ def lm_track(track, config, ctx) -> tuple[TrackResult, dict]:
     fields, _ = marginals_to_fields(marg, est, ctx.model)
     chain_s = time.perf_counter() - t1
     timing = {"frames": len(track.frames), "chain_seconds": chain_s,
-              "chain_core_seconds": marg.seconds, "under_constrained": int(sum(f["covariance_status"] != "ok"
+              "chain_core_seconds": marg.seconds, "linearize_seconds": marg.linearize_seconds, "under_constrained": int(sum(f["covariance_status"] != "ok"
                                                                              for f in fields))}
     return result, timing
 
@@ -177,6 +177,7 @@ def main(argv=None) -> int:
         causal = evaluate(work / "isam" / "causal", scene)["overall"]
     marg_frames = sum(r["frames"] for r in marg_rows)
     marg_ms = 1000.0 * sum(r["chain_seconds"] for r in marg_rows) / marg_frames
+    marg_lin_ms = 1000.0 * sum(r["linearize_seconds"] for r in marg_rows) / marg_frames
     lat = stream_summary.get("update_ms", {})
     lm_all, isam_all = table_all
     lm_sub, _, admm_row = table_sub
@@ -185,12 +186,13 @@ def main(argv=None) -> int:
             "speedup": admm_row["ms_per_frame"] / lm_sub["ms_per_frame"] if admm_row else None,
             "lm_global_mm": lm_sub["global_mm"], "admm_global_mm": admm_row["global_mm"] if admm_row else None},
         "isam_update_median_ms_le_10": {"median_ms": lat.get("median"), "cpu_median_ms": lat.get("cpu_median"),
-                                        "p90_ms": lat.get("p90")},
+                                        "p90_ms": lat.get("p90"), "isam_only_median_ms": lat.get("isam_update_median"),
+                                        "isam_only_p90_ms": lat.get("isam_update_p90")},
         "streamed_final_within_5pct_of_batch": {
             "batch_global_mm": lm_all["global_mm"], "streamed_global_mm": isam_all["global_mm"],
             "ratio": isam_all["global_mm"] / lm_all["global_mm"], "causal_global_mm": causal["global_mm"],
             "causal_root_relative_mm": causal["root_relative_mm"]},
-        "marginals_le_5ms_per_frame": {"chain_ms_per_frame": marg_ms,
+        "marginals_le_5ms_per_frame": {"chain_ms_per_frame": marg_ms, "linearize_ms_per_frame": marg_lin_ms,
                                        "gtsam_ms_per_frame": 1000 * gtsam_ref["gtsam_seconds"] / gtsam_ref["frames"],
                                        "gtsam_reference_track_frames": gtsam_ref["frames"]},
     }
@@ -249,8 +251,11 @@ def to_markdown(result: dict) -> str:
               f"| graph >= 10x faster than ADMM at equal or lower MPJPE | speed-up "
               f"{_fmt(g['graph_10x_faster_than_admm']['speedup'])}x; MPJPE LM {_fmt(g['graph_10x_faster_than_admm']['lm_global_mm'])} "
               f"vs ADMM {_fmt(g['graph_10x_faster_than_admm']['admm_global_mm'])} mm | {g['graph_10x_faster_than_admm']['met']} |",
-              f"| iSAM2 update <= 10 ms median per pedestrian-frame | median {_fmt(g['isam_update_median_ms_le_10']['median_ms'])} ms "
-              f"(CPU {_fmt(g['isam_update_median_ms_le_10']['cpu_median_ms'])} ms), p90 {_fmt(g['isam_update_median_ms_le_10']['p90_ms'])} ms "
+              f"| iSAM2 update <= 10 ms median per pedestrian-frame | whole per-frame update (factors + presolve + iSAM2): "
+              f"median {_fmt(g['isam_update_median_ms_le_10']['median_ms'])} ms "
+              f"(CPU {_fmt(g['isam_update_median_ms_le_10']['cpu_median_ms'])} ms), p90 {_fmt(g['isam_update_median_ms_le_10']['p90_ms'])} ms; "
+              f"`ISAM2.update` alone: median {_fmt(g['isam_update_median_ms_le_10']['isam_only_median_ms'])} ms, "
+              f"p90 {_fmt(g['isam_update_median_ms_le_10']['isam_only_p90_ms'])} ms "
               f"| {g['isam_update_median_ms_le_10']['met']} |",
               f"| final streamed estimate within 5 % of batch MPJPE | {_fmt(g['streamed_final_within_5pct_of_batch']['streamed_global_mm'])} vs "
               f"{_fmt(g['streamed_final_within_5pct_of_batch']['batch_global_mm'])} mm (ratio {_fmt(g['streamed_final_within_5pct_of_batch']['ratio'], '.3f')}); "
@@ -258,6 +263,8 @@ def to_markdown(result: dict) -> str:
               f"{_fmt(g['streamed_final_within_5pct_of_batch']['causal_root_relative_mm'])} mm root-rel. | "
               f"{g['streamed_final_within_5pct_of_batch']['met']} |",
               f"| marginals <= 5 ms per frame | chain {_fmt(g['marginals_le_5ms_per_frame']['chain_ms_per_frame'], '.2f')} ms/frame "
+              f"including {_fmt(g['marginals_le_5ms_per_frame']['linearize_ms_per_frame'], '.2f')} ms/frame to linearise the graph at "
+              "the estimate and the keypoint propagation "
               f"(gtsam.Marginals {_fmt(g['marginals_le_5ms_per_frame']['gtsam_ms_per_frame'], '.1f')} ms/frame on a "
               f"{g['marginals_le_5ms_per_frame']['gtsam_reference_track_frames']}-frame track) | {g['marginals_le_5ms_per_frame']['met']} |"]
     return "\n".join(lines) + "\n"

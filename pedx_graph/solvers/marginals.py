@@ -98,6 +98,8 @@ class TrackMarginals:
     """(T,) bool: the frame's information block needed the diffuse regulariser."""
     seconds: float = 0.0
     method: str = "chain"
+    linearize_seconds: float = 0.0
+    """Part of ``seconds`` spent linearising the graph (the factor callbacks; chain method)."""
 
     @property
     def shape_covariance(self) -> np.ndarray:
@@ -260,6 +262,7 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
         raise ValueError(f"marginals method must be 'chain' or 'gtsam', got {config.method!r}")
     t0 = time.perf_counter()
     linear = graph.linearize(values)
+    t_lin = time.perf_counter() - t0
     try:
         info = chain_information(linear, keys, num_betas)
     except NotAChainError as exc:
@@ -267,6 +270,7 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
         return gtsam_marginals(graph, values, keys, num_betas)
     out = chain_marginals(info, config.diffuse_information)
     out.seconds = time.perf_counter() - t0
+    out.linearize_seconds = t_lin
     return out
 
 
@@ -283,7 +287,7 @@ def keypoint_covariances(model, pose: np.ndarray, betas: np.ndarray, trans: np.n
     jac = model.point_jacobians(np.asarray(pose, float), np.asarray(betas, float), np.asarray(trans, float))
     full = np.concatenate([np.asarray(jac.d_root), np.asarray(jac.d_trans), np.asarray(jac.d_body_pose),
                            np.asarray(jac.d_betas)], axis=-1)                 # (18, 3, 75 + B)
-    return np.einsum("kai,ij,kbj->kab", full, frame_cov, full)
+    return np.matmul(np.matmul(full, frame_cov), np.swapaxes(full, 1, 2))
 
 
 def frame_fields(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray, frame_cov: np.ndarray,
