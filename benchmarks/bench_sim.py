@@ -112,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         "label_statistics": stats,
         "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
                     f"Python {platform.python_version()}",
+        "load_average_1min_at_end": os.getloadavg()[0],
     }
     OUT_DIR.mkdir(parents=True, exist_ok=True)
     atomic_write_json(OUT_DIR / "bench_sim.json", result)
@@ -120,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
         "# Simulator benchmark", "",
         f"Method: {result['method']}; body model `{Path(str(body.source)).name}` ({body.num_vertices} vertices, "
         f"{len(body.faces)} faces); motion: {result['motion']}.", "",
-        f"Hardware: {result['hardware']}.", "",
+        f"Hardware: {result['hardware']}; 1-min load average at the end {result['load_average_1min_at_end']:.1f} "
+        "(the machine is shared: wall times scale with the load).", "",
         "| figure | value |", "|---|---|",
         f"| pedestrians x frames | {args.pedestrians} x {args.frames} |",
         f"| total wall time | {seconds:.1f} s (target <= 60 s) |",

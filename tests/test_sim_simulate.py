@@ -184,3 +184,27 @@ def test_same_seed_same_bytes(tmp_path, body):
     assert len(digest_a) > 10
     assert digest_a == _files_digest(b)
     assert digest_a != _files_digest(c)
+
+
+def test_figure_renders(sim_run, tmp_path):
+    pytest.importorskip("matplotlib")
+    from pedx_graph.sim.figure import render_frame
+
+    out, cfg, _ = sim_run
+    png = render_frame(out, cfg.scene.first_frame + 2, tmp_path / "frame.png", dpi=40)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+
+
+def test_default_body_model_smoke(tmp_path):
+    """The shipped open model runs through the simulator (outward faces, keypoints, foot contact)."""
+    from pedx_graph.body import BodyModel, default_model_path
+
+    if not default_model_path().is_file():
+        pytest.skip("default body model file not installed")
+    body = BodyModel.load()
+    cfg = small_config(n_frames=2, n_pedestrians=4)
+    cfg.lidar.azimuth_step_deg = 0.72
+    summary = simulate(tmp_path / "out", cfg, seed=1, body_model=body)
+    assert summary["labels_2d"] > 0 and summary["smpl_labels"] > 0
+    tracks = read_dataset(tmp_path / "out")
+    assert tracks and all(len(t.tracking_id) == 32 for t in tracks)
