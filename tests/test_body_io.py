@@ -250,3 +250,16 @@ def test_provenance_roundtrip(tmp_path, synthetic_smpl_arrays):
     arrays = _copy(synthetic_smpl_arrays)
     arrays["provenance"] = np.array(json.dumps({"builder": "x", "seed": 3}))
     assert load_model_data(_write(tmp_path, arrays)).provenance == {"builder": "x", "seed": 3}
+
+
+def test_shipped_default_model_is_valid_when_present():
+    """The open default model (built by tools/build_open_body_model.py) loads with its own keypoints."""
+    if not model_module.default_model_path().is_file():
+        pytest.skip("open default model not built")
+    from pedx_graph.body.cli import model_heights
+
+    model = BodyModel.load()
+    assert model.num_joints == 24 and model.keypoint_map.source == "file"
+    assert model.provenance is not None
+    heights = model_heights(model)
+    assert 1.3 < heights["mean"] < 2.1
