@@ -83,56 +83,32 @@ def rodrigues_coefficients(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     return a, b, c
 
 
-def _add_skew(out: np.ndarray, coeff: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """``out += coeff * hat(omega)`` in place (coeff (...,), omega (..., 3))."""
-    cx, cy, cz = (coeff * omega[..., 0]), (coeff * omega[..., 1]), (coeff * omega[..., 2])
-    out[..., 0, 1] -= cz
-    out[..., 0, 2] += cy
-    out[..., 1, 0] += cz
-    out[..., 1, 2] -= cx
-    out[..., 2, 0] -= cy
-    out[..., 2, 1] += cx
-    return out
-
-
-def _outer_plus_diag(omega: np.ndarray, outer_coeff: np.ndarray, diag: np.ndarray) -> np.ndarray:
-    """``diag I + outer_coeff omega omega^T``: (..., 3, 3)."""
-    out = (outer_coeff[..., None, None] * omega[..., :, None]) * omega[..., None, :]
-    for i in range(3):
-        out[..., i, i] += diag
-    return out
-
-
 def exp_so3(omega: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``Exp(omega)`` for rotation vectors (..., 3) -> (..., 3, 3) (Rodrigues formula).
-
-    Evaluated as ``cos(t) I + sin(t)/t K + (1 - cos t)/t^2 omega omega^T`` (using ``K^2 = omega omega^T - t^2 I``).
-    """
+    """Rotation matrix ``Exp(omega)`` for rotation vectors (..., 3) -> (..., 3, 3) (Rodrigues formula)."""
     omega = np.asarray(omega, dtype=np.float64)
     a, b, _ = rodrigues_coefficients(omega)
-    cos_t = np.cos(np.sqrt(np.einsum("...i,...i->...", omega, omega)))
-    return _add_skew(_outer_plus_diag(omega, b, cos_t), a, omega)
+    k = hat(omega)
+    return np.eye(3) + a[..., None, None] * k + b[..., None, None] * (k @ k)
 
 
 def right_jacobian(omega: np.ndarray) -> np.ndarray:
     """Right Jacobian ``J_r(omega)`` (..., 3) -> (..., 3, 3).
 
     ``J_r = I - (1 - cos t)/t^2 K + (t - sin t)/t^3 K^2`` with ``K = hat(omega)``; so that
-    ``Exp(omega + d) ~= Exp(omega) Exp(J_r d)`` to first order in ``d``.  ``J_r(0) = I``.  Evaluated as
-    ``(1 - c t^2) I - b K + c omega omega^T`` (``b, c`` from :func:`rodrigues_coefficients`).
+    ``Exp(omega + d) ~= Exp(omega) Exp(J_r d)`` to first order in ``d``.  ``J_r(0) = I``.
     """
-    omega = np.asarray(omega, dtype=np.float64)
     return exp_and_right_jacobian(omega)[1]
 
 
 def exp_and_right_jacobian(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(exp_so3(omega), right_jacobian(omega))`` sharing the coefficient evaluation."""
+    """``(exp_so3(omega), right_jacobian(omega))`` sharing ``K``, ``K^2`` and the coefficients."""
     omega = np.asarray(omega, dtype=np.float64)
     a, b, c = rodrigues_coefficients(omega)
-    theta2 = np.einsum("...i,...i->...", omega, omega)
-    rot = _add_skew(_outer_plus_diag(omega, b, np.cos(np.sqrt(theta2))), a, omega)
-    jr = _add_skew(_outer_plus_diag(omega, c, 1.0 - c * theta2), -b, omega)
-    return rot, jr
+    k = hat(omega)
+    k2 = k @ k
+    b = b[..., None, None]
+    eye = np.eye(3)
+    return eye + a[..., None, None] * k + b * k2, eye - b * k + c[..., None, None] * k2
 
 
 def left_jacobian(omega: np.ndarray) -> np.ndarray:
