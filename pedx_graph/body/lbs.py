@@ -37,7 +37,10 @@ def blend_shapes(betas: np.ndarray, shapedirs: np.ndarray) -> np.ndarray:
 
 
 def vertices2joints(j_regressor, vertices: np.ndarray) -> np.ndarray:
-    """Joint locations ``J_regressor @ vertices``: regressor (J, V) dense or scipy-sparse, vertices (..., V, 3) -> (..., J, 3)."""
+    """Joint locations ``J_regressor @ vertices``.
+
+    j_regressor (J, V) dense or scipy-sparse, vertices (..., V, 3) -> (..., J, 3).
+    """
     vertices = np.asarray(vertices, dtype=np.float64)
     lead = vertices.shape[:-2]
     num_v = vertices.shape[-2]
