@@ -168,6 +168,11 @@ class SceneConfig:
     """Body shapes: betas ~ N(0, I) clipped to +-beta_clip."""
     crosswalk_prob: float = 0.6
     """Probability that a group walks on a crosswalk (else along a sidewalk)."""
+    distance_mean_m: float = 20.0
+    """Soft target of the distance distribution (PedX: mean ~20 m): a group's candidate position at distance
+    d is accepted with probability ``exp(-(d - mean)^2 / (2 std^2))``."""
+    distance_std_m: float = 10.0
+    """Width of that soft target, metres (<= 0 disables the weighting)."""
 
 
 @dataclass

@@ -275,6 +275,9 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
             anchor_xy = walkway.start_xy + along * d + across * np.array([-d[1], d[0]])
             dist = float(np.hypot(*anchor_xy))
             ok_range = lab.min_distance_m + 1.0 <= dist <= lab.max_distance_m - 1.0
+            if new_group and sc.distance_std_m > 0:
+                accept = np.exp(-0.5 * ((dist - sc.distance_mean_m) / sc.distance_std_m) ** 2)
+                ok_range &= bool(rng.random() < accept)
             if not (ok_range and _in_some_view(anchor_xy, config)) and attempt < 199:
                 continue
             heading = float(np.arctan2(sign * d[1], sign * d[0]))
