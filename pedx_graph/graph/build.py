@@ -127,6 +127,16 @@ def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.n
     return points
 
 
+def core_points(world_points: np.ndarray, radius_m: float = 0.5) -> np.ndarray:
+    """The instance points within ``radius_m`` (horizontally) of their median: the 2D polygons also pick up
+    background and other people's points, which would drag a plain mean (paper Eq. 2) by metres."""
+    if len(world_points) < 3:
+        return world_points
+    median = np.median(world_points, axis=0)
+    keep = np.linalg.norm(world_points[:, :2] - median[:2], axis=1) <= radius_m
+    return world_points[keep] if keep.any() else world_points
+
+
 def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
                       yaw_override: np.ndarray | None = None,
                       initial: gtsam.Values | None = None) -> TrackProblem:
@@ -140,7 +150,8 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     noise, terms = config.noise, config.terms
     model = ctx.model
     nb = model.num_betas
-    init = initialise_track(track, min_speed_mps=noise.heading_min_speed_mps)
+    init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
+                            min_speed_mps=noise.heading_min_speed_mps)
     world_R_body = init.world_R_body if yaw_override is None else world_R_body_from_yaw(yaw_override)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
@@ -176,8 +187,8 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
             add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
                                           robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
                                           candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer", i)
-        if terms.translation_prior and len(points) >= 3:
-            add(make_translation_prior_factor(k.trans, k.betas, model, points, num_betas=nb,
+        if terms.translation_prior and len(points):
+            add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points), num_betas=nb,
                                               depth_offset_m=noise.translation_depth_offset_m,
                                               sigma_ray_m=noise.translation_ray_sigma_m,
                                               sigma_lateral_m=noise.translation_sigma_m,

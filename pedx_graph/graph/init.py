@@ -11,6 +11,7 @@ A single-frame track (no trajectory) gets a torso-only orientation search in :mo
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,43 +114,93 @@ def _smoothed_velocity(times: np.ndarray, points: np.ndarray, half_window_s: flo
     return vel
 
 
-def initialise_track(track: Track, *, centre_height_m: float = 0.0, half_window_s: float = 0.35,
-                     min_speed_mps: float = 0.3) -> TrackInit:
-    """Initial orientation and centre of every frame of ``track``.
+def _centre_pixel(frame: TrackFrame) -> tuple[np.ndarray, str] | None:
+    """Image position of the body centre: the hips' mid-point (else the torso joints' mean) in the left
+    image, else in the right image; returns (uv, "left"|"right") or None."""
+    for view, side in ((frame.left, "left"), (frame.right, "right")):
+        if view is None:
+            continue
+        kp = view.keypoints
+        hips = kp[[_IDX["lhip"], _IDX["rhip"]]]
+        if np.all(np.isfinite(hips)):
+            return hips.mean(axis=0), side
+        torso = kp[[_IDX["lsho"], _IDX["rsho"], _IDX["lhip"], _IDX["rhip"]]]
+        torso = torso[np.all(np.isfinite(torso), axis=1)]
+        if len(torso):
+            return torso.mean(axis=0), side
+    return None
 
-    ``centre_height_m`` is unused for LiDAR frames (the median is used as is, then corrected to the
-    triangulated hip height when both hips are triangulated).
+
+def _back_project(track: Track, frame: TrackFrame, uv: np.ndarray, side: str, depth: float) -> np.ndarray:
+    """World point at rectified depth ``depth`` on the ray of pixel ``uv`` of the left/right image."""
+    calib = track.calibrations[frame.pair]
+    f = calib.focal_px
+    cx, cy = calib.left_P_rect[0, 2], calib.left_P_rect[1, 2]
+    shift = calib.baseline_m if side == "right" else 0.0     # right camera centre at +b along rect x
+    rect_p = np.array([(uv[0] - cx) * depth / f + shift, (uv[1] - cy) * depth / f, depth])
+    world_T_rect = np.linalg.inv(calib.rect_T_world)
+    return world_T_rect[:3, :3] @ rect_p + world_T_rect[:3, 3]
+
+
+def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
+                     min_speed_mps: float = 0.3) -> TrackInit:
+    """Initial orientation and centre (pelvis) of every frame of ``track``.
+
+    Centre: on the camera ray of the labelled hips (so the image position is right), at the depth of the
+    instance's LiDAR points plus ``surface_offset_m`` (the visible surface is in front of the pelvis).
+    Stereo disparity of hand-clicked keypoints is a poor depth at range (a few pixels of independent click
+    noise are metres at 30 m), so LiDAR depth is preferred; frames without points interpolate the depth
+    over time, and a track without any LiDAR point uses the median stereo depth of its visible joints.
     """
     n = len(track.frames)
     times = np.array([fr.timestamp for fr in track.frames], dtype=float)
     centroids = _lidar_centroids(track)
     tri = np.stack([triangulate_frame(track, fr) for fr in track.frames]) if n else np.zeros((0, 18, 3))
-    hips = tri[:, [_IDX["lhip"], _IDX["rhip"]]].mean(axis=1)          # NaN unless both hips triangulated
-    torso = np.nanmean(tri[:, [_IDX["lsho"], _IDX["rsho"], _IDX["lhip"], _IDX["rhip"]]], axis=1) \
-        if n else np.zeros((0, 3))
 
-    centre = np.where(np.isfinite(centroids), centroids, np.nan)
-    # Vertical: the triangulated hips are the better pelvis height; horizontal: LiDAR when present.
-    has_hips = np.all(np.isfinite(hips), axis=1)
-    centre[has_hips, 2] = hips[has_hips, 2]
-    missing = ~np.all(np.isfinite(centre), axis=1)
-    fill = np.where(np.all(np.isfinite(hips), axis=1, keepdims=True), hips, torso)
-    centre[missing] = fill[missing]
-    still_missing = ~np.all(np.isfinite(centre), axis=1)
-    if still_missing.all():
+    depth = np.full(n, np.nan)
+    for i, fr in enumerate(track.frames):
+        if np.all(np.isfinite(centroids[i])):
+            depth[i] = track.calibrations[fr.pair].world_to_rect(centroids[i])[2] + surface_offset_m
+    if not np.isfinite(depth).any():
+        stereo_depth = np.full(n, np.nan)
+        for i, fr in enumerate(track.frames):
+            ok = np.all(np.isfinite(tri[i]), axis=1)
+            if fr.left is not None and fr.right is not None:
+                ok &= fr.left.visible & fr.right.visible
+            if ok.any():
+                stereo_depth[i] = np.median(track.calibrations[fr.pair].world_to_rect(tri[i, ok])[:, 2])
+        if np.isfinite(stereo_depth).any():
+            depth[:] = np.nanmedian(stereo_depth)      # one robust depth per track, refined by the solver
+    good = np.isfinite(depth)
+    if not good.any():
         raise ValueError(f"track {track.sequence}/{track.tracking_id}: no LiDAR points and no stereo "
                          "keypoints to place the pedestrian")
-    if still_missing.any():          # interpolate over frames with nothing to triangulate
-        good = np.flatnonzero(~still_missing)
+    depth[~good] = np.interp(times[~good], times[good], depth[good])
+
+    centre = np.full((n, 3), np.nan)
+    for i, fr in enumerate(track.frames):
+        pix = _centre_pixel(fr)
+        if pix is not None:
+            centre[i] = _back_project(track, fr, pix[0], pix[1], depth[i])
+        elif np.all(np.isfinite(centroids[i])):
+            centre[i] = centroids[i]
+    missing = ~np.all(np.isfinite(centre), axis=1)
+    if missing.all():
+        raise ValueError(f"track {track.sequence}/{track.tracking_id}: nothing places the pedestrian")
+    if missing.any():          # interpolate over frames with neither labels nor points
+        known = np.flatnonzero(~missing)
         for axis in range(3):
-            centre[still_missing, axis] = np.interp(times[still_missing], times[good], centre[good, axis])
+            centre[missing, axis] = np.interp(times[missing], times[known], centre[known, axis])
 
     vel = _smoothed_velocity(times, centre, half_window_s)
     speed = np.linalg.norm(np.nan_to_num(vel), axis=1)
     heading = np.where(np.isfinite(vel[:, 0]), np.arctan2(vel[:, 1], vel[:, 0]), np.nan)
 
     # Torso direction (body left = +X) from the triangulated shoulders/hips: forward = left x up.
-    left = np.nanmean(tri[:, list(_TORSO_LEFT)], axis=1) - np.nanmean(tri[:, list(_TORSO_RIGHT)], axis=1)
+    with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN rows: no torso this frame
+            left = np.nanmean(tri[:, list(_TORSO_LEFT)], axis=1) - np.nanmean(tri[:, list(_TORSO_RIGHT)], axis=1)
     torso_yaw = np.arctan2(-left[:, 0], left[:, 1])        # forward = (l_y, -l_x) for left = (l_x, l_y)
     yaw = np.where(speed >= min_speed_mps, heading, np.nan)
     use_torso = ~np.isfinite(yaw) & np.isfinite(torso_yaw)
