@@ -89,6 +89,11 @@ class GaussianMixturePrior:
     def dim(self) -> int:
         return int(self.means.shape[1])
 
+    @property
+    def prec_chol(self) -> np.ndarray:
+        """Alias of :attr:`precisions_cholesky` (the name ``factors.common.MaxMixture`` takes)."""
+        return self.precisions_cholesky
+
     # ------------------------------------------------------------------------------- constant terms
     @property
     def component_constants(self) -> np.ndarray:
