@@ -7,8 +7,8 @@ consensus shape ``beta``; scaled duals ``u_k``.  One ADMM iteration t:
 1. frame step, for every frame k:
    ``(x_k, beta_k) <- argmin E_k(x_k, beta_k) + rho/2 ||beta_k - beta + u_k||^2``
    where ``E_k`` is the sum of the graph's factors that involve frame k (its own terms and the temporal
-   priors to frames k - 1 and k + 1, with the neighbours held at their latest values), solved by a few
-   Levenberg-Marquardt iterations warm-started from the previous iterate.  Frames are updated in two
+   priors to frames k - 1 and k + 1, with the neighbours held at their latest values), solved to convergence
+   by Levenberg-Marquardt warm-started from the previous iterate (``inner_iterations`` caps it).  Frames are updated in two
    colours (even, then odd): frames of one colour share no factor, so they are independent (a process pool
    solves them in parallel) and the temporal coupling is a block Gauss-Seidel sweep;
 2. consensus step: ``beta <- argmin 0.5 ||beta / sigma_shape||^2 + sum_k rho/2 ||beta_k - beta + u_k||^2
@@ -48,8 +48,12 @@ class AdmmConfig:
     """Stop when rho ||beta^t - beta^{t+1}|| is below this (and the primal residuals too)."""
     max_iterations: int = 50
     """Maximum ADMM iterations."""
-    inner_iterations: int = 3
-    """Levenberg-Marquardt iterations per frame subproblem per ADMM iteration (warm-started)."""
+    inner_iterations: int = 10
+    """At most this many Levenberg-Marquardt iterations per frame subproblem and ADMM iteration (warm-started;
+    stops earlier when the error decreases by less than ``inner_relative_tol``): each frame problem is
+    solved to convergence, as in the paper.  Fewer iterations give an inexact, faster ADMM."""
+    inner_relative_tol: float = 1e-3
+    """Relative error decrease below which a frame subproblem counts as solved."""
     workers: int = 1
     """Processes solving the frames of one colour in parallel (1: in this process)."""
 
@@ -112,7 +116,8 @@ class _FrameSolver:
             values.insert(keys[i].body_pose, np.asarray(body_pose, float))
         values.insert(betas_key, np.asarray(beta_k, float))
         free = [keys[k].root, keys[k].trans, keys[k].body_pose, betas_key]
-        values, error, _ = local_lm(graph, values, free, max_iterations=self.admm.inner_iterations)
+        values, error, _ = local_lm(graph, values, free, max_iterations=self.admm.inner_iterations,
+                                    relative_tol=self.admm.inner_relative_tol)
         state = (values.atRot3(keys[k].root).matrix(), np.asarray(values.atVector(keys[k].trans), float),
                  np.asarray(values.atVector(keys[k].body_pose), float))
         return state, np.asarray(values.atVector(betas_key), float), error
