@@ -219,7 +219,7 @@ def parse_bvh(text: str, *, source: str = "<string>", drop_first_frame: bool = T
 
     take("ROOT")
     parse_joint(-1)
-    while pos < len(toks) and toks[pos][1] == "ROOT":
+    if pos < len(toks) and toks[pos][1] == "ROOT":
         raise fail("more than one ROOT is not supported")
     take("MOTION")
     take("Frames:")

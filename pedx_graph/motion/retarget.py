@@ -5,10 +5,11 @@ Rest-relative transfer
 Frame 0 of the CMU files is the converter's T-pose, close to SMPL's rest pose. For every SMPL joint j that
 has a BVH counterpart b(j) (:data:`CMU_TO_SMPL`)::
 
-    world_R_j(t) = C @ bvhworld_R_b(t) @ bvhworld_R_b(0)^T @ C^T
+    world_R_j(t) = C @ bvhworld_R_b(t) @ bvhworld_R_b(0)^T @ C^T @ A_j
 
 where ``C`` is the yaw (rotation about Y) that turns the figure's rest facing direction onto +Z (SMPL's
-forward). Joints without a counterpart inherit their parent's world rotation (local identity), except
+forward) and ``A_j`` (identity unless ``align_bones``) the smallest rotation turning the body's rest limb
+bone onto the BVH's rest bone (:func:`rest_alignment`). Joints without a counterpart inherit their parent's world rotation (local identity), except
 spine2/spine3, which split the chest rotation relative to spine1 in two equal halves
 (``spine1_R_spine2 = spine2_R_spine3 = Exp(0.5 Log(world_R_spine1^T world_R_chest))``). Local rotations are
 ``parent_R_j = world_R_parent^T world_R_j``; the 72-d pose is their axis-angle (joint 0: ``world_R_pelvis``).
@@ -327,7 +328,7 @@ def smpl_joint_positions(rest_joints: np.ndarray, body_pose_aa: np.ndarray,
 # ----------------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class RetargetJointError:
+class RetargetErrorReport:
     """Per-clip joint position error of a retargeted clip (see :func:`retarget_joint_error`)."""
 
     mean_mm: float
@@ -424,7 +425,7 @@ def bvh_rest_joints(motion: BvhMotion, scale: float = CMU_BVH_SCALE) -> np.ndarr
 
 
 def retarget_joint_error(motion: BvhMotion, rest_joints: np.ndarray, *, scale: float = CMU_BVH_SCALE,
-                         scale_bones: bool = True, align_bones: bool = True) -> RetargetJointError:
+                         scale_bones: bool = True, align_bones: bool = True) -> RetargetErrorReport:
     """Joint position error between FK of the retargeted clip and the BVH's own joints.
 
     ``rest_joints`` (24, 3): the body's rest joints (e.g. ``J(betas)`` of a body model); with
@@ -446,4 +447,4 @@ def retarget_joint_error(motion: BvhMotion, rest_joints: np.ndarray, *, scale: f
         d = np.linalg.norm(smpl_pos[:, SMPL_JOINTS.index(name)] - bvh_pos[:, motion.skeleton.index(bname)], axis=-1)
         per_joint[name] = 1000.0 * float(d.mean())
         worst = max(worst, 1000.0 * float(d.max()))
-    return RetargetJointError(float(np.mean(list(per_joint.values()))), worst, per_joint)
+    return RetargetErrorReport(float(np.mean(list(per_joint.values()))), worst, per_joint)
