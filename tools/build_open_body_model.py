@@ -75,10 +75,6 @@ LANDMARK_TOPOLOGY = "anny"
 """Full anny topology (with eyeballs) on which anny's COCO keypoint regressor is evaluated."""
 
 
-def _sides(pattern: str) -> tuple[str, str]:
-    return pattern.format(s="L"), pattern.format(s="R")
-
-
 def _bone_to_joint_table() -> dict[str, str]:
     """Anny bone label -> SMPL joint name (whose LBS weight the bone's weight is added to)."""
     table = {b: "pelvis" for b in ("root", "pelvis.L", "pelvis.R", "spine05", "spine04")}
@@ -369,7 +365,7 @@ def decimate_symmetric(vertices: np.ndarray, faces: np.ndarray, groups: np.ndarr
     all_v = np.vstack([p[0] for p in parts])
     offsets = np.cumsum([0] + [len(p[0]) for p in parts])
     all_f = np.vstack([p[1] + o for p, o in zip(parts, offsets[:-1])])
-    half_v, first, inverse = np.unique(all_v, axis=0, return_index=True, return_inverse=True)
+    half_v, inverse = np.unique(all_v, axis=0, return_inverse=True)
     half_f = inverse.reshape(-1)[all_f]
     mid = np.abs(half_v[:, 0]) <= tol
     if int(mid.sum()) != n_mid:
