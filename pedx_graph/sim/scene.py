@@ -237,7 +237,10 @@ def build_scene(config: SimConfig, rng: np.random.Generator) -> StaticScene:
                 depth = rng.uniform(8.0, 14.0)
                 height = rng.uniform(5.0, 15.0)
                 start = setback + along[axis]
-                along[axis] += size_along + rng.uniform(2.0, 6.0)
+                gap = rng.uniform(2.0, 6.0)
+                along[axis] += size_along + gap
+                # the next block along the other road starts beyond this one's depth: no overlaps
+                along[1 - axis] = max(along[1 - axis], depth + gap)
                 if axis == 0:     # along the x-running road
                     ex, ey = size_along, depth
                     center = (cx + sx * (start + size_along / 2), cy + sy * (setback + depth / 2))
@@ -314,13 +317,11 @@ def front_facing(vertices: np.ndarray, faces: np.ndarray, viewpoints: np.ndarray
     Test per viewpoint ``c``: ``n . (c - v0) > -margin * |n|`` (the margin keeps grazing triangles).
     """
     v = np.asarray(vertices, dtype=np.float64)
-    v0, v1, v2 = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
-    normal = np.cross(v1 - v0, v2 - v0)
-    norm = np.linalg.norm(normal, axis=1)
-    keep = np.zeros(len(faces), dtype=bool)
-    for c in np.atleast_2d(viewpoints):
-        keep |= np.einsum("ij,ij->i", normal, c - v0) > -margin_m * norm
-    return keep
+    v0 = v[faces[:, 0]]
+    normal = np.cross(v[faces[:, 1]] - v0, v[faces[:, 2]] - v0)
+    # n . (c - v0) for every viewpoint c: (F, K)
+    side = normal @ np.atleast_2d(viewpoints).T - np.einsum("ij,ij->i", normal, v0)[:, None]
+    return np.any(side > -margin_m * np.linalg.norm(normal, axis=1)[:, None], axis=1)
 
 
 class RayScene:
@@ -347,8 +348,13 @@ class RayScene:
             if len(tri) == 0:
                 continue
             tri = np.asarray(tri, dtype=np.int64)
+            vertices = np.asarray(vertices)
             if viewpoints is not None and len(tri) > 64:
                 tri = tri[front_facing(vertices, tri, viewpoints)]
+                used = np.zeros(len(vertices), dtype=bool)   # pass only the vertices the kept triangles use
+                used[tri.ravel()] = True
+                tri = (np.cumsum(used) - 1)[tri]
+                vertices = vertices[used]
             verts.append(np.asarray(vertices, dtype=np.float32))
             faces.append(tri + offset)
             owner.append(np.full(len(tri), object_id, dtype=np.int64))
