@@ -39,11 +39,10 @@ from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, F
 def posed_vertices(model: BodyModelLike, state: FrameState, candidate_vertex_ids: np.ndarray | None) -> np.ndarray:
     """World positions (C, 3) of the candidate vertices (all vertices when None) at ``state``.
 
-    A small candidate set (< 1/10 of the mesh) uses ``model.vertices_subset`` when the model has it; otherwise
-    the full forward pass is indexed.
+    A candidate set uses ``model.vertices_subset`` when the model has it (a batched track evaluator serves
+    it from its cache); otherwise the full forward pass is indexed.
     """
-    if (candidate_vertex_ids is not None and hasattr(model, "vertices_subset")
-            and 10 * candidate_vertex_ids.size < getattr(model, "num_vertices", 0)):
+    if candidate_vertex_ids is not None and hasattr(model, "vertices_subset"):
         return np.asarray(model.vertices_subset(state.full_pose, state.betas, state.trans, candidate_vertex_ids))
     verts = np.asarray(model.forward(state.full_pose, state.betas, state.trans).vertices)
     return verts if candidate_vertex_ids is None else verts[candidate_vertex_ids]

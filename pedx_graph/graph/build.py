@@ -30,6 +30,7 @@ from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.body import BodyModel
 from pedx_graph.data.types import Track
+from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import TrackInit, initialise_track, world_R_body_from_yaw
 from pedx_graph.keypoints import PEDX_KEYPOINTS
@@ -102,6 +103,13 @@ class TrackProblem:
     """Kind of each factor of ``graph`` (same order), e.g. ``"stereo_reprojection"``."""
     factor_frames: list[int] = field(default_factory=list)
     """Frame index (into the track) of each factor; -1 for track-level factors."""
+    body: BatchedBodyModel | None = None
+    """The batched body model the factors of this graph evaluate."""
+
+    def prefetch(self, values: gtsam.Values, jacobians: bool) -> None:
+        """Batch-evaluate the body model for every frame before the graph is linearised / evaluated."""
+        if self.body is not None:
+            self.body.prefetch(values, self.keys, jacobians)
 
 
 @dataclass
@@ -148,7 +156,7 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     if len(track.frames) == 0:
         raise ValueError(f"track {track.sequence}/{track.tracking_id} has no frames")
     noise, terms = config.noise, config.terms
-    model = ctx.model
+    model = BatchedBodyModel(ctx.model, ctx.chamfer_vertex_ids)
     nb = model.num_betas
     init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
                             min_speed_mps=noise.heading_min_speed_mps)
@@ -166,7 +174,7 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
 
     rng = np.random.default_rng(config.seed)
     betas0 = np.zeros(nb)
-    pelvis_rest = model.rest_joints(betas0)[0]
+    pelvis_rest = ctx.model.rest_joints(betas0)[0]
     keys = [FrameKeys.for_frame(i) for i in range(len(track.frames))]
     values.insert(keys[0].betas, betas0)
     hip_weights = _hip_weights(config)
@@ -210,7 +218,7 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     if initial is not None:
         values = gtsam.Values(initial)
     return TrackProblem(graph=graph, initial=values, keys=keys, init=init, factor_kinds=kinds,
-                        factor_frames=frames_of)
+                        factor_frames=frames_of, body=model)
 
 
 def extract_estimate(problem: TrackProblem, values: gtsam.Values, ctx: EstimatorContext) -> TrackEstimate:

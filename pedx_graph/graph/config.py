@@ -76,7 +76,7 @@ class SolverConfig:
     """``python``: LM driven from Python over ``graph.linearize`` (measured faster); ``gtsam``: gtsam's LM."""
     max_iterations: int = 25
     """Maximum LM iterations."""
-    relative_error_tol: float = 1e-4
+    relative_error_tol: float = 1e-3
     """Stop when the relative decrease of the error is below this."""
     lambda_initial: float = 1e-2
     """Initial LM damping."""

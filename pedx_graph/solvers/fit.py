@@ -119,13 +119,13 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
 
     if not config.terms.lidar_chamfer:
         problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
-        values, report = solve(problem.graph, problem.initial, config.solver)
+        values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch)
         return problem, values, report
     coarse_cfg = dataclasses.replace(config, terms=dataclasses.replace(config.terms, lidar_chamfer=False))
     coarse = build_track_graph(track, ctx, coarse_cfg, yaw_override=yaw_override)
-    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, config.solver)
+    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, config.solver, coarse.prefetch)
     problem = build_track_graph(track, ctx, config, initial=coarse_values)
-    values, report = solve(problem.graph, problem.initial, config.solver)
+    values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch)
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
     return problem, values, report

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import gtsam
 import numpy as np
@@ -40,15 +41,26 @@ def _tangent_dims(values: gtsam.Values) -> dict[int, int]:
     return {int(k): int(zero.at(k).shape[0]) for k in values.keys()}
 
 
+Prefetch = Callable[[gtsam.Values, bool], None]
+"""``prefetch(values, jacobians)``: called before every ``graph.linearize`` (True) / ``graph.error`` (False)."""
+
+
 def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-              config: SolverConfig | None = None) -> tuple[gtsam.Values, SolveReport]:
-    """Minimise ``graph.error`` from ``values`` with LM driven from Python; returns (estimate, report)."""
+              config: SolverConfig | None = None,
+              prefetch: Prefetch | None = None) -> tuple[gtsam.Values, SolveReport]:
+    """Minimise ``graph.error`` from ``values`` with LM driven from Python; returns (estimate, report).
+
+    ``prefetch`` lets the caller batch-evaluate what the factors will ask for (see
+    :mod:`pedx_graph.graph.batch`); it never changes the result.
+    """
     config = config or SolverConfig()
+    prefetch = prefetch or (lambda values, jacobians: None)
     t0 = time.perf_counter()
     dims = _tangent_dims(values)
     damping_models = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims.values())}
     eyes = {d: np.eye(d) for d in set(dims.values())}
     zeros = {d: np.zeros(d) for d in set(dims.values())}
+    prefetch(values, False)
     err = graph.error(values)
     initial = err
     lam = config.lambda_initial
@@ -56,6 +68,7 @@ def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     converged = False
     iterations = 0
     for iterations in range(1, config.max_iterations + 1):
+        prefetch(values, True)
         linear = graph.linearize(values)
         accepted = False
         while lam <= config.lambda_max:
@@ -69,6 +82,7 @@ def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                 lam *= 10.0
                 continue
             candidate = values.retract(delta)
+            prefetch(candidate, False)
             new_err = graph.error(candidate)
             if np.isfinite(new_err) and new_err <= err:
                 accepted = True
@@ -113,11 +127,12 @@ def gtsam_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
 
 
 def solve(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-          config: SolverConfig | None = None) -> tuple[gtsam.Values, SolveReport]:
-    """Dispatch on ``config.backend``."""
+          config: SolverConfig | None = None,
+          prefetch: Prefetch | None = None) -> tuple[gtsam.Values, SolveReport]:
+    """Dispatch on ``config.backend`` (``prefetch`` serves the Python-driven LM only)."""
     config = config or SolverConfig()
     if config.backend == "python":
-        return python_lm(graph, values, config)
+        return python_lm(graph, values, config, prefetch)
     if config.backend == "gtsam":
         return gtsam_lm(graph, values, config)
     raise ValueError(f"solver.backend must be 'python' or 'gtsam', got {config.backend!r}")
