@@ -181,6 +181,18 @@ def test_run_baseline_dispatch(model, scene):
         run_baseline("nope", track, model)
 
 
+def test_smplify_with_the_shipped_pose_prior(model, scene):
+    from pedx_graph.priors import DATA_DIR
+
+    if not (DATA_DIR / "pose_gmm.npz").is_file():
+        pytest.skip("shipped pose prior not present")
+    track, truth, _ = scene
+    short = Track(track.sequence, track.tracking_id, track.frames[:2], track.calibrations)
+    res = run_baseline("smplify_disp", short, model)
+    assert np.all(np.isfinite(res.world_keypoints))
+    assert np.linalg.norm(res.world_keypoints - truth[:2], axis=-1).mean() < 0.2
+
+
 def test_dataset_run_writes_results_that_evaluate(tmp_path, scene, synthetic_track_model_file):
     from pedx_graph.body import BodyModel
     from pedx_graph.data.reader import read_smpl_labels
