@@ -1,0 +1,106 @@
+"""End to end: simulate a small scene, fit every track (batch LM), evaluate against the ground truth."""
+import copy
+import json
+
+import numpy as np
+import pytest
+
+from pedx_graph.config import load_config
+from pedx_graph.data.reader import read_dataset, read_smpl_labels
+from pedx_graph.eval.evaluate import evaluate
+from pedx_graph.graph.build import build_track_graph, extract_estimate
+from pedx_graph.graph.config import FitConfig
+from pedx_graph.sim.config import SimConfig
+from pedx_graph.sim.simulate import simulate
+from pedx_graph.solvers.fit import _context, fit_dataset, fit_track
+from pedx_graph.solvers.lm import python_lm
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    out = tmp_path_factory.mktemp("scene")
+    cfg = SimConfig()
+    cfg.scene.n_pedestrians = 3
+    cfg.scene.n_frames = 6
+    simulate(out, cfg, seed=3)
+    return out
+
+
+@pytest.fixture(scope="module")
+def fitted(scene, tmp_path_factory):
+    out = tmp_path_factory.mktemp("results")
+    summary = fit_dataset(scene, out, FitConfig(), workers=1)
+    return out, summary
+
+
+def test_fit_writes_results_summary_and_config(scene, fitted):
+    out, summary = fitted
+    assert summary["tracks"] and not summary["failed"]
+    assert (out / "summary.json").is_file()
+    assert load_config(FitConfig, out / "fit_config.yaml") == FitConfig()
+    labels = read_smpl_labels(out)
+    truth = read_smpl_labels(scene)
+    n_tracks = len(read_dataset(scene))
+    assert len(labels) == n_tracks
+    for key, labs in labels.items():
+        assert key in truth
+        for lab in labs:
+            assert lab.pose.shape == (72,) and lab.betas.shape == (10,) and lab.trans.shape == (3,)
+            assert np.asarray(lab.extra["keypoints_3d"]).shape == (18, 3)
+    saved = json.loads((out / "summary.json").read_text())
+    assert saved["total_frames"] == sum(t["frames"] for t in saved["tracks"])
+
+
+def test_fit_is_accurate_on_simulated_scene(scene, fitted):
+    out, _ = fitted
+    report = evaluate(out, scene)
+    assert report["frames"] > 0
+    # Loose bounds (the benchmark measures the real figures): metric placement and articulation.
+    assert report["overall"]["global_mm"] < 250.0
+    assert report["overall"]["root_relative_mm"] < 120.0
+
+
+def test_fit_reduces_error_below_initialisation(scene):
+    config = FitConfig()
+    ctx = _context(config)
+    track = max(read_dataset(scene), key=len)
+    truth = {lab.frame: lab for lab in read_smpl_labels(scene)[(track.sequence, track.tracking_id)]}
+    gt = np.stack([ctx.model.keypoints(truth[f.frame].pose, truth[f.frame].betas, truth[f.frame].trans)
+                   for f in track.frames])
+    problem = build_track_graph(track, ctx, config)
+    before = extract_estimate(problem, problem.initial, ctx).world_keypoints
+    result = fit_track(track, config, ctx)
+    err_before = np.linalg.norm(before - gt, axis=-1).mean()
+    err_after = np.linalg.norm(result.world_keypoints - gt, axis=-1).mean()
+    assert err_after < err_before
+    assert result.final_error < result.initial_error
+
+
+def test_prefetch_does_not_change_the_solution(scene):
+    config = FitConfig()
+    config.terms.lidar_chamfer = True
+    ctx = _context(config)
+    track = max(read_dataset(scene), key=len)
+    problem = build_track_graph(track, ctx, config)
+    config.solver.max_iterations = 3
+    with_cache, r1 = python_lm(problem.graph, problem.initial, config.solver, problem.prefetch)
+    plain = build_track_graph(track, ctx, config)
+    without, r2 = python_lm(plain.graph, plain.initial, config.solver)
+    assert r1.final_error == pytest.approx(r2.final_error, rel=1e-9)
+    assert r1.iterations == r2.iterations
+
+
+def test_single_frame_track_and_bad_track_do_not_stop_the_run(scene, tmp_path):
+    tracks = read_dataset(scene)
+    config = FitConfig()
+    single = copy.copy(tracks[0])
+    single.frames = tracks[0].frames[:1]
+    res = fit_track(single, config)
+    assert res.world_keypoints.shape == (1, 18, 3) and np.all(np.isfinite(res.world_keypoints))
+
+    from pedx_graph.solvers.fit import fit_tracks
+    broken = copy.copy(tracks[0])
+    broken.frames = []
+    outcomes = list(fit_tracks([broken, tracks[1]], config, workers=1))
+    assert outcomes[0][0] is None and "no frames" in outcomes[0][1][2]
+    assert outcomes[1][0] is not None
