@@ -89,6 +89,7 @@ class BodyModel:
         jsd = self.j_regressor @ self.shapedirs.reshape(num_v, -1)                                 # (J, 3B)
         self._joint_shapedirs = np.asarray(jsd).reshape(len(self._parents), 3, -1)                # (J, 3, B)
         self._kp_subset = None
+        self._last_subset = None
         if keypoint_map is not None:
             if keypoint_map.vertex_ids.size:
                 self._kp_subset = self._subset(keypoint_map.vertex_ids)
@@ -201,15 +202,19 @@ class BodyModel:
 
     def _subset(self, vertex_ids: np.ndarray) -> "_VertexSubset":
         """Model arrays gathered for a few vertices (cached for the keypoint vertices)."""
-        cached = self._kp_subset
-        if cached is not None and np.array_equal(cached.vertex_ids, vertex_ids):
-            return cached
+        for cached in (self._kp_subset, self._last_subset):
+            if cached is not None and cached.vertex_ids.shape == vertex_ids.shape \
+                    and np.array_equal(cached.vertex_ids, vertex_ids):
+                return cached
         rows = (3 * vertex_ids[:, None] + np.arange(3)).ravel()
-        return _VertexSubset(
+        sub = _VertexSubset(
             vertex_ids=vertex_ids, template_flat=self._v_template_col[rows, 0],
             shapedirs_flat=self._shapedirs_flat[rows],
             posedirs_flat=None if self._posedirs_flat is None else self._posedirs_flat[rows],
             weights=self.weights[vertex_ids])
+        if len(vertex_ids) >= 64:         # large fixed sets (e.g. the chamfer candidates) are reused per call
+            self._last_subset = sub
+        return sub
 
     def _rest_points(self, sub: "_VertexSubset", betas, rot_mats):
         """Shaped + pose-corrected rest positions of a few vertices: (N, P, 3)."""
