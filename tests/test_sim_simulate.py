@@ -184,6 +184,10 @@ def test_same_seed_same_bytes(tmp_path, body):
     assert len(digest_a) > 10
     assert digest_a == _files_digest(b)
     assert digest_a != _files_digest(c)
+    with pytest.raises(FileExistsError, match="already holds"):
+        simulate(c, cfg, seed=11, body_model=body)
+    simulate(c, cfg, seed=11, body_model=body, overwrite=True)
+    assert _files_digest(c) == digest_a
 
 
 def test_figure_renders(sim_run, tmp_path):

@@ -35,6 +35,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import shutil
 import time
 import zipfile
 from dataclasses import dataclass
@@ -126,17 +127,30 @@ def _label_person_in_view(ray_scene: RayScene, view: cameras.CameraView, person:
     return _ViewLabel(view.camera, view.side, uv, vis, polygon, int(visible.sum()), area), record
 
 
+#: What :func:`simulate` writes directly under ``out_dir`` (removed first with ``overwrite=True``).
+OUTPUT_ENTRIES = ("calib", "labels", "pointclouds", "timestamps", "truth", "sim_config.yaml", "summary.json")
+
+
 def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0, body_model=None,
-             clip_source=None, progress: bool = False) -> dict:
+             clip_source=None, progress: bool = False, overwrite: bool = False) -> dict:
     """Simulate ``config.scene.n_frames`` frames into ``out_dir`` (layout in the module docstring).
 
     ``body_model``: a :class:`pedx_graph.body.BodyModel` (default: ``BodyModel.load(config.body_model)``);
     ``clip_source``: an object with ``draw(rng, n_frames, fps, rest_joints, hip_height_m, speed_mps)``
-    returning a MotionClip (default from ``config.motion``).  Returns a summary dict (counts and timing).
+    returning a MotionClip (default from ``config.motion``).  An ``out_dir`` that already holds a simulation
+    is refused (FileExistsError) unless ``overwrite`` (then :data:`OUTPUT_ENTRIES` are removed first).
+    Returns a summary dict (counts and timing).
     """
     t_start = time.perf_counter()
     config = (config or SimConfig()).validate()
     out = Path(out_dir)
+    existing = [name for name in OUTPUT_ENTRIES if (out / name).exists()]
+    if existing:
+        if not overwrite:
+            raise FileExistsError(f"{out}: already holds {existing[0]} (use overwrite=True / --overwrite)")
+        for name in existing:
+            path = out / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
     out.mkdir(parents=True, exist_ok=True)
     if body_model is None:
         from pedx_graph.body import BodyModel
