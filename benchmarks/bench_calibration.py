@@ -13,7 +13,8 @@ reported per distance bin (horizontal distance of the true pelvis from the LiDAR
 7.815``; goal 92-97 %).  A consistent estimator has NEES ~ chi2_3 only if the model is right, so variants
 switch off one suspected cause at a time: ``default`` (shipped config), ``matched_noise`` (the config's
 noise set to the simulator's: 2 px visible / 8 px occluded clicks, 2 cm LiDAR range noise),
-``gaussian`` (no robust losses).
+``gaussian`` (no robust losses), ``no_temporal_prior`` (the shipped temporal GMM favours standing
+still; see the findings).
 
     python benchmarks/bench_calibration.py [--seed 0] [--pedestrians 10] [--frames 50] [--variants ...]
 
@@ -54,6 +55,9 @@ def variant_config(name: str) -> FitConfig:
         config.noise.keypoint_sigma_px = 2.0
         config.noise.occluded_keypoint_sigma_px = 8.0
         config.noise.lidar_sigma_m = 0.02
+        return config
+    if name == "no_temporal_prior":
+        config.terms.temporal_prior = False
         return config
     if name == "gaussian":
         config.noise.reprojection_loss = "none"
@@ -177,7 +181,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--pedestrians", type=int, default=10)
     ap.add_argument("--frames", type=int, default=50)
-    ap.add_argument("--variants", nargs="+", default=["default", "matched_noise", "gaussian"])
+    ap.add_argument("--variants", nargs="+", default=["default", "matched_noise", "no_temporal_prior", "gaussian"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     from threadpoolctl import threadpool_limits

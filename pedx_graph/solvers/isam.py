@@ -43,7 +43,7 @@ class IsamConfig:
     """Hold the shape's linearisation point except on every N-th update (0: never hold)."""
     relinearize_skip: int = 10
     """Check relinearisation every N updates (gtsam ``relinearizeSkip``)."""
-    presolve_iterations: int = 4
+    presolve_iterations: int = 1
     """LM iterations on a new frame's own variables (neighbours and shape held) before it enters iSAM2, so
     one iSAM2 update per frame starts near the optimum; 0 disables."""
     finalize: str = "lm"
