@@ -94,6 +94,21 @@ def evaluate_subset(results: list, scene: Path, work: Path, name: str) -> dict:
     return evaluate(folder, scene)["overall"]
 
 
+def _public_args(args: list[str]) -> list[str]:
+    """The command-line arguments without ``--out DIR`` (no machine paths in the written results)."""
+    out, skip = [], False
+    for a in args:
+        if skip:
+            skip = False
+            continue
+        if a == "--out":
+            skip = True
+            continue
+        if not a.startswith("--out="):
+            out.append(a)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -202,12 +217,13 @@ def main(argv=None) -> int:
     goals["streamed_final_within_5pct_of_batch"]["met"] = bool(
         goals["streamed_final_within_5pct_of_batch"]["ratio"] <= 1.05)
     goals["marginals_le_5ms_per_frame"]["met"] = bool(marg_ms <= 5)
-    result = {"command": "python benchmarks/bench_solvers.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+    result = {"command": "python benchmarks/bench_solvers.py " + " ".join(_public_args(argv if argv is not None else sys.argv[1:])),
               "hardware": hardware(), "seed": args.seed, "pedestrians": args.pedestrians, "frames": args.frames,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "simulate_seconds": sim_s, "tracks": len(tracks), "lm_failed": failed,
               "isam_missing": sorted(t for _, t in fitted - common), "all_tracks": table_all,
-              "admm_subset": table_sub, "stream": {k: v for k, v in stream_summary.items() if k != "tracks"},
+              "admm_subset": table_sub,
+              "stream": {k: v for k, v in stream_summary.items() if k not in ("tracks", "dataset")},
               "marginals": {"per_track": marg_rows, "gtsam_reference": gtsam_ref}, "goals": goals}
     out = Path(args.out)
     atomic_write_json(out / "bench_solvers.json", result)

@@ -101,3 +101,18 @@ def test_diagnostics_flag_a_bad_label(ctx):
     weak = per_frame[0]["weak_directions"]
     assert weak["sigma_depth_m"] > 0 and weak["sigma_heading_rad"] > 0
     assert weak["weakest"]["dominant"] in weak["weakest"]["share"]
+
+
+def test_batched_keypoint_covariances_equal_per_frame(ctx, solved):
+    from pedx_graph.solvers.marginals import keypoint_covariances_batch
+
+    problem, values, _ = solved
+    est = extract_estimate(problem, values, ctx)
+    covs = compute_marginals(problem.graph, values, problem.keys).frame_covariances
+    batch = keypoint_covariances_batch(ctx.model, est.pose, est.betas, est.trans, covs)
+    for i in range(len(covs)):
+        np.testing.assert_allclose(batch[i], keypoint_covariances(ctx.model, est.pose[i], est.betas, est.trans[i],
+                                                                  covs[i]), rtol=1e-10, atol=1e-14)
+    linear = problem.graph.linearize(values)
+    again = compute_marginals(problem.graph, values, problem.keys, linear=linear)
+    np.testing.assert_allclose(again.frame_covariances, covs, rtol=1e-12, atol=1e-15)

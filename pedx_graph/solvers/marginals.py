@@ -252,8 +252,12 @@ def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key
 
 
 def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
-                      config: MarginalsConfig | None = None) -> TrackMarginals:
-    """Joint marginals of every frame with the shape (``config.method``; chain falls back to gtsam)."""
+                      config: MarginalsConfig | None = None,
+                      linear: gtsam.GaussianFactorGraph | None = None) -> TrackMarginals:
+    """Joint marginals of every frame with the shape (``config.method``; chain falls back to gtsam).
+
+    ``linear``: the graph already linearised at ``values`` (e.g. by the solver's last iteration), which
+    saves the factor callbacks (most of the cost)."""
     config = config or MarginalsConfig()
     num_betas = _dims_of(values, int(keys[0].betas))
     if config.method == "gtsam":
@@ -261,7 +265,7 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     if config.method != "chain":
         raise ValueError(f"marginals method must be 'chain' or 'gtsam', got {config.method!r}")
     t0 = time.perf_counter()
-    linear = graph.linearize(values)
+    linear = graph.linearize(values) if linear is None else linear
     t_lin = time.perf_counter() - t0
     try:
         info = chain_information(linear, keys, num_betas)
@@ -290,9 +294,22 @@ def keypoint_covariances(model, pose: np.ndarray, betas: np.ndarray, trans: np.n
     return np.matmul(np.matmul(full, frame_cov), np.swapaxes(full, 1, 2))
 
 
+def keypoint_covariances_batch(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
+                               frame_covs: np.ndarray) -> np.ndarray:
+    """(T, 18, 3, 3) keypoint covariances of T frames at once: pose (T, 72), betas (B,), trans (T, 3),
+    joint marginals (T, 75 + B, 75 + B)."""
+    pose = np.asarray(pose, float)
+    betas_t = np.broadcast_to(np.asarray(betas, float), (len(pose), len(betas)))
+    jac = model.point_jacobians(pose, betas_t, np.asarray(trans, float))
+    full = np.concatenate([np.asarray(jac.d_root), np.asarray(jac.d_trans), np.asarray(jac.d_body_pose),
+                           np.asarray(jac.d_betas)], axis=-1)                 # (T, 18, 3, 75 + B)
+    return np.matmul(np.matmul(full, frame_covs[:, None]), np.swapaxes(full, -1, -2))
+
+
 def frame_fields(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray, frame_cov: np.ndarray,
-                 regularised: bool, config: MarginalsConfig) -> dict:
-    """The per-frame result fields: covariances of trans, root, body pose, keypoints, and a status."""
+                 regularised: bool, config: MarginalsConfig, cov_keypoints: np.ndarray | None = None) -> dict:
+    """The per-frame result fields: covariances of trans, root, body pose, keypoints, and a status
+    (``cov_keypoints`` (18, 3, 3) when already computed)."""
     cov_trans = frame_cov[TRANS_SLICE, TRANS_SLICE]
     cov_root = frame_cov[ROOT_SLICE, ROOT_SLICE]
     sig_t = float(np.sqrt(max(np.max(np.linalg.eigvalsh(cov_trans)), 0.0)))
@@ -307,7 +324,8 @@ def frame_fields(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray, 
         cov_pose = np.stack([cov_pose[3 * j:3 * j + 3, 3 * j:3 * j + 3] for j in range(BODY_POSE_DIM // 3)])
     return {"covariance_status": status, "cov_trans": cov_trans, "cov_root": cov_root,
             "cov_body_pose": cov_pose,
-            "cov_keypoints_3d": keypoint_covariances(model, pose, betas, trans, frame_cov),
+            "cov_keypoints_3d": (keypoint_covariances(model, pose, betas, trans, frame_cov)
+                                 if cov_keypoints is None else cov_keypoints),
             "sigma_trans_max_m": sig_t, "sigma_root_max_rad": sig_r}
 
 
@@ -316,8 +334,10 @@ def marginals_to_fields(marginals: TrackMarginals, estimate, model,
     """``(extra_per_frame, extra_track)`` for :class:`TrackResult` from computed marginals and the estimate
     (``estimate``: anything with ``pose (T, 72)``, ``betas (B,)``, ``trans (T, 3)``)."""
     config = config or MarginalsConfig()
+    cov_kp = keypoint_covariances_batch(model, estimate.pose, estimate.betas, estimate.trans,
+                                        marginals.frame_covariances)
     per_frame = [frame_fields(model, estimate.pose[i], estimate.betas, estimate.trans[i],
-                              marginals.frame_covariances[i], bool(marginals.regularised[i]), config)
+                              marginals.frame_covariances[i], bool(marginals.regularised[i]), config, cov_kp[i])
                  for i in range(len(estimate.pose))]
     n_bad = int(sum(f["covariance_status"] != "ok" for f in per_frame))
     track = {"cov_betas": marginals.shape_covariance, "marginals_method": marginals.method,
