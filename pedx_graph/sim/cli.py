@@ -23,6 +23,7 @@ def register(subparsers) -> None:
                    help="clip split used with --motion-dir (default from config: holdout)")
     p.add_argument("--config", default=None, help="YAML preset (e.g. configs/sim_default.yaml)")
     p.add_argument("--body-model", default=None, help="SMPL-format .npz (default: the package's open model)")
+    p.add_argument("--workers", type=int, default=1, help="processes over frames (same files for any count)")
     p.add_argument("--overwrite", action="store_true", help="replace a simulation already in OUT")
     p.add_argument("--figure", default=None, metavar="PNG",
                    help="also render the middle frame to this PNG (needs matplotlib)")
@@ -46,7 +47,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
     if args.body_model is not None:
         config.body_model = args.body_model
     config.validate(args.config or "<command line>")
-    summary = simulate(args.out, config, seed=args.seed, progress=True, overwrite=args.overwrite)
+    summary = simulate(args.out, config, seed=args.seed, progress=True, overwrite=args.overwrite,
+                       workers=args.workers)
     if args.figure:
         from pedx_graph.sim.figure import render_frame
 

@@ -127,19 +127,149 @@ def _label_person_in_view(ray_scene: RayScene, view: cameras.CameraView, person:
     return _ViewLabel(view.camera, view.side, uv, vis, polygon, int(visible.sum()), area), record
 
 
+#: Counters of a run (summed over frames).
+COUNT_KEYS = ("labels_2d", "segments", "smpl_labels", "segment_points", "segment_points_on_person",
+              "lidar_points", "person_lidar_points")
+
+
+@dataclass
+class _FrameContext:
+    """What every frame needs (built once by :func:`simulate`; pickled once to each worker process)."""
+
+    out: Path
+    config: SimConfig
+    seed: int
+    scene: object
+    calibs: dict
+    people: list
+    body_model: object
+    faces: np.ndarray
+    directions: np.ndarray
+    views: list
+    viewpoints: np.ndarray
+
+
+_WORKER_CONTEXT: _FrameContext | None = None
+
+
+def _init_worker(ctx: _FrameContext) -> None:
+    global _WORKER_CONTEXT
+    _WORKER_CONTEXT = ctx
+
+
+def _frame_in_worker(k: int) -> dict:
+    return _simulate_frame(_WORKER_CONTEXT, k)
+
+
+def frame_rngs(seed: int, k: int) -> tuple[np.random.Generator, np.random.Generator]:
+    """The (LiDAR, labelling) random generators of frame index ``k``: independent of the worker count."""
+    return np.random.default_rng([int(seed), 1, int(k)]), np.random.default_rng([int(seed), 2, int(k)])
+
+
+def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
+    """Simulate and write frame index ``k`` (scene PLY, labels, segments, SMPL, truth); returns its counts."""
+    config, out, calibs = ctx.config, ctx.out, ctx.calibs
+    sc = config.scene
+    seq = sc.sequence
+    lidar_rng, label_rng = frame_rngs(ctx.seed, k)
+    counts = dict.fromkeys(COUNT_KEYS, 0)
+    time_s = k / sc.fps
+    frame = sc.first_frame + k
+    meshes = ctx.scene.meshes_at(time_s)
+    present = [p for p in ctx.people if p.present[k]]
+    bodies = {}
+    for person in present:
+        body = ctx.body_model.forward(person.pose[k], person.betas, person.trans[k])
+        bodies[person.tracking_id] = body
+        meshes.append((person.object_id, body.vertices, ctx.faces))
+    ray_scene = RayScene(meshes, ctx.viewpoints)
+    sweep = lidar.sweep(ray_scene, config.lidar, lidar_rng, ctx.directions)
+    scene_points = sweep.world_points
+    ply_points = scene_points
+    if config.lidar.write_dropouts_as_inf and sweep.n_dropped:
+        ply_points = np.concatenate([scene_points, np.full((sweep.n_dropped, 3), np.inf)])
+    write_scene_points(out, seq, frame, ply_points)
+    counts["lidar_points"] += len(scene_points)
+
+    truth_arrays = {"scene_points": scene_points.astype(np.float32),
+                    "scene_object_id": sweep.object_id.astype(np.int32),
+                    "scene_true_range": sweep.true_range_m.astype(np.float32)}
+    truth_people = {}
+    pair_projection = {}
+    for person in present:
+        tid = person.tracking_id
+        body = bodies[tid]
+        pelvis_xy = person.world_pelvis_xy[k]
+        distance = float(np.hypot(*pelvis_xy))
+        n_person_points = int((sweep.object_id == person.object_id).sum())
+        counts["person_lidar_points"] += n_person_points
+        record = {"distance_m": round(distance, 3), "n_lidar_points_on_person": n_person_points,
+                  "views": {}}
+        truth_arrays[f"keypoints__{tid}"] = body.keypoints
+        truth_arrays[f"joints__{tid}"] = body.joints
+        labelled_views: list[_ViewLabel] = []
+        if config.labels.min_distance_m <= distance <= config.labels.max_distance_m:
+            for view in ctx.views:
+                vl, vrec = _label_person_in_view(ray_scene, view, person, body.vertices, body.keypoints,
+                                                 config, label_rng)
+                record["views"][view.camera] = vrec
+                if vl is not None:
+                    labelled_views.append(vl)
+                    write_label2d(out, Label2D(sequence=seq, camera=vl.camera, frame=frame, tracking_id=tid,
+                                               category="pedestrian", subtype="adult",
+                                               view=labels.make_view(vl.uv, vl.visible, vl.polygon),
+                                               frame_id=frame))
+                    counts["labels_2d"] += 1
+        record["labelled"] = bool(labelled_views)
+        if labelled_views:
+            # Segment: points inside the polygon of every left image the person is labelled in.
+            seg = []
+            for vl in labelled_views:
+                if vl.side != "left":
+                    continue
+                pair_name = next(n for n in calibs if n.startswith(vl.camera + "-"))
+                if pair_name not in pair_projection:
+                    left_view = cameras.CameraView(calibs[pair_name], "left", vl.camera)
+                    pair_projection[pair_name] = left_view.project(scene_points)
+                uv, depth = pair_projection[pair_name]
+                seg.append(labels.segment_indices_from_projection(uv, depth, vl.polygon))
+            index = np.unique(np.concatenate(seg)) if seg else np.zeros(0, dtype=np.int64)
+            is_person = sweep.object_id[index] == person.object_id
+            truth_arrays[f"segment_index__{tid}"] = index.astype(np.int32)
+            truth_arrays[f"segment_is_person__{tid}"] = is_person
+            record["n_segment_points"] = int(len(index))
+            record["n_segment_points_on_person"] = int(is_person.sum())
+            if len(index):
+                write_segment(out, seq, frame, tid, scene_points[index])
+                counts["segments"] += 1
+                counts["segment_points"] += int(len(index))
+                counts["segment_points_on_person"] += int(is_person.sum())
+            write_smpl(out, SmplLabel(sequence=seq, frame=frame, tracking_id=tid, betas=person.betas,
+                                      pose=person.pose[k], trans=person.trans[k]))
+            counts["smpl_labels"] += 1
+        truth_people[tid] = record
+    truth_dir = out / "truth" / seq
+    atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
+    write_json_compact(truth_dir / f"{seq}_{frame:07d}.json",
+                       {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
+                        "n_dropped": sweep.n_dropped, "people": truth_people})
+    return counts
+
+
 #: What :func:`simulate` writes directly under ``out_dir`` (removed first with ``overwrite=True``).
 OUTPUT_ENTRIES = ("calib", "labels", "pointclouds", "timestamps", "truth", "sim_config.yaml", "summary.json")
 
 
 def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0, body_model=None,
-             clip_source=None, progress: bool = False, overwrite: bool = False) -> dict:
+             clip_source=None, progress: bool = False, overwrite: bool = False, workers: int = 1) -> dict:
     """Simulate ``config.scene.n_frames`` frames into ``out_dir`` (layout in the module docstring).
 
     ``body_model``: a :class:`pedx_graph.body.BodyModel` (default: ``BodyModel.load(config.body_model)``);
     ``clip_source``: an object with ``draw(rng, n_frames, fps, rest_joints, hip_height_m, speed_mps)``
     returning a MotionClip (default from ``config.motion``).  An ``out_dir`` that already holds a simulation
     is refused (FileExistsError) unless ``overwrite`` (then :data:`OUTPUT_ENTRIES` are removed first).
-    Returns a summary dict (counts and timing).
+    ``workers`` > 1 simulates frames in worker processes (spawned); every frame has its own random streams
+    (:func:`frame_rngs`), so the files are the same for any worker count.  Returns a summary dict.
     """
     t_start = time.perf_counter()
     config = (config or SimConfig()).validate()
@@ -157,8 +287,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         body_model = BodyModel.load(config.body_model)
     sc = config.scene
     seq = sc.sequence
-    scene_rng, ped_rng, lidar_rng, label_rng = (np.random.default_rng(s)
-                                                 for s in np.random.SeedSequence(int(seed)).spawn(4))
+    scene_rng, ped_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(2))
 
     scene = build_scene(config, scene_rng)
     calibs: dict[str, StereoCalibration] = {}
@@ -169,107 +298,42 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     for person in people:
         person.object_id = scene.add_object("pedestrian", person.tracking_id)
     rest_vertices = body_model.forward(np.zeros(72), np.zeros(body_model.num_betas)).vertices
-    faces = outward_faces(rest_vertices, body_model.faces)
-    directions = lidar.beam_directions(config.lidar)
-
     views = []
     for calib in calibs.values():
         for view in cameras.camera_views(calib):
             if view.side == "left" or config.cameras.label_right_images:
                 views.append(view)
-    # every ray starts at the LiDAR or at a camera centre: back-facing triangles are culled (RayScene)
-    viewpoints = np.stack([np.zeros(3)] + [v.world_center for calib in calibs.values()
-                                           for v in cameras.camera_views(calib)])
+    ctx = _FrameContext(
+        out=out, config=config, seed=int(seed), scene=scene, calibs=calibs, people=people,
+        body_model=body_model, faces=outward_faces(rest_vertices, body_model.faces),
+        directions=lidar.beam_directions(config.lidar), views=views,
+        # every ray starts at the LiDAR or at a camera centre: back-facing triangles are culled (RayScene)
+        viewpoints=np.stack([np.zeros(3)] + [v.world_center for calib in calibs.values()
+                                             for v in cameras.camera_views(calib)]))
 
-    counts = {"labels_2d": 0, "segments": 0, "smpl_labels": 0, "segment_points": 0,
-              "segment_points_on_person": 0, "lidar_points": 0, "person_lidar_points": 0}
-    frame_seconds: dict[int, float] = {}
-    frames_iter = range(sc.n_frames)
-    if progress:
-        from tqdm import tqdm
-        frames_iter = tqdm(frames_iter, desc="simulate", unit="frame")
-    for k in frames_iter:
-        time_s = k / sc.fps
-        frame = sc.first_frame + k
-        frame_seconds[frame] = time_s
-        meshes = scene.meshes_at(time_s)
-        present = [p for p in people if p.present[k]]
-        bodies = {}
-        for person in present:
-            body = body_model.forward(person.pose[k], person.betas, person.trans[k])
-            bodies[person.tracking_id] = body
-            meshes.append((person.object_id, body.vertices, faces))
-        ray_scene = RayScene(meshes, viewpoints)
-        sweep = lidar.sweep(ray_scene, config.lidar, lidar_rng, directions)
-        scene_points = sweep.world_points
-        ply_points = scene_points
-        if config.lidar.write_dropouts_as_inf and sweep.n_dropped:
-            ply_points = np.concatenate([scene_points, np.full((sweep.n_dropped, 3), np.inf)])
-        write_scene_points(out, seq, frame, ply_points)
-        counts["lidar_points"] += len(scene_points)
+    counts = dict.fromkeys(COUNT_KEYS, 0)
+    frame_seconds = {sc.first_frame + k: k / sc.fps for k in range(sc.n_frames)}
+    workers = max(1, min(int(workers), sc.n_frames))
+    pool = None
+    if workers > 1:
+        import multiprocessing
 
-        truth_arrays = {"scene_points": scene_points.astype(np.float32),
-                        "scene_object_id": sweep.object_id.astype(np.int32),
-                        "scene_true_range": sweep.true_range_m.astype(np.float32)}
-        truth_people = {}
-        pair_projection = {}
-        for person in present:
-            tid = person.tracking_id
-            body = bodies[tid]
-            pelvis_xy = person.world_pelvis_xy[k]
-            distance = float(np.hypot(*pelvis_xy))
-            n_person_points = int((sweep.object_id == person.object_id).sum())
-            counts["person_lidar_points"] += n_person_points
-            record = {"distance_m": round(distance, 3), "n_lidar_points_on_person": n_person_points,
-                      "views": {}}
-            truth_arrays[f"keypoints__{tid}"] = body.keypoints
-            truth_arrays[f"joints__{tid}"] = body.joints
-            labelled_views: list[_ViewLabel] = []
-            if config.labels.min_distance_m <= distance <= config.labels.max_distance_m:
-                for view in views:
-                    vl, vrec = _label_person_in_view(ray_scene, view, person, body.vertices, body.keypoints,
-                                                     config, label_rng)
-                    record["views"][view.camera] = vrec
-                    if vl is not None:
-                        labelled_views.append(vl)
-                        write_label2d(out, Label2D(sequence=seq, camera=vl.camera, frame=frame, tracking_id=tid,
-                                                   category="pedestrian", subtype="adult",
-                                                   view=labels.make_view(vl.uv, vl.visible, vl.polygon),
-                                                   frame_id=frame))
-                        counts["labels_2d"] += 1
-            record["labelled"] = bool(labelled_views)
-            if labelled_views:
-                # Segment: points inside the polygon of every left image the person is labelled in.
-                seg = []
-                for vl in labelled_views:
-                    if vl.side != "left":
-                        continue
-                    pair_name = next(n for n in calibs if n.startswith(vl.camera + "-"))
-                    if pair_name not in pair_projection:
-                        left_view = cameras.CameraView(calibs[pair_name], "left", vl.camera)
-                        pair_projection[pair_name] = left_view.project(scene_points)
-                    uv, depth = pair_projection[pair_name]
-                    seg.append(labels.segment_indices_from_projection(uv, depth, vl.polygon))
-                index = np.unique(np.concatenate(seg)) if seg else np.zeros(0, dtype=np.int64)
-                is_person = sweep.object_id[index] == person.object_id
-                truth_arrays[f"segment_index__{tid}"] = index.astype(np.int32)
-                truth_arrays[f"segment_is_person__{tid}"] = is_person
-                record["n_segment_points"] = int(len(index))
-                record["n_segment_points_on_person"] = int(is_person.sum())
-                if len(index):
-                    write_segment(out, seq, frame, tid, scene_points[index])
-                    counts["segments"] += 1
-                    counts["segment_points"] += int(len(index))
-                    counts["segment_points_on_person"] += int(is_person.sum())
-                write_smpl(out, SmplLabel(sequence=seq, frame=frame, tracking_id=tid, betas=person.betas,
-                                          pose=person.pose[k], trans=person.trans[k]))
-                counts["smpl_labels"] += 1
-            truth_people[tid] = record
-        truth_dir = out / "truth" / seq
-        atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
-        write_json_compact(truth_dir / f"{seq}_{frame:07d}.json",
-                           {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
-                            "n_dropped": sweep.n_dropped, "people": truth_people})
+        # spawned (not forked) workers: Embree's thread pool in this process must not be inherited
+        pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(ctx,))
+        results = pool.imap_unordered(_frame_in_worker, range(sc.n_frames))
+    else:
+        results = (_simulate_frame(ctx, k) for k in range(sc.n_frames))
+    try:
+        if progress:
+            from tqdm import tqdm
+            results = tqdm(results, total=sc.n_frames, desc="simulate", unit="frame")
+        for frame_counts in results:
+            for key, value in frame_counts.items():
+                counts[key] += value
+    finally:
+        if pool is not None:
+            pool.close()
+            pool.join()
 
     for kind in ("pointclouds", "images"):
         write_timestamps(out, seq, frame_seconds, kind=kind)
