@@ -116,3 +116,11 @@ def test_batched_keypoint_covariances_equal_per_frame(ctx, solved):
     linear = problem.graph.linearize(values)
     again = compute_marginals(problem.graph, values, problem.keys, linear=linear)
     np.testing.assert_allclose(again.frame_covariances, covs, rtol=1e-12, atol=1e-15)
+
+
+def test_diagnostics_summary_lists_every_frame(ctx, solved):
+    problem, values, _ = solved
+    _, track_fields = track_diagnostics(problem, values, ctx)
+    rows = track_fields["diagnostics"]["per_frame"]
+    assert [r["frame_index"] for r in rows] == list(range(len(problem.keys)))
+    assert "stereo_reprojection" in rows[0]["chi2"] and rows[0]["sigma_depth_m"] > 0

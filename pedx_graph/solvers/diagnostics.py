@@ -9,6 +9,9 @@ Residuals, per factor at the estimate (``r`` the unwhitened residual, ``Sigma^-1
 * ``outlier_rows`` = rows whose robust weight ``w(r_row) < outlier_weight`` (for Geman-McClure with scale c:
   ``|r_row| > c`` whitened), i.e. measurements the robust loss effectively switched off.
 
+The track summary (``extra_track["diagnostics"]``) repeats per frame the chi2 and outlier rows by kind and
+the weak-direction figures below (``per_frame``), so a dataset builder can scan one file.
+
 Weakest directions, per frame, from the joint marginal covariance of the frame with the shape
 (:mod:`pedx_graph.solvers.marginals`):
 
@@ -177,8 +180,19 @@ def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
         chi2 = sum(v["chi2"] for v in t.values())
         scores.append((chi2 / rows if rows else 0.0, i))
     worst = [{"frame_index": i, "chi2_per_row": s} for s, i in sorted(scores, reverse=True)[:config.worst_frames]]
+    compact = []
+    for i, f in enumerate(per_frame):
+        row = {"frame_index": i,
+               "chi2": {kind: v["chi2"] for kind, v in f["residuals"].items()},
+               "outlier_rows": {kind: v["outlier_rows"] for kind, v in f["residuals"].items() if v["outlier_rows"]}}
+        weak = f.get("weak_directions")
+        if weak is not None:
+            row.update({"sigma_depth_m": weak["sigma_depth_m"], "sigma_lateral_m": weak["sigma_lateral_m"],
+                        "sigma_heading_rad": weak["sigma_heading_rad"], "weakest": weak["weakest"]["dominant"]})
+        compact.append(row)
     summary = {"residuals": track_table, "worst_frames": worst,
-               "outlier_rows": int(sum(v["outlier_rows"] for v in track_table.values()))}
+               "outlier_rows": int(sum(v["outlier_rows"] for v in track_table.values())),
+               "per_frame": compact}
     if marginals is not None:
         sb = marginals.shape_covariance
         summary["shape_sigma_max"] = float(np.sqrt(max(np.max(np.linalg.eigvalsh(sb)), 0.0)))
