@@ -16,6 +16,7 @@ COMMAND_MODULES = (
     "pedx_graph.sim.cli",        # simulate
     "pedx_graph.priors.cli",     # train-prior
     "pedx_graph.solvers.cli",    # fit, stream
+    "pedx_graph.baselines.cli",  # baseline
     "pedx_graph.eval.cli",       # eval, report
     "pedx_graph.demo",           # demo
 )

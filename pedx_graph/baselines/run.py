@@ -21,7 +21,6 @@ import numpy as np
 from pedx_graph.baselines.smplify_disparity import SmplifyDispConfig
 from pedx_graph.config import save_config
 from pedx_graph.data.types import Track
-from pedx_graph.utils import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +124,7 @@ def fit_dataset_baseline(dataset: str | os.PathLike, out: str | os.PathLike, nam
     each track's baseline extras (e.g. how many keypoints were filled).
     """
     from pedx_graph.data.reader import read_dataset
-    from pedx_graph.data.writer import write_results
+    from pedx_graph.solvers.fit import write_outcomes
 
     _check_name(name)
     config = config or BaselineConfig()
@@ -135,21 +134,4 @@ def fit_dataset_baseline(dataset: str | os.PathLike, out: str | os.PathLike, nam
     t0 = time.perf_counter()
     tracks = read_dataset(dataset, sequences=sequences)
     summary = {"dataset": str(dataset), "baseline": name, "tracks": [], "failed": [], "workers": workers}
-    n_frames = 0
-    for result, error in run_tracks(name, tracks, config, workers):
-        if error is not None:
-            seq, tid, message, tb = error
-            log.warning("track %s/%s failed: %s", seq, tid, message)
-            summary["failed"].append({"sequence": seq, "tracking_id": tid, "error": message, "traceback": tb})
-            continue
-        write_results(out, result.to_labels())
-        n_frames += len(result.frames)
-        summary["tracks"].append({
-            "sequence": result.sequence, "tracking_id": result.tracking_id, "frames": len(result.frames),
-            "betas": result.betas, "initial_error": result.initial_error, "final_error": result.final_error,
-            "iterations": result.iterations, "seconds": result.seconds, "solver": result.solver,
-            **result.extra_track})
-    summary["total_frames"] = n_frames
-    summary["wall_seconds"] = time.perf_counter() - t0
-    atomic_write_json(out / "summary.json", summary)
-    return summary
+    return write_outcomes(run_tracks(name, tracks, config, workers), out, summary, t0)

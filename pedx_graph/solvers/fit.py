@@ -174,7 +174,6 @@ def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitC
                 workers: int = 1, sequences: list[str] | None = None) -> dict:
     """Fit every track of ``dataset`` and write results under ``out`` (PedX SMPL layout); returns the summary."""
     from pedx_graph.data.reader import read_dataset
-    from pedx_graph.data.writer import write_results
 
     config = config or FitConfig()
     out = Path(out)
@@ -183,8 +182,22 @@ def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitC
     t0 = time.perf_counter()
     tracks = read_dataset(dataset, sequences=sequences)
     summary = {"dataset": str(dataset), "tracks": [], "failed": [], "workers": workers}
+    return write_outcomes(fit_tracks(tracks, config, workers), out, summary, t0)
+
+
+def write_outcomes(outcomes, out: Path, summary: dict, t0: float) -> dict:
+    """Write every fitted track's labels under ``out`` and record it, or its failure, in ``summary``;
+    then write ``summary.json`` (atomically) and return the summary.  Shared by every solver and baseline.
+
+    ``outcomes``: iterable of (TrackResult or None, error tuple (sequence, tracking_id, message, traceback)
+    or None).
+    """
+    from pedx_graph.data.writer import write_results
+
+    summary.setdefault("tracks", [])
+    summary.setdefault("failed", [])
     n_frames = 0
-    for result, error in fit_tracks(tracks, config, workers):
+    for result, error in outcomes:
         if error is not None:
             seq, tid, message, tb = error
             log.warning("track %s/%s failed: %s", seq, tid, message)
