@@ -59,10 +59,13 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
                                   num_betas: int = 10, world_p_sensor: np.ndarray | None = None,
                                   depth_offset_m: float = 0.10, height_offset_m: float = 0.0,
                                   sigma_ray_m: float = 0.15, sigma_lateral_m: float = 0.10,
-                                  sigma_vertical_m: float = 0.25) -> gtsam.CustomFactor | None:
+                                  sigma_vertical_m: float = 0.25, robust: str = "none",
+                                  robust_scale: float = 3.0) -> gtsam.CustomFactor | None:
     """Pelvis-to-LiDAR-mean prior on ``(trans, betas)``; ``None`` when there are no points.
 
-    ``world_points`` (M, 3) metres; offsets and sigmas in metres (see the module docstring).
+    ``world_points`` (M, 3) metres; offsets and sigmas in metres (see the module docstring).  ``robust``
+    (a kernel of :func:`factors.common.make_noise`, scale in sigmas) guards against frames whose 2D polygon
+    picked up more background than person, so that the points' mean is off by metres.
     """
     pts = as_f64(world_points).reshape(-1, 3) if np.size(world_points) else np.zeros((0, 3))
     if pts.shape[0] == 0:
@@ -73,7 +76,8 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
     world_R_ray = sensor_ray_frame(mean, world_p_sensor)
     offsets = np.array([depth_offset_m, 0.0, height_offset_m], dtype=np.float64)
     pelvis_rest, pelvis_dirs = pelvis_shape_basis(model, num_betas)
-    noise = make_noise(np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m]))
+    noise = make_noise(np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m]), robust=robust,
+                       robust_scale=robust_scale)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         k = this.keys()

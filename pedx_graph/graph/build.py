@@ -200,7 +200,9 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
                                               depth_offset_m=noise.translation_depth_offset_m,
                                               sigma_ray_m=noise.translation_ray_sigma_m,
                                               sigma_lateral_m=noise.translation_sigma_m,
-                                              sigma_vertical_m=noise.translation_vertical_sigma_m),
+                                              sigma_vertical_m=noise.translation_vertical_sigma_m,
+                                              robust=_robust(noise.translation_loss),
+                                              robust_scale=noise.translation_loss_scale),
                 "translation_prior", i)
         if terms.heading_prior and np.isfinite(init.heading_yaw[i]):
             add(make_heading_prior_factor(k.root, float(init.heading_yaw[i]), float(init.speed_mps[i]),

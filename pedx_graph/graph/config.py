@@ -36,6 +36,10 @@ class NoiseConfig:
     """Translation prior along the viewing ray, metres (the visible surface is in front of the root)."""
     translation_vertical_sigma_m: float = 0.25
     """Translation prior vertically, metres (which body parts the LiDAR sees changes the points' mean height)."""
+    translation_loss: str = "cauchy"
+    """Robust loss of the translation prior: a polygon that caught mostly background moves the mean by metres."""
+    translation_loss_scale: float = 3.0
+    """Scale of the robust translation loss in whitened units."""
     translation_depth_offset_m: float = 0.10
     """The pelvis lies this far behind the mean of the visible surface along the viewing ray, metres."""
     heading_sigma_rad: float = 0.35

@@ -142,6 +142,15 @@ def _back_project(track: Track, frame: TrackFrame, uv: np.ndarray, side: str, de
     return world_T_rect[:3, :3] @ rect_p + world_T_rect[:3, 3]
 
 
+def _median_filter_nan(x: np.ndarray, half_window: int) -> np.ndarray:
+    """Running median over +-half_window samples, ignoring NaN (NaN stays NaN)."""
+    out = x.copy()
+    for i in np.flatnonzero(np.isfinite(x)):
+        window = x[max(0, i - half_window): i + half_window + 1]
+        out[i] = np.median(window[np.isfinite(window)])
+    return out
+
+
 def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
                      min_speed_mps: float = 0.3) -> TrackInit:
     """Initial orientation and centre (pelvis) of every frame of ``track``.
@@ -161,6 +170,7 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
     for i, fr in enumerate(track.frames):
         if np.all(np.isfinite(centroids[i])):
             depth[i] = track.calibrations[fr.pair].world_to_rect(centroids[i])[2] + surface_offset_m
+    depth = _median_filter_nan(depth, half_window=2)     # one frame's stray cluster must not move the start
     if not np.isfinite(depth).any():
         stereo_depth = np.full(n, np.nan)
         for i, fr in enumerate(track.frames):
