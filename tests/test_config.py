@@ -32,3 +32,9 @@ def test_presets_load():
     from pathlib import Path
     for preset in sorted((Path(__file__).resolve().parents[1] / "configs").glob("fit_*.yaml")):
         load_config(FitConfig, preset)
+
+
+def test_default_preset_mirrors_the_dataclass():
+    from pathlib import Path
+    preset = Path(__file__).resolve().parents[1] / "configs" / "fit_default.yaml"
+    assert load_config(FitConfig, preset) == FitConfig()

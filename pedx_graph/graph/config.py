@@ -86,6 +86,10 @@ class SolverConfig:
     """Initial LM damping."""
     lambda_max: float = 1e8
     """Give up increasing the damping past this."""
+    coarse_max_iterations: int = 8
+    """Iterations of the first stage (without the LiDAR chamfer term), a warm start for the full graph."""
+    coarse_relative_error_tol: float = 1e-2
+    """Relative-decrease tolerance of the first stage."""
 
 
 @dataclass

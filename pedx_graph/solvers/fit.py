@@ -123,7 +123,9 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
         return problem, values, report
     coarse_cfg = dataclasses.replace(config, terms=dataclasses.replace(config.terms, lidar_chamfer=False))
     coarse = build_track_graph(track, ctx, coarse_cfg, yaw_override=yaw_override)
-    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, config.solver, coarse.prefetch)
+    coarse_solver = dataclasses.replace(config.solver, max_iterations=config.solver.coarse_max_iterations,
+                                        relative_error_tol=config.solver.coarse_relative_error_tol)
+    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver, coarse.prefetch)
     problem = build_track_graph(track, ctx, config, initial=coarse_values)
     values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch)
     report.iterations += coarse_report.iterations
