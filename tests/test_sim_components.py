@@ -227,3 +227,33 @@ def test_cli_simulate(tmp_path, capsys):
     cfg = load_config(SimConfig, out / "sim_config.yaml")
     assert cfg.lidar.azimuth_step_deg == 0.72 and cfg.scene.n_pedestrians == 3
     assert cfg.cameras.left.name == LEFT_PAIR
+
+
+def test_embree_backends_agree():
+    """The direct Embree 4 binding and embreex (with back-face culling) give the same first hits."""
+    from pedx_graph.sim.scene import _embree4
+
+    if _embree4() is None:
+        pytest.skip("direct Embree 4 binding not available (embreex is used)")
+    cfg = SimConfig()
+    scene = build_scene(cfg, np.random.default_rng(2))
+    body = standin_body_model()
+    v = body.forward(np.zeros(72), np.zeros(10)).vertices @ np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0.0]]).T
+    meshes = scene.meshes_at(0.5) + [(100 + k, v + [8.0 + 1.5 * k, 0.4 * k - 2.0, -1.0], body.faces)
+                                     for k in range(8)]
+    viewpoints = np.array([[0.0, 0.0, 0.0], [0.27, 0.0, -0.08], [0.27, -0.5, -0.08]])
+    fast = RayScene(meshes)
+    slow = RayScene(meshes, viewpoints, backend="embreex")
+    assert fast.backend == "embree4-ctypes" and slow.backend == "embreex"
+    rng = np.random.default_rng(3)
+    dirs = rng.normal(size=(20_003, 3))
+    dirs[:, 0] = np.abs(dirs[:, 0]) * 3
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    for origin in viewpoints:
+        d_fast, id_fast = fast.cast(origin, dirs)
+        d_slow, id_slow = slow.cast(origin, dirs)
+        assert np.mean(id_fast == id_slow) > 0.9999
+        both = np.isfinite(d_fast) & np.isfinite(d_slow)
+        assert np.array_equal(np.isfinite(d_fast), np.isfinite(d_slow))
+        np.testing.assert_allclose(d_fast[both], d_slow[both], atol=1e-4)
+        assert (id_fast >= 100).sum() > 100

@@ -12,12 +12,17 @@ The capture vehicle itself is not modelled (its own returns are what ``lidar.min
 """
 from __future__ import annotations
 
+import functools
+import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from pedx_graph.sim.config import SimConfig
+
+logger = logging.getLogger(__name__)
 
 #: Object ids: the ground is always 0; other objects are numbered in creation order.
 GROUND_ID = 0
@@ -324,25 +329,180 @@ def front_facing(vertices: np.ndarray, faces: np.ndarray, viewpoints: np.ndarray
     return np.any(side > -margin_m * np.linalg.norm(normal, axis=1)[:, None], axis=1)
 
 
+def _aligned_empty(shape, dtype, align: int = 64) -> np.ndarray:
+    """An uninitialised C-contiguous array whose data pointer is ``align``-byte aligned."""
+    dtype = np.dtype(dtype)
+    count = int(np.prod(shape))
+    raw = np.empty(count * dtype.itemsize + align, dtype=np.uint8)
+    start = (-raw.ctypes.data) % align
+    return raw[start:start + count * dtype.itemsize].view(dtype).reshape(shape)
+
+
+class _Embree4:
+    """Direct ctypes binding to the Embree 4 library that the ``embreex`` wheel ships (``embreex.libs``).
+
+    Why: embreex copies vertex and index buffers element by element in Python-level code (~1.5 us per
+    triangle, most of a frame's time); here the numpy buffers are shared with Embree
+    (``rtcSetSharedGeometryBuffer``) and rays are traced in packets of 16 (``rtcIntersect16``).  Only fields
+    before ``instID`` of ``RTCHit16`` are read, and every packet gets 2 KiB, more than any Embree 4 layout
+    needs.  :func:`_embree4` self-tests the binding against known hits and returns None (embreex is used
+    instead) when the library is missing or the test fails.
+    """
+
+    PACKET = 16
+    STRIDE_WORDS = 512                  # 2 KiB per RTCRayHit16 slot (the struct is <= 1.4 KiB)
+    # word offsets of RTCRay16 / RTCHit16 fields (16 lanes each)
+    ORG_X, ORG_Y, ORG_Z, TNEAR, DIR_X, DIR_Y, DIR_Z, TIME, TFAR, MASK, ID, FLAGS = (16 * i for i in range(12))
+    NG_X, PRIM_ID, GEOM_ID, INST_ID = 192, 272, 288, 304
+    INVALID = 0xFFFFFFFF
+
+    def __init__(self, path: str):
+        import ctypes
+
+        lib = ctypes.CDLL(path)
+        vp, u32, sz = ctypes.c_void_p, ctypes.c_uint, ctypes.c_size_t
+        for name, args, res in (
+                ("rtcNewDevice", [ctypes.c_char_p], vp), ("rtcNewScene", [vp], vp),
+                ("rtcNewGeometry", [vp, u32], vp),
+                ("rtcSetSharedGeometryBuffer", [vp, u32, u32, u32, vp, sz, sz, sz], None),
+                ("rtcCommitGeometry", [vp], None), ("rtcAttachGeometry", [vp, vp], u32),
+                ("rtcReleaseGeometry", [vp], None), ("rtcCommitScene", [vp], None),
+                ("rtcReleaseScene", [vp], None), ("rtcIntersect16", [vp, vp, vp, vp], None)):
+            fn = getattr(lib, name)
+            fn.argtypes, fn.restype = args, res
+        self.lib = lib
+        self.device = lib.rtcNewDevice(None)
+        if not self.device:
+            raise OSError(f"{path}: rtcNewDevice failed")
+        self._valid = _aligned_empty(self.PACKET, np.int32)
+        self._valid[:] = -1
+
+    def build(self, vertices: np.ndarray, faces: np.ndarray) -> tuple[object, list]:
+        """A committed scene of one triangle geometry; returns (scene handle, buffers to keep alive)."""
+        lib = self.lib
+        vbuf = _aligned_empty((len(vertices) + 1, 4), np.float32)   # float3 at stride 16, one pad row
+        vbuf[:-1, :3] = vertices
+        vbuf[:, 3] = 0.0
+        vbuf[-1] = 0.0
+        ibuf = _aligned_empty((len(faces), 3), np.uint32)
+        ibuf[:] = faces
+        scene = lib.rtcNewScene(self.device)
+        geom = lib.rtcNewGeometry(self.device, 0)                         # RTC_GEOMETRY_TYPE_TRIANGLE
+        lib.rtcSetSharedGeometryBuffer(geom, 1, 0, 0x9003, vbuf.ctypes.data, 0, 16, len(vertices))  # VERTEX, FLOAT3
+        lib.rtcSetSharedGeometryBuffer(geom, 0, 0, 0x5003, ibuf.ctypes.data, 0, 12, len(faces))     # INDEX, UINT3
+        lib.rtcCommitGeometry(geom)
+        lib.rtcAttachGeometry(scene, geom)
+        lib.rtcReleaseGeometry(geom)
+        lib.rtcCommitScene(scene)
+        return scene, [vbuf, ibuf]
+
+    def release(self, scene) -> None:
+        self.lib.rtcReleaseScene(scene)
+
+    def intersect(self, scene, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) hit distance (inf = miss) and primitive id (-1 = miss) of (N, 3) float32 rays."""
+        n = len(directions)
+        n_packets = -(-n // self.PACKET)
+        pad = n_packets * self.PACKET - n
+        words = _aligned_empty((n_packets, self.STRIDE_WORDS), np.float32)
+        uwords = words.view(np.uint32)
+        lanes = lambda a: np.concatenate([a, np.zeros(pad, a.dtype)]).reshape(n_packets, self.PACKET)  # noqa: E731
+        for off, col in ((self.ORG_X, origins[:, 0]), (self.ORG_Y, origins[:, 1]), (self.ORG_Z, origins[:, 2]),
+                         (self.DIR_X, directions[:, 0]), (self.DIR_Y, directions[:, 1]),
+                         (self.DIR_Z, directions[:, 2])):
+            words[:, off:off + self.PACKET] = lanes(np.asarray(col, dtype=np.float32))
+        words[:, self.TNEAR:self.TNEAR + self.PACKET] = 0.0
+        words[:, self.TIME:self.TIME + self.PACKET] = 0.0
+        words[:, self.TFAR:self.TFAR + self.PACKET] = np.inf
+        uwords[:, self.MASK:self.MASK + self.PACKET] = self.INVALID
+        uwords[:, self.ID:self.ID + self.PACKET] = 0
+        uwords[:, self.FLAGS:self.FLAGS + self.PACKET] = 0
+        uwords[:, self.GEOM_ID:self.GEOM_ID + self.PACKET] = self.INVALID
+        uwords[:, self.INST_ID:self.INST_ID + self.PACKET] = self.INVALID
+        fn, valid = self.lib.rtcIntersect16, self._valid.ctypes.data
+        base, stride = words.ctypes.data, self.STRIDE_WORDS * 4
+        if pad:
+            # the last packet's unused lanes are switched off
+            last_valid = _aligned_empty(self.PACKET, np.int32)
+            last_valid[:] = -1
+            last_valid[self.PACKET - pad:] = 0
+        for p in range(n_packets):
+            fn(last_valid.ctypes.data if (pad and p == n_packets - 1) else valid, scene, base + p * stride, None)
+        geom = uwords[:, self.GEOM_ID:self.GEOM_ID + self.PACKET].reshape(-1)[:n]
+        hit = geom != self.INVALID
+        dist = np.where(hit, words[:, self.TFAR:self.TFAR + self.PACKET].reshape(-1)[:n].astype(np.float64), np.inf)
+        prim = np.where(hit, uwords[:, self.PRIM_ID:self.PRIM_ID + self.PACKET].reshape(-1)[:n].astype(np.int64), -1)
+        return dist, prim
+
+
+
+@functools.lru_cache(maxsize=1)
+def _embree4() -> _Embree4 | None:
+    """The ctypes Embree 4 binding if the embreex wheel's library loads and passes a self-test, else None."""
+    try:
+        import embreex
+
+        libs = sorted(Path(embreex.__file__).resolve().parent.parent.glob("embreex.libs/libembree4*.so*"))
+        if not libs:
+            return None
+        backend = _Embree4(str(libs[0]))
+        # self-test: a triangle in the plane x = 5 and a box behind it; 37 rays (a partial last packet)
+        tri_v = np.array([[5.0, -1.0, -1.0], [5.0, 1.0, -1.0], [5.0, 0.0, 1.0], [9.0, -9.0, -9.0],
+                          [9.0, 9.0, -9.0], [9.0, 0.0, 9.0]])
+        scene, keep = backend.build(tri_v, np.array([[0, 1, 2], [3, 4, 5]]))
+        rng = np.random.default_rng(0)
+        dirs = np.concatenate([[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], rng.normal(size=(35, 3))])
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        orig = np.zeros_like(dirs)
+        dist, prim = backend.intersect(scene, orig.astype(np.float32), dirs.astype(np.float32))
+        backend.release(scene)
+        del keep
+        # reference: analytic ray-triangle intersection (Moller-Trumbore)
+        ref_d, ref_p = np.full(len(dirs), np.inf), np.full(len(dirs), -1)
+        for f, (a, b, c) in enumerate(tri_v.reshape(2, 3, 3)):
+            e1, e2 = b - a, c - a
+            pvec = np.cross(dirs, e2)
+            det = pvec @ e1
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = ((orig - a) * pvec).sum(1) / det
+                qvec = np.cross(orig - a, e1)
+                v = (dirs * qvec).sum(1) / det
+                t = (qvec @ e2) / det
+            ok = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t < ref_d)
+            ref_d[ok], ref_p[ok] = t[ok], f
+        if not (np.array_equal(prim, ref_p) and np.allclose(dist, ref_d, rtol=1e-5)
+                and prim[0] == 0 and np.isclose(dist[0], 5.0) and prim[1] == -1):
+            logger.warning("Embree 4 ctypes self-test failed; using embreex (slower scene builds)")
+            return None
+        return backend
+    except Exception as exc:  # noqa: BLE001 - any failure means: use embreex
+        logger.info("Embree 4 ctypes binding unavailable (%s); using embreex", exc)
+        return None
+
+
 class RayScene:
     """Embree ray caster over a list of tagged meshes, merged into one Embree geometry.
 
     ``cast(origins, directions)`` returns, per ray, the distance to the first hit along the unit direction
     (``inf`` on a miss) and the object id of the hit mesh (-1 on a miss), looked up from the hit triangle.
     (One geometry: embreex has a fixed cost of several ms per geometry.)  Embree works in float32: hit
-    distances are accurate to ~1e-6 relative (sub-millimetre at 100 m).
+    distances are accurate to ~1e-6 relative (sub-millimetre at 100 m).  Both backends give the same hits
+    (``tests/test_sim_components.py``).
     """
 
-    def __init__(self, meshes: list[tuple[int, np.ndarray, np.ndarray]], viewpoints: np.ndarray | None = None):
-        """``meshes``: (object id, vertices (V, 3), faces (F, 3)).  ``viewpoints`` (K, 3): if given, every ray
-        will start at (or very near) one of these points and triangles facing away from all of them are
-        dropped (back-face culling: the first hit of a ray from outside a closed mesh is always a front
-        face; triangles are counter-clockwise seen from outside).  Embree is then built on about half the
-        triangles (embreex copies buffers element by element, ~1.5 us per triangle)."""
-        try:
-            from embreex import mesh_construction, rtcore_scene
-        except ImportError as exc:  # pragma: no cover - embreex is a declared dependency
-            raise ImportError("the simulator needs embreex (Embree ray casting): pip install embreex") from exc
+    def __init__(self, meshes: list[tuple[int, np.ndarray, np.ndarray]], viewpoints: np.ndarray | None = None,
+                 backend: str = "auto"):
+        """``meshes``: (object id, vertices (V, 3), faces (F, 3)).  ``backend``: ``"auto"`` (the direct
+        Embree 4 binding when it passes its self-test, else embreex), or ``"embreex"``.  ``viewpoints``
+        (K, 3), used with embreex only: every ray will start at (or very near) one of these points, so
+        triangles facing away from all of them are dropped (back-face culling: the first hit of a ray from
+        outside a closed mesh is always a front face; triangles are counter-clockwise seen from outside),
+        halving embreex's slow element-by-element buffer copy (~1.5 us per triangle)."""
+        if backend not in ("auto", "embreex"):
+            raise ValueError(f"backend must be 'auto' or 'embreex', got {backend!r}")
+        self._backend = _embree4() if backend == "auto" else None
+        if self._backend is not None:
+            viewpoints = None          # shared buffers: culling would cost about what it saves
         verts, faces, owner, offset = [], [], [], 0
         for object_id, vertices, tri in meshes:
             if len(tri) == 0:
@@ -359,12 +519,33 @@ class RayScene:
             faces.append(tri + offset)
             owner.append(np.full(len(tri), object_id, dtype=np.int64))
             offset += len(vertices)
-        self._scene = rtcore_scene.EmbreeScene()
         self._face_to_object = np.concatenate(owner + [np.array([-1], dtype=np.int64)])   # index -1 -> miss
-        if verts:
-            mesh_construction.TriangleMesh(self._scene, np.ascontiguousarray(np.concatenate(verts)),
-                                           np.ascontiguousarray(np.concatenate(faces), dtype=np.int32))
         self._empty = not verts
+        self._scene = None
+        if self._empty:
+            return
+        all_vertices = np.concatenate(verts)
+        all_faces = np.concatenate(faces)
+        if self._backend is not None:
+            self._scene, self._buffers = self._backend.build(all_vertices, all_faces)
+        else:
+            try:
+                from embreex import mesh_construction, rtcore_scene
+            except ImportError as exc:  # pragma: no cover - embreex is a declared dependency
+                raise ImportError("the simulator needs embreex (Embree ray casting): pip install embreex") from exc
+            self._scene = rtcore_scene.EmbreeScene()
+            mesh_construction.TriangleMesh(self._scene, np.ascontiguousarray(all_vertices, dtype=np.float32),
+                                           np.ascontiguousarray(all_faces, dtype=np.int32))
+
+    def __del__(self):
+        if getattr(self, "_backend", None) is not None and getattr(self, "_scene", None) is not None:
+            self._backend.release(self._scene)
+            self._scene = None
+
+    @property
+    def backend(self) -> str:
+        """``"embree4-ctypes"`` or ``"embreex"``."""
+        return "embreex" if self._backend is None else "embree4-ctypes"
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First hits of (N, 3) rays: ``(distance (N,), object_id (N,))``; directions must be unit."""
@@ -372,6 +553,9 @@ class RayScene:
         origins = np.ascontiguousarray(np.broadcast_to(np.asarray(origins, dtype=np.float32), directions.shape))
         if len(directions) == 0 or self._empty:
             return np.full(len(directions), np.inf), np.full(len(directions), -1, dtype=np.int64)
+        if self._backend is not None:
+            dist, prim = self._backend.intersect(self._scene, origins, directions)
+            return dist, self._face_to_object[prim]
         res = self._scene.run(origins, directions, output=1)
         prim = np.asarray(res["primID"], dtype=np.int64)
         hit = np.asarray(res["geomID"], dtype=np.int64) >= 0
