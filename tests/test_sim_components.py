@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+import trimesh
 
 from pedx_graph.config import ConfigError, from_dict, load_config
 from pedx_graph.sim import cameras, labels, lidar
@@ -12,8 +13,6 @@ from pedx_graph.sim.config import LEFT_PAIR, LidarConfig, SimConfig, StereoPairC
 from pedx_graph.sim.pedestrians import GaitClipSource, loop_clip, plan_pedestrians
 from pedx_graph.sim.scene import GROUND_ID, RayScene, build_scene, car_mesh
 from test_sim_standin import standin_body_model, standin_model_arrays
-
-import trimesh
 
 
 def _box_scene(center, extents, object_id=1, ground_z=None):

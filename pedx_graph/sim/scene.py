@@ -406,7 +406,10 @@ class _Embree4:
         pad = n_packets * self.PACKET - n
         words = _aligned_empty((n_packets, self.STRIDE_WORDS), np.float32)
         uwords = words.view(np.uint32)
-        lanes = lambda a: np.concatenate([a, np.zeros(pad, a.dtype)]).reshape(n_packets, self.PACKET)  # noqa: E731
+
+        def lanes(values: np.ndarray) -> np.ndarray:
+            return np.concatenate([values, np.zeros(pad, values.dtype)]).reshape(n_packets, self.PACKET)
+
         for off, col in ((self.ORG_X, origins[:, 0]), (self.ORG_Y, origins[:, 1]), (self.ORG_Z, origins[:, 2]),
                          (self.DIR_X, directions[:, 0]), (self.DIR_Y, directions[:, 1]),
                          (self.DIR_Z, directions[:, 2])):
