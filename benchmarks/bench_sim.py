@@ -4,7 +4,8 @@ Method: :func:`pedx_graph.sim.simulate` with ``SimConfig()`` (full HDL-32E-like 
 both stereo pairs, right images labelled) on the shipped open body model (``--body-model`` to override),
 procedural gait (``--motion-dir`` for BVH clips), seed 0, into a temporary folder.  Figures: wall-clock seconds
 for the whole run (planning + all frames + writing), per frame, and per phase (cProfile-free: the phases are
-timed by wrapping the simulator's entry points); label statistics from ``summary.json`` and ``truth/``
+timed by wrapping the simulator's entry points) and CPU seconds (this process + workers, less sensitive to
+other jobs on a shared machine); label statistics from ``summary.json`` and ``truth/``
 (segment precision = share of a segment's points whose ray really hit that person; visible-keypoint rate).
 Target: <= 60 s on the 2-core development machine.  Output: benchmarks/results/bench_sim.{json,md}
 (``--workers N`` > 1: bench_sim_workersN.{json,md}, without the per-phase times).
@@ -43,6 +44,15 @@ def _timed(module, name: str, totals: dict) -> None:
             totals[name] += time.perf_counter() - t0
 
     setattr(module, name, wrapper)
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds used so far by this process and its finished child processes (user + system)."""
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def label_statistics(out: Path) -> dict:
@@ -93,9 +103,10 @@ def main(argv: list[str] | None = None) -> int:
                          (sim_mod, "write_label2d"), (sim_mod, "npz_bytes")):
         _timed(module, name, totals)
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu_seconds()
         summary = simulate(Path(tmp) / "sim", config, seed=args.seed, body_model=body, workers=args.workers)
         seconds = time.perf_counter() - t0
+        cpu_seconds = _cpu_seconds() - c0
         stats = label_statistics(Path(tmp) / "sim")
     phases = {"plan_pedestrians (shapes, motions, placement, LBS for foot contact)": totals["plan_pedestrians"],
               "Embree scene build (all meshes, per frame)": totals["RayScene"],
@@ -112,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         "motion": args.motion_dir or "procedural gait",
         "pedestrians": args.pedestrians, "frames": args.frames,
         "seconds_total": seconds, "seconds_per_frame": seconds / args.frames, "target_seconds": 60.0,
+        "cpu_seconds_total": cpu_seconds,
         "phase_seconds": phases, "summary": {k: v for k, v in summary.items() if k != "seconds"},
         "label_statistics": stats,
         "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
@@ -134,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         f"| pedestrians x frames | {args.pedestrians} x {args.frames} |",
         f"| total wall time | {seconds:.1f} s (target <= 60 s) |",
         f"| per frame | {seconds / args.frames * 1000:.0f} ms |",
+        f"| CPU time (this process + workers) | {cpu_seconds:.1f} s |",
         f"| 2D labels / segments / SMPL labels | {s['labels_2d']} / {s['segments']} / {s['smpl_labels']} |",
         f"| LiDAR points per frame | {s['lidar_points'] / args.frames:.0f} |",
         f"| LiDAR points on people per frame | {s['person_lidar_points'] / args.frames:.1f} |",
