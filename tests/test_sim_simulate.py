@@ -87,6 +87,21 @@ def test_layout_and_reader_round_trip(sim_run):
     assert np.all(np.isinf(ply[n:]))
 
 
+def test_read_truth_frame(sim_run):
+    from pedx_graph.sim import read_truth_frame
+
+    out, cfg, _ = sim_run
+    truth = read_truth_frame(out, cfg.scene.first_frame + 1)
+    assert truth["scene_points"].shape[1] == 3 and len(truth["scene_object_id"]) == len(truth["scene_points"])
+    labelled = [p for p in truth["people"].values() if p["labelled"]]
+    assert labelled
+    for person in labelled:
+        assert person["keypoints"].shape == (18, 3) and person["joints"].shape == (24, 3)
+        if len(person["segment_index"]):
+            hit = truth["scene_object_id"][person["segment_index"]] == person["object_id"]
+            np.testing.assert_array_equal(hit, person["segment_is_person"])
+
+
 def test_smpl_truth_reproduces_truth_keypoints(sim_run, body):
     out, cfg, _ = sim_run
     smpl = read_smpl_labels(out)

@@ -10,6 +10,7 @@ Public API::
 
     from pedx_graph.sim import SimConfig, simulate
     summary = simulate(out_dir, SimConfig(), seed=0)          # or load_config(SimConfig, "configs/sim_default.yaml")
+    truth = read_truth_frame(out_dir, frame)                 # exact points, ids, keypoints, segment membership
     from pedx_graph.sim.figure import render_frame            # PNG of one frame
 
 Command line: ``pedx-graph simulate OUT --seed S --pedestrians N --frames F [--motion-dir DIR] [--config YAML]``.
@@ -25,9 +26,9 @@ from pedx_graph.sim.config import (
     SimConfig,
     StereoPairConfig,
 )
-from pedx_graph.sim.simulate import simulate
+from pedx_graph.sim.simulate import read_truth_frame, simulate
 
 __all__ = [
-    "simulate", "SimConfig", "SceneConfig", "CamerasConfig", "StereoPairConfig", "LidarConfig", "LabelConfig",
+    "simulate", "read_truth_frame", "SimConfig", "SceneConfig", "CamerasConfig", "StereoPairConfig", "LidarConfig", "LabelConfig",
     "MotionConfig", "FORWARD_PAIR", "LEFT_PAIR",
 ]

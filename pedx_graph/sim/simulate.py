@@ -256,6 +256,34 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
     return counts
 
 
+def read_truth_frame(out_dir: str | Path, frame: int, sequence: str | None = None) -> dict:
+    """The exact quantities of one simulated frame, regrouped per pedestrian.
+
+    Returns ``{"scene_points" (N, 3), "scene_object_id" (N,), "scene_true_range" (N,), "people": {tid: {...}}}``
+    where each person has ``keypoints`` (18, 3), ``joints`` (24, 3), ``object_id``, and when labelled
+    ``segment_index`` (M,) / ``segment_is_person`` (M,) plus the per-frame JSON record (distance, views...).
+    ``sequence`` defaults to the one in ``truth/meta.json``.
+    """
+    out = Path(out_dir)
+    meta = json.loads((out / "truth" / "meta.json").read_text())
+    seq = sequence or meta["sequence"]
+    stem = out / "truth" / seq / f"{seq}_{int(frame):07d}"
+    with np.load(stem.with_suffix(".npz")) as npz:
+        arrays = {key: npz[key] for key in npz.files}
+    records = json.loads(stem.with_suffix(".json").read_text())["people"]
+    object_ids = {p["tracking_id"]: p["object_id"] for p in meta["pedestrians"]}
+    people = {}
+    for tid, record in records.items():
+        person = {"object_id": object_ids[tid], "keypoints": arrays[f"keypoints__{tid}"],
+                  "joints": arrays[f"joints__{tid}"], **record}
+        if f"segment_index__{tid}" in arrays:
+            person["segment_index"] = arrays[f"segment_index__{tid}"]
+            person["segment_is_person"] = arrays[f"segment_is_person__{tid}"]
+        people[tid] = person
+    return {"scene_points": arrays["scene_points"], "scene_object_id": arrays["scene_object_id"],
+            "scene_true_range": arrays["scene_true_range"], "people": people}
+
+
 #: What :func:`simulate` writes directly under ``out_dir`` (removed first with ``overwrite=True``).
 OUTPUT_ENTRIES = ("calib", "labels", "pointclouds", "timestamps", "truth", "sim_config.yaml", "summary.json")
 
