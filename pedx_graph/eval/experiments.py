@@ -1,0 +1,251 @@
+"""The whole evaluation from one seed: simulate, fit, baselines, ablation, detector labels, report.
+
+``run_experiments(out, ExperimentConfig, seed, workers)`` writes under ``out``::
+
+    scenes/<name>/      one simulated scene per :class:`SceneVariant` (distance ranges differ)
+    dataset/            the scenes merged (one sequence per scene; the truth of each kept)
+    dataset_detector/   the same with detector-like 2D labels and re-cut segments (detector_noise)
+    runs/<name>/        one results folder per method / ablation row / detector run (+ experiment.json)
+    report/             report.md, report.json, figures/ (pedx_graph.eval.report)
+    experiments.json    the resolved config, seed, phase wall times, hardware note
+
+Table IV rows (:data:`ABLATION_ROWS`): the pose and shape priors and the joint limits stay on in every row;
+the heading prior E_D comes from the LiDAR trajectory, so it is switched with E_T (both are the "LiDAR
+translation" information of the paper's row).  Row 5 is the full estimator (the ``ours`` run).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import platform
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pedx_graph.eval.detector_noise import DetectorNoiseConfig
+from pedx_graph.utils import atomic_write_json
+
+log = logging.getLogger(__name__)
+
+#: Symbols of the switches shown in Table IV, in column order (TermsConfig field -> paper symbol).
+ABLATION_TERM_SYMBOLS = {"left_reprojection": "E_J,l", "right_reprojection": "E_J,r",
+                         "translation_prior": "E_T (+E_D)", "lidar_chamfer": "E_3d", "temporal_prior": "E_tp"}
+
+
+@dataclass(frozen=True)
+class AblationRow:
+    """One row of Table IV: a label and the energy-term switches (``TermsConfig`` fields)."""
+
+    label: str
+    terms: dict
+
+    def fit_terms(self) -> dict:
+        """All ``TermsConfig`` switches of the row (heading follows the translation prior; priors on)."""
+        return {**self.terms, "heading_prior": self.terms["translation_prior"], "pose_prior": True}
+
+
+def _row(label: str, left: bool, right: bool, trans: bool, chamfer: bool, temporal: bool) -> AblationRow:
+    return AblationRow(label, {"left_reprojection": left, "right_reprojection": right, "translation_prior": trans,
+                               "lidar_chamfer": chamfer, "temporal_prior": temporal})
+
+
+#: Table IV rows, cumulative as the paper's ordering claim (stereo, LiDAR translation, 3D distance, temporal
+#: each help), plus the full estimator without the right image.
+ABLATION_ROWS: tuple[AblationRow, ...] = (
+    _row("left image", True, False, False, False, False),
+    _row("stereo", True, True, False, False, False),
+    _row("stereo + LiDAR translation", True, True, True, False, False),
+    _row("stereo + LiDAR translation + 3D distance", True, True, True, True, False),
+    _row("full (+ temporal)", True, True, True, True, True),
+    _row("full without the right image", True, False, True, True, True),
+)
+
+
+@dataclass
+class SceneVariant:
+    """One simulated scene of the experiment (its own sequence; intersection placed for a distance range)."""
+
+    name: str = "near"
+    """Folder name under ``scenes/``."""
+    sequence: str = "20991231T1200"
+    """Sequence name (distinct per scene)."""
+    intersection_x_m: float = 14.0
+    """x of the intersection centre, metres (SceneConfig.intersection_x_m)."""
+    distance_mean_m: float = 20.0
+    """Soft target of the pedestrians' distance, metres (SceneConfig.distance_mean_m)."""
+    distance_std_m: float = 10.0
+    """Width of that target, metres (SceneConfig.distance_std_m)."""
+
+
+def default_scenes() -> list[SceneVariant]:
+    """Three scenes covering 5-45 m: the default intersection (5-25 m), one at 24 m (15-35 m), one at 36 m
+    (25-45 m); measured with seed 1 on 8 pedestrians (see docs/results.md)."""
+    return [SceneVariant("near", "20991231T1200", 14.0, 20.0, 10.0),
+            SceneVariant("mid", "20991231T1300", 24.0, 30.0, 6.0),
+            SceneVariant("far", "20991231T1400", 36.0, 38.0, 5.0)]
+
+
+@dataclass
+class ExperimentConfig:
+    """Size and content of the experiment (defaults: the committed docs/results.md run)."""
+
+    pedestrians: int = 8
+    """Pedestrians per scene."""
+    frames: int = 20
+    """Frames per scene (10 fps)."""
+    scenes: list[SceneVariant] = field(default_factory=default_scenes)
+    """The scenes (merged into one dataset, one sequence each)."""
+    motion_dir: str = "auto"
+    """BVH folder with clips.csv for the simulated motion (hold-out clips); ``auto``: ../shared/mocap/cmu next
+    to the project when it exists, else the procedural gait; empty: procedural gait."""
+    fit_config: str = ""
+    """YAML of the full estimator's FitConfig; empty: the defaults (= configs/fit_default.yaml)."""
+    baselines: tuple[str, ...] = ("triangulation", "left_disp", "smplify_disp")
+    """Baselines run on the clean labels."""
+    ablation: bool = True
+    """Run the Table IV rows (row 5 = the ``ours`` run)."""
+    detector: DetectorNoiseConfig = field(default_factory=DetectorNoiseConfig)
+    """The simulated detector of Table V."""
+    detector_methods: tuple[str, ...] = ("ours", "triangulation")
+    """Methods also run on the detector labels."""
+    floor_samples: int = 64
+    """Monte Carlo samples per frame of the error floor."""
+
+
+def resolve_motion_dir(setting: str) -> str | None:
+    """The BVH folder to use: ``auto`` looks for ``shared/mocap/cmu`` beside the project root."""
+    if setting == "auto":
+        candidate = Path(__file__).resolve().parents[3] / "shared" / "mocap" / "cmu"
+        return str(candidate) if candidate.is_dir() else None
+    return setting or None
+
+
+def scene_config(variant: SceneVariant, config: ExperimentConfig):
+    """The SimConfig of one scene."""
+    from pedx_graph.sim.config import SimConfig
+
+    sim = SimConfig()
+    sim.scene.n_pedestrians = config.pedestrians
+    sim.scene.n_frames = config.frames
+    sim.scene.sequence = variant.sequence
+    sim.scene.intersection_x_m = variant.intersection_x_m
+    sim.scene.distance_mean_m = variant.distance_mean_m
+    sim.scene.distance_std_m = variant.distance_std_m
+    motion = resolve_motion_dir(config.motion_dir)
+    if motion:
+        sim.motion.motion_dir = motion
+        sim.motion.split = "holdout"
+    return sim
+
+
+def merge_scenes(scene_dirs: list[Path], out: Path) -> Path:
+    """Merge simulated scenes (distinct sequences, same cameras) into one dataset at ``out`` (hard links where
+    possible).  Calibration files must be identical; ``truth/meta.json`` of each scene becomes
+    ``truth/<sequence>/meta.json``; the first scene's ``sim_config.yaml`` is kept (noise settings)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for i, scene in enumerate(scene_dirs):
+        meta = json.loads((scene / "truth" / "meta.json").read_text())
+        for path in sorted(p for p in scene.rglob("*") if p.is_file()):
+            rel = path.relative_to(scene)
+            if rel.parts[0] in ("summary.json", "sim_config.yaml"):
+                if i == 0 and rel.parts[0] == "sim_config.yaml":
+                    shutil.copy2(path, out / rel)
+                continue
+            if rel == Path("truth/meta.json"):
+                rel = Path("truth") / meta["sequence"] / "meta.json"
+            dst = out / rel
+            if dst.exists():
+                if rel.parts[0] == "calib" and dst.read_bytes() == path.read_bytes():
+                    continue
+                raise FileExistsError(f"{dst}: two scenes write the same file")
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(path, dst)
+            except OSError:
+                shutil.copy2(path, dst)
+    return out
+
+
+def _mark(run_dir: Path, **fields) -> None:
+    atomic_write_json(run_dir / "experiment.json", fields)
+
+
+def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = None, seed: int = 0,
+                    workers: int = 2, report: bool = True) -> dict:
+    """Run everything (module docstring) into ``out``; returns the ``experiments.json`` dict."""
+    from pedx_graph.baselines.run import fit_dataset_baseline
+    from pedx_graph.config import load_config, to_dict
+    from pedx_graph.eval.detector_noise import make_noisy_dataset
+    from pedx_graph.graph.config import FitConfig
+    from pedx_graph.sim.simulate import simulate
+    from pedx_graph.solvers.fit import fit_dataset
+
+    config = config or ExperimentConfig()
+    out = Path(out)
+    if (out / "runs").exists() or (out / "dataset").exists():
+        raise FileExistsError(f"{out}: already holds an experiment (choose a new folder)")
+    out.mkdir(parents=True, exist_ok=True)
+    phases: dict[str, float] = {}
+    t_all = time.perf_counter()
+
+    def timed(name: str, fn, *args, **kwargs):
+        t0 = time.perf_counter()
+        log.info("experiment: %s", name)
+        result = fn(*args, **kwargs)
+        phases[name] = time.perf_counter() - t0
+        return result
+
+    scene_dirs = []
+    for k, variant in enumerate(config.scenes):
+        path = out / "scenes" / variant.name
+        timed(f"simulate {variant.name}", simulate, path, scene_config(variant, config), seed=seed + k,
+              workers=workers)
+        scene_dirs.append(path)
+    dataset = timed("merge scenes", merge_scenes, scene_dirs, out / "dataset")
+    fit_cfg = load_config(FitConfig, config.fit_config or None)
+    runs = out / "runs"
+
+    timed("fit ours", fit_dataset, dataset, runs / "ours", fit_cfg, workers=workers)
+    _mark(runs / "ours", name="ours", label="ours", group="methods", labels="clean", ablation_row=5)
+    for name in config.baselines:
+        timed(f"baseline {name}", fit_dataset_baseline, dataset, runs / name, name, workers=workers)
+        _mark(runs / name, name=name, label=name, group="methods", labels="clean")
+    if config.ablation:
+        for number, row in enumerate(ABLATION_ROWS, start=1):
+            if number == 5:
+                continue
+            cfg = dataclasses.replace(fit_cfg, terms=dataclasses.replace(fit_cfg.terms, **row.fit_terms()))
+            name = f"ablation{number}"
+            timed(f"fit {name}", fit_dataset, dataset, runs / name, cfg, workers=workers)
+            _mark(runs / name, name=name, label=row.label, group="ablation", labels="clean", ablation_row=number)
+    if config.detector_methods:
+        noisy = out / "dataset_detector"
+        counts = timed("detector labels", make_noisy_dataset, dataset, noisy, config.detector, seed=seed)
+        atomic_write_json(noisy / "detector_counts.json", counts)
+        for name in config.detector_methods:
+            run = runs / f"{name}_detector"
+            if name == "ours":
+                timed("fit ours_detector", fit_dataset, noisy, run, fit_cfg, workers=workers)
+            else:
+                timed(f"baseline {name}_detector", fit_dataset_baseline, noisy, run, name, workers=workers)
+            _mark(run, name=f"{name}_detector", label=name, group="detector", labels="detector")
+    record = {"seed": seed, "workers": workers, "config": to_dict(config), "phases_seconds": phases,
+              "hardware": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
+              "motion": "CMU hold-out clips" if resolve_motion_dir(config.motion_dir) else "procedural gait"}
+    if report:
+        from pedx_graph.eval.report import ReportConfig, build_report
+
+        names = ["ours", *config.baselines]
+        if config.ablation:
+            names += [f"ablation{n}" for n in range(1, len(ABLATION_ROWS) + 1) if n != 5]
+        names += [f"{m}_detector" for m in config.detector_methods]
+        t0 = time.perf_counter()
+        build_report([runs / n for n in names], dataset, out / "report",
+                     ReportConfig(floor_samples=config.floor_samples, seed=seed))
+        phases["report"] = time.perf_counter() - t0
+    record["total_seconds"] = time.perf_counter() - t_all
+    atomic_write_json(out / "experiments.json", record)
+    return record
