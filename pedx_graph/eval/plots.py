@@ -126,14 +126,16 @@ def plot_overlay(results: str | os.PathLike, truth: str | os.PathLike, path: str
     plt = _plt()
     calib = next(tr.calibrations[pair] for tr in tracks if pair in tr.calibrations)
     width, height = calib.image_size
-    fig, ax = plt.subplots(figsize=(11, 11 * height / width))
-    ax.set_facecolor("0.93")
+    fig, (ax, zoom) = plt.subplots(1, 2, figsize=(14, 6.5), gridspec_kw={"width_ratios": [2.2, 1]})
+    for a in (ax, zoom):
+        a.set_facecolor("0.93")
     try:
         scene = read_scene_points(truth, seq, frame)
         depth = calib.world_to_rect(scene)[:, 2]
         uv = calib.project(scene)[0]
         keep = (depth > 1.0) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
-        ax.scatter(uv[keep, 0], uv[keep, 1], s=0.3, c=np.log(depth[keep]), cmap="Greys_r", alpha=0.6)
+        for a in (ax, zoom):
+            a.scatter(uv[keep, 0], uv[keep, 1], s=0.3, c=np.log(depth[keep]), cmap="Greys_r", alpha=0.6)
     except Exception:
         pass
     colours = plt.get_cmap("tab10")
@@ -151,14 +153,16 @@ def plot_overlay(results: str | os.PathLike, truth: str | os.PathLike, path: str
         k += 1
         verts = np.asarray(model.forward(lab.pose, lab.betas, lab.trans).vertices)
         uv = calib.project(verts[::3])[0]
-        ax.scatter(uv[:, 0], uv[:, 1], s=0.4, color=colour, alpha=0.35)
         kp = fr.left.keypoints
         ok = np.all(np.isfinite(kp), axis=1)
-        ax.scatter(kp[ok & fr.left.visible, 0], kp[ok & fr.left.visible, 1], marker="+", s=40, color="k", lw=1)
-        ax.scatter(kp[ok & ~fr.left.visible, 0], kp[ok & ~fr.left.visible, 1], marker="x", s=25, color="r", lw=1)
-        if fr.left.polygon is not None:
-            poly = np.vstack([fr.left.polygon, fr.left.polygon[:1]])
-            ax.plot(poly[:, 0], poly[:, 1], "-", color=colour, lw=0.8)
+        for a, size in ((ax, 0.4), (zoom, 1.5)):
+            a.scatter(uv[:, 0], uv[:, 1], s=size, color=colour, alpha=0.35)
+            a.scatter(kp[ok & fr.left.visible, 0], kp[ok & fr.left.visible, 1], marker="+", s=40, color="k", lw=1)
+            a.scatter(kp[ok & ~fr.left.visible, 0], kp[ok & ~fr.left.visible, 1], marker="x", s=25, color="r",
+                      lw=1)
+            if fr.left.polygon is not None:
+                poly = np.vstack([fr.left.polygon, fr.left.polygon[:1]])
+                a.plot(poly[:, 0], poly[:, 1], "-", color=colour, lw=0.8)
         boxes.append(np.vstack([uv.min(axis=0), uv.max(axis=0)]))
     if boxes:
         lo = np.min([b[0] for b in boxes], axis=0)
@@ -166,14 +170,20 @@ def plot_overlay(results: str | os.PathLike, truth: str | os.PathLike, path: str
         pad = 0.15 * (hi - lo).max() + 40
         ax.set_xlim(max(lo[0] - pad, 0), min(hi[0] + pad, width))
         ax.set_ylim(min(hi[1] + pad, height), max(lo[1] - pad, 0))
+        big = max(boxes, key=lambda b: b[1, 1] - b[0, 1])
+        centre, half = big.mean(axis=0), 0.65 * (big[1] - big[0]).max()
+        zoom.set_xlim(centre[0] - half, centre[0] + half)
+        zoom.set_ylim(centre[1] + half, centre[1] - half)
     else:
         ax.set_xlim(0, width)
         ax.set_ylim(height, 0)
-    ax.set_aspect("equal")
-    ax.set_title(f"{seq} frame {frame}, left camera of {pair}: fitted meshes (colour), labels (+ visible, "
-                 f"x occluded), LiDAR sweep (grey)", fontsize=9)
-    ax.set_xlabel("u (px)")
+    for a in (ax, zoom):
+        a.set_aspect("equal")
+        a.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
+    ax.set_title(f"{seq} frame {frame}, left camera of {pair}: fitted meshes (colour), 2D labels "
+                 f"(+ visible, x occluded), LiDAR sweep (grey)", fontsize=9)
+    zoom.set_title("the largest person", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -199,6 +209,7 @@ def plot_top_view(results: str | os.PathLike, truth: str | os.PathLike, path: st
         pass
     colours = plt.get_cmap("tab10")
     lhip, rhip = PEDX_KEYPOINTS.index("lhip"), PEDX_KEYPOINTS.index("rhip")
+    people_xy = []
     k = 0
     for key, labels in sorted(gt.items()):
         if key[0] != seq:
@@ -208,6 +219,7 @@ def plot_top_view(results: str | os.PathLike, truth: str | os.PathLike, path: st
         true_kp = np.asarray(model.keypoints(np.stack([l.pose for l in labels]),
                                              np.stack([l.betas for l in labels]), np.stack([l.trans for l in labels])))
         pelvis = 0.5 * (true_kp[:, lhip] + true_kp[:, rhip])
+        people_xy.append(pelvis[:, :2])
         ax.plot(pelvis[:, 0], pelvis[:, 1], "-", color=colour, lw=1.5)
         fitted = pred.get(key, [])
         if fitted:
@@ -218,6 +230,11 @@ def plot_top_view(results: str | os.PathLike, truth: str | os.PathLike, path: st
             if now:
                 verts = np.asarray(model.forward(now[0].pose, now[0].betas, now[0].trans).vertices)[::5]
                 ax.scatter(verts[:, 0], verts[:, 1], s=0.3, color=colour, alpha=0.5)
+    if people_xy:
+        xy = np.concatenate(people_xy)
+        lo, hi = np.minimum(xy.min(axis=0), 0.0) - 4.0, xy.max(axis=0) + 4.0
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
     ax.plot([0], [0], "k^", ms=9, label="LiDAR (vehicle)")
     ax.plot([], [], "k-", label="true pelvis trajectory")
     ax.plot([], [], "ko", ms=4, label="fitted pelvis (each frame)")
