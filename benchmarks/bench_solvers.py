@@ -66,7 +66,7 @@ def lm_track(track, config, ctx) -> tuple[TrackResult, dict]:
                          solver="lm-python")
     # marginal covariances of the solved track (chain method), and the gtsam.Marginals reference
     t1 = time.perf_counter()
-    marg = compute_marginals(problem.graph, values, problem.keys)
+    marg = compute_marginals(problem.graph, values, problem.keys, prefetch=problem.prefetch)
     fields, _ = marginals_to_fields(marg, est, ctx.model)
     chain_s = time.perf_counter() - t1
     timing = {"frames": len(track.frames), "chain_seconds": chain_s,

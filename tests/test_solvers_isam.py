@@ -150,3 +150,31 @@ def test_stream_dataset_writes_causal_and_smoothed_results(ctx, tmp_path):
     register(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["stream", "DATA", "--out", "OUT", "--causal-covariance"])
     assert args.causal_covariance and callable(args.func)
+
+
+def test_stream_factors_match_batch_graph(ctx):
+    """The streaming per-frame factors mirror build_track_graph (all kinds but the causal heading prior)."""
+    from pedx_graph.solvers.stream import StreamConfig, StreamingEstimator
+
+    config = synthetic_config()
+    track, _ = synthetic_track(ctx, 4, seed=7)
+    track.frames[1].world_lidar_points[:5] += np.array([3.0, 0.0, 0.0])      # background caught by the polygon
+    problem = build_track_graph(track, ctx, config)
+    stream = StreamingEstimator(ctx, config, StreamConfig(marginals=False, diagnostics=False))
+    for fr in track.frames:
+        stream.add_frame(fr.timestamp, {track.tracking_id: fr}, track.calibrations)
+    state = stream.active[track.tracking_id]
+    at = problem.initial
+
+    def table(graph, kinds, frames):
+        out = {}
+        for j in range(graph.size()):
+            if kinds[j] != "heading_prior":
+                out[(kinds[j], frames[j])] = graph.at(j).error(at)
+        return out
+
+    batch = table(problem.graph, problem.factor_kinds, problem.factor_frames)
+    streamed = table(state.smoother.factors, state.kinds, state.factor_frames)
+    assert batch.keys() == streamed.keys()
+    for key, value in batch.items():
+        assert streamed[key] == pytest.approx(value, rel=1e-9, abs=1e-9), key

@@ -216,7 +216,8 @@ def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, dia
     computed = None
     if marginals or diagnostics:
         try:
-            computed = compute_marginals(problem.graph, values, problem.keys, marginals_config)
+            computed = compute_marginals(problem.graph, values, problem.keys, marginals_config,
+                                         prefetch=getattr(problem, "prefetch", None))
         except (RuntimeError, LinAlgError, ValueError) as exc:
             logging.getLogger(__name__).warning("marginals failed: %s", exc)
             track["marginals_error"] = f"{type(exc).__name__}: {exc}"

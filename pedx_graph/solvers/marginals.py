@@ -253,11 +253,12 @@ def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key
 
 def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
                       config: MarginalsConfig | None = None,
-                      linear: gtsam.GaussianFactorGraph | None = None) -> TrackMarginals:
+                      linear: gtsam.GaussianFactorGraph | None = None, prefetch=None) -> TrackMarginals:
     """Joint marginals of every frame with the shape (``config.method``; chain falls back to gtsam).
 
     ``linear``: the graph already linearised at ``values`` (e.g. by the solver's last iteration), which
-    saves the factor callbacks (most of the cost)."""
+    saves the factor callbacks (most of the cost); ``prefetch(values, jacobians)``: called before linearising
+    (``TrackProblem.prefetch`` batch-evaluates the body model for all frames)."""
     config = config or MarginalsConfig()
     num_betas = _dims_of(values, int(keys[0].betas))
     if config.method == "gtsam":
@@ -265,7 +266,10 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     if config.method != "chain":
         raise ValueError(f"marginals method must be 'chain' or 'gtsam', got {config.method!r}")
     t0 = time.perf_counter()
-    linear = graph.linearize(values) if linear is None else linear
+    if linear is None:
+        if prefetch is not None:
+            prefetch(values, True)
+        linear = graph.linearize(values)
     t_lin = time.perf_counter() - t0
     try:
         info = chain_information(linear, keys, num_betas)
@@ -356,7 +360,8 @@ def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig 
 
     config = config or MarginalsConfig()
     try:
-        marginals = compute_marginals(problem.graph, values, problem.keys, config)
+        marginals = compute_marginals(problem.graph, values, problem.keys, config,
+                                      prefetch=getattr(problem, "prefetch", None))
     except (RuntimeError, LinAlgError, ValueError) as exc:
         log.warning("marginals failed: %s", exc)
         return ([{"covariance_status": "failed"} for _ in problem.keys],

@@ -12,7 +12,9 @@ A track begins when its id is first seen and ends when it has not been seen for 
 marginal covariances and diagnostics.
 
 Causality: a frame's factors use only that frame and earlier ones.  They are the batch graph's factors
-(:mod:`pedx_graph.graph.build`, same noise, same seeded LiDAR subsample per track) except the heading prior,
+(:mod:`pedx_graph.graph.build`, same noise, same seeded LiDAR subsample per track, the translation prior
+on the points' core; ``StreamingEstimator._frame_factors`` mirrors ``build_track_graph`` and must follow
+its changes: ``test_stream_factors_match_batch_graph`` checks it) except the heading prior,
 whose trajectory heading is estimated from the frames up to now (a one-sided window of ``half_window_s``)
 instead of a centred one.  New variables start from the previous frame's estimate (root, body pose) and
 the frame's LiDAR / stereo centre (translation), then a few LM iterations on the new frame alone
@@ -37,7 +39,7 @@ from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojectio
 from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
-from pedx_graph.graph.build import _hip_weights, _robust, _subsample
+from pedx_graph.graph.build import _hip_weights, _robust, _subsample, core_points
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import initialise_track, triangulate_frame
 from pedx_graph.keypoints import PEDX_KEYPOINTS
@@ -64,6 +66,10 @@ class StreamConfig:
     """Marginal covariances of each finalised track."""
     diagnostics: bool = True
     """Residual / information diagnostics of each finalised track."""
+    final_restart: bool = True
+    """When a track ends, also solve it from scratch with the batch fit (staged LM, centred headings) and
+    keep whichever estimate has the lower error on the track's streamed graph: the incremental path can
+    end in a worse local optimum than a batch solve (measured on the simulator, see docs/solvers.md)."""
 
 
 @dataclass
@@ -160,12 +166,15 @@ class StreamingEstimator:
             add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
                                           robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
                                           candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
-        if terms.translation_prior and len(points) >= 3:
-            add(make_translation_prior_factor(k.trans, k.betas, model, points, num_betas=model.num_betas,
+        if terms.translation_prior and len(points):
+            add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points),
+                                              num_betas=model.num_betas,
                                               depth_offset_m=noise.translation_depth_offset_m,
                                               sigma_ray_m=noise.translation_ray_sigma_m,
                                               sigma_lateral_m=noise.translation_sigma_m,
-                                              sigma_vertical_m=noise.translation_vertical_sigma_m),
+                                              sigma_vertical_m=noise.translation_vertical_sigma_m,
+                                              robust=_robust(noise.translation_loss),
+                                              robust_scale=noise.translation_loss_scale),
                 "translation_prior")
         heading, speed = init.heading_yaw, init.speed_mps
         if terms.heading_prior and np.isfinite(heading):
@@ -195,7 +204,8 @@ class StreamingEstimator:
         lidar = np.asarray(newest.world_lidar_points, float).reshape(-1, 3)
         placeable = len(lidar) >= 3 or bool(np.isfinite(triangulate_frame(window, newest)[_TORSO]).any())
         if placeable or state.previous is None:
-            init = initialise_track(window, min_speed_mps=self.config.noise.heading_min_speed_mps,
+            init = initialise_track(window, surface_offset_m=self.config.noise.translation_depth_offset_m,
+                                    min_speed_mps=self.config.noise.heading_min_speed_mps,
                                     half_window_s=self.stream_config.heading_half_window_s)
             return _FrameInit(init.world_p_centre[-1], init.world_R_body[-1], float(init.heading_yaw[-1]),
                               float(init.speed_mps[-1]))
@@ -330,6 +340,19 @@ class StreamingEstimator:
             self.end_track(tid)
         return self.pop_finished()
 
+    def _restart_if_better(self, state: _ActiveTrack, values: gtsam.Values) -> tuple[gtsam.Values, str]:
+        """The batch fit of the track's frames if it has a lower error on the streamed graph."""
+        from pedx_graph.solvers.fit import solve_staged
+
+        track = Track(state.sequence, state.tracking_id, list(state.frames), dict(state.calibrations))
+        try:
+            _, batch_values, _ = solve_staged(track, self.ctx, self.config)
+            if state.smoother.factors.error(batch_values) < state.smoother.factors.error(values):
+                return batch_values, "batch_restart"
+        except Exception as exc:          # the warm-started estimate stands
+            log.warning("stream: batch restart of %s failed: %s", state.tracking_id, exc)
+        return values, "isam_warm_start"
+
     def _finalise(self, state: _ActiveTrack):
         from pedx_graph.graph.build import TrackProblem, extract_estimate
         from pedx_graph.solvers.fit import TrackResult
@@ -341,6 +364,9 @@ class StreamingEstimator:
         latencies = np.array([u.seconds for u in state.smoother.updates[:n_updates]])
         isam_only = np.array([u.isam_seconds for u in state.smoother.updates[:n_updates]])
         values = state.smoother.finalize(self.config.solver)
+        final_from = "isam_warm_start"
+        if self.stream_config.final_restart and len(state.frames) >= 2:
+            values, final_from = self._restart_if_better(state, values)
         finalize_s = time.perf_counter() - t0
         problem = TrackProblem(graph=state.smoother.factors, initial=values, keys=state.keys, init=None,
                                factor_kinds=state.kinds, factor_frames=state.factor_frames)
@@ -353,6 +379,7 @@ class StreamingEstimator:
             "stream_update_ms_max": float(latencies.max() * 1e3),
             "stream_isam_update_ms_median": float(np.median(isam_only) * 1e3),
             "stream_finalize_seconds": finalize_s,
+            "stream_final_from": final_from,
         }
         if self.stream_config.marginals or self.stream_config.diagnostics:
             from pedx_graph.solvers.diagnostics import track_extras
