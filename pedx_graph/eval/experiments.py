@@ -109,6 +109,8 @@ class ExperimentConfig:
     """Run the Table IV rows (row 5 = the ``ours`` run)."""
     detector: DetectorNoiseConfig = field(default_factory=DetectorNoiseConfig)
     """The simulated detector of Table V."""
+    detector_config: str = ""
+    """YAML of a DetectorNoiseConfig (e.g. configs/detector_noise.yaml) replacing ``detector``; empty: unused."""
     detector_methods: tuple[str, ...] = ("ours", "triangulation")
     """Methods also run on the detector labels."""
     floor_samples: int = 64
@@ -223,7 +225,9 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
             _mark(runs / name, name=name, label=row.label, group="ablation", labels="clean", ablation_row=number)
     if config.detector_methods:
         noisy = out / "dataset_detector"
-        counts = timed("detector labels", make_noisy_dataset, dataset, noisy, config.detector, seed=seed)
+        detector = load_config(DetectorNoiseConfig, config.detector_config) if config.detector_config \
+            else config.detector
+        counts = timed("detector labels", make_noisy_dataset, dataset, noisy, detector, seed=seed)
         atomic_write_json(noisy / "detector_counts.json", counts)
         for name in config.detector_methods:
             run = runs / f"{name}_detector"

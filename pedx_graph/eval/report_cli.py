@@ -64,6 +64,19 @@ def docs_preamble(record: dict, command: str) -> str:
             f"| phase | wall s |\n|---|---:|\n{phases}\n")
 
 
+NOTES_BEGIN, NOTES_END = "<!-- notes -->", "<!-- /notes -->"
+
+
+def kept_notes(path: Path) -> str:
+    """The hand-written block between ``<!-- notes -->`` and ``<!-- /notes -->`` of an existing results file
+    (kept when the file is regenerated), or an empty block."""
+    text = path.read_text() if path.is_file() else ""
+    if NOTES_BEGIN in text and NOTES_END in text:
+        body = text[text.index(NOTES_BEGIN):text.index(NOTES_END) + len(NOTES_END)]
+        return "\n" + body + "\n"
+    return f"\n{NOTES_BEGIN}\n{NOTES_END}\n"
+
+
 def _run_experiments(args: argparse.Namespace) -> int:
     import json
 
@@ -86,7 +99,7 @@ def _run_experiments(args: argparse.Namespace) -> int:
                    + (f" --config {args.config}" if args.config else "") + f" --docs {args.docs}")
         from pedx_graph.utils import atomic_write_text
 
-        atomic_write_text(docs / "results.md", render_markdown(report, title="Results",
-                                                               preamble=docs_preamble(record, command)))
+        text = render_markdown(report, title="Results", preamble=docs_preamble(record, command))
+        atomic_write_text(docs / "results.md", text + kept_notes(docs / "results.md"))
         print(f"wrote {docs / 'results.md'}")
     return 0
