@@ -337,6 +337,10 @@ class RetargetErrorReport:
     """Largest single joint error, millimetres."""
     per_joint_mm: dict[str, float]
     """Mean error per compared SMPL joint, millimetres."""
+    local_mean_mm: float = float("nan")
+    """Mean error of each joint's offset from its nearest compared ancestor (``|(p_j - p_a) - (q_j - q_a)|``),
+    millimetres: the pose transfer bone by bone, without the rest-geometry offsets that accumulate along
+    the chain (e.g. a different shoulder width moves the whole arm)."""
 
 
 def _bvh_rest_positions(motion: BvhMotion, scale: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -440,11 +444,19 @@ def retarget_joint_error(motion: BvhMotion, rest_joints: np.ndarray, *, scale: f
     _, bvh_pos = forward_kinematics(motion.skeleton, motion.channels)
     axes_R_bvh = _yaw_matrix(clip.meta.get("rest_yaw_rad", rest_facing_yaw(motion)))
     bvh_pos = scale * bvh_pos @ axes_R_bvh.T
-    per_joint, worst = {}, 0.0
+    per_joint, worst, local = {}, 0.0, []
     for name, bname in CMU_POSITION_PAIRS.items():
         if name == "pelvis":
             continue
-        d = np.linalg.norm(smpl_pos[:, SMPL_JOINTS.index(name)] - bvh_pos[:, motion.skeleton.index(bname)], axis=-1)
+        j, b = SMPL_JOINTS.index(name), motion.skeleton.index(bname)
+        d = np.linalg.norm(smpl_pos[:, j] - bvh_pos[:, b], axis=-1)
         per_joint[name] = 1000.0 * float(d.mean())
         worst = max(worst, 1000.0 * float(d.max()))
-    return RetargetErrorReport(float(np.mean(list(per_joint.values()))), worst, per_joint)
+        a = SMPL_PARENTS[j]
+        while SMPL_JOINTS[a] not in CMU_POSITION_PAIRS:
+            a = SMPL_PARENTS[a]
+        ab = motion.skeleton.index(CMU_POSITION_PAIRS[SMPL_JOINTS[a]])
+        rel = (smpl_pos[:, j] - smpl_pos[:, a]) - (bvh_pos[:, b] - bvh_pos[:, ab])
+        if SMPL_JOINTS[a] != "pelvis":      # the pelvis is not a BVH joint (placed from the hips)
+            local.append(1000.0 * float(np.linalg.norm(rel, axis=-1).mean()))
+    return RetargetErrorReport(float(np.mean(list(per_joint.values()))), worst, per_joint, float(np.mean(local)))
