@@ -183,7 +183,6 @@ def parse_bvh(text: str, *, source: str = "<string>", drop_first_frame: bool = T
     take("HIERARCHY")
 
     def parse_joint(parent: int) -> None:
-        nonlocal pos
         name = take()
         index = len(names)
         names.append(name)

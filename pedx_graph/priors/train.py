@@ -42,7 +42,7 @@ from scipy.spatial.transform import Rotation
 from pedx_graph.keypoints import SMPL_JOINTS
 from pedx_graph.motion import (MotionClip, generic_rest_joints, is_holdout, list_clips, load_cmu_clip,
                                resample_clip)
-from pedx_graph.priors.gmm import GaussianMixturePrior, from_sklearn, precision_cholesky_from_covariance
+from pedx_graph.priors.gmm import GaussianMixturePrior, precision_cholesky_from_covariance
 from pedx_graph.utils import atomic_write_json
 
 log = logging.getLogger(__name__)
