@@ -51,7 +51,8 @@ def test_distance_table_empty_bin_is_a_dash():
 
 
 def test_ablation_table_and_ordering():
-    rows = [(i + 1, r.label, r.terms, constant_summary(400 - 50 * i, 100 - 10 * i)) for i, r in enumerate(ABLATION_ROWS[:5])]
+    rows = [(i + 1, r.label, r.terms, constant_summary(400 - 50 * i, 100 - 10 * i))
+            for i, r in enumerate(ABLATION_ROWS[:5])]
     table = rp.ablation_table(rows)
     assert "| 1: left image | x |  |  |  |  | 400.0 | 100.0 |" in table
     assert "| 5: full (+ temporal) | x | x | x | x | x | 200.0 | 60.0 |" in table
@@ -173,7 +174,8 @@ def tiny_experiment(tmp_path_factory):
     work = tmp_path_factory.mktemp("report")
     cfg = ExperimentConfig(pedestrians=2, frames=3, motion_dir="")
     scenes = []
-    for k, variant in enumerate([SceneVariant("a", "20991231T1200"), SceneVariant("b", "20991231T1300", 24.0, 30.0, 6.0)]):
+    variants = [SceneVariant("a", "20991231T1200"), SceneVariant("b", "20991231T1300", 24.0, 30.0, 6.0)]
+    for k, variant in enumerate(variants):
         simulate(work / variant.name, scene_config(variant, cfg), seed=k)
         scenes.append(work / variant.name)
     dataset = merge_scenes(scenes, work / "dataset")

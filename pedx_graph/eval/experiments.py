@@ -81,9 +81,9 @@ class SceneVariant:
 
 
 def default_scenes() -> list[SceneVariant]:
-    """Three scenes covering 5-45 m: the default intersection (5-25 m), one at 24 m (15-35 m), one at 36 m
-    (25-45 m); measured with seed 1 on 8 pedestrians (see docs/results.md)."""
-    return [SceneVariant("near", "20991231T1200", 14.0, 20.0, 10.0),
+    """Three scenes covering 5-45 m: the default intersection with a near distance target (5-25 m), one at
+    24 m (15-35 m), one at 36 m (25-45 m); ranges measured with seed 1, 8 pedestrians, CMU motion."""
+    return [SceneVariant("near", "20991231T1200", 14.0, 12.0, 5.0),
             SceneVariant("mid", "20991231T1300", 24.0, 30.0, 6.0),
             SceneVariant("far", "20991231T1400", 36.0, 38.0, 5.0)]
 
@@ -92,9 +92,9 @@ def default_scenes() -> list[SceneVariant]:
 class ExperimentConfig:
     """Size and content of the experiment (defaults: the committed docs/results.md run)."""
 
-    pedestrians: int = 8
+    pedestrians: int = 10
     """Pedestrians per scene."""
-    frames: int = 20
+    frames: int = 30
     """Frames per scene (10 fps)."""
     scenes: list[SceneVariant] = field(default_factory=default_scenes)
     """The scenes (merged into one dataset, one sequence each)."""
@@ -171,6 +171,21 @@ def merge_scenes(scene_dirs: list[Path], out: Path) -> Path:
     return out
 
 
+def code_version() -> dict:
+    """The project's git commit and whether package files differ from it (``dirty``), when in a checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True,
+                                text=True, check=True).stdout.strip()
+        status = subprocess.run(["git", "status", "--porcelain", "--", "pedx_graph", "factors"], cwd=root,
+                                capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return {"commit": None, "dirty": None}
+    return {"commit": commit, "dirty": bool(status.strip())}
+
+
 def _mark(run_dir: Path, **fields) -> None:
     atomic_write_json(run_dir / "experiment.json", fields)
 
@@ -237,6 +252,7 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
                 timed(f"baseline {name}_detector", fit_dataset_baseline, noisy, run, name, workers=workers)
             _mark(run, name=f"{name}_detector", label=name, group="detector", labels="detector")
     record = {"seed": seed, "workers": workers, "config": to_dict(config), "phases_seconds": phases,
+              "code": code_version(),
               "hardware": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
               "motion": "CMU hold-out clips" if resolve_motion_dir(config.motion_dir) else "procedural gait"}
     if report:

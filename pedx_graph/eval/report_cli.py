@@ -50,6 +50,7 @@ def _run_report(args: argparse.Namespace) -> int:
 def docs_preamble(record: dict, command: str) -> str:
     """The header of docs/results.md: command, seed, scene sizes, hardware, phase times."""
     cfg = record["config"]
+    code = record.get("code", {})
     scenes = ", ".join(f"{s['name']} (intersection at {s['intersection_x_m']:g} m, distance target "
                        f"{s['distance_mean_m']:g} +- {s['distance_std_m']:g} m)" for s in cfg["scenes"])
     phases = "\n".join(f"| {name} | {sec:.1f} |" for name, sec in record["phases_seconds"].items())
@@ -57,7 +58,8 @@ def docs_preamble(record: dict, command: str) -> str:
             f"```bash\n{command}\n```\n\n"
             f"Seed {record['seed']}; {len(cfg['scenes'])} simulated scenes of {cfg['pedestrians']} pedestrians x "
             f"{cfg['frames']} frames: {scenes}; motion: {record['motion']}. Hardware: {record['hardware']}; "
-            f"total {record['total_seconds'] / 60:.1f} min.\n\n"
+            f"total {record['total_seconds'] / 60:.1f} min. Code: commit {code.get('commit')}"
+            f"{' with uncommitted changes' if code.get('dirty') else ''}.\n\n"
             "MPJPE in millimetres over the paper's 13 joints, weighted by the annotator's visibility (a joint "
             "counts when labelled visible in the left or right image). Global: world frame, no alignment; "
             "root-relative: after a similarity alignment per frame.\n\n"
