@@ -73,22 +73,28 @@ class EstimatorContext:
     temporal_dt: float
     chamfer_vertex_ids: np.ndarray
     template_body_pose: np.ndarray
+    template_candidates: np.ndarray | None = None
+    """(C, 69) body poses tried per frame as the starting pose (best reprojection of the 2D labels)."""
 
     @staticmethod
     def create(config: FitConfig) -> "EstimatorContext":
         from pedx_graph.priors import load_pose_prior, load_temporal_prior
 
         model = BodyModel.load(config.body_model or None)
-        pose_prior = load_pose_prior()
-        temporal_prior = load_temporal_prior()
+        pose_prior = load_pose_prior(config.pose_prior or None)
+        temporal_prior = load_temporal_prior(config.temporal_prior or None)
         pose_mixture = MaxMixture.from_gmm(pose_prior)
         temporal_mixture = MaxMixture.from_gmm(temporal_prior)
-        template = pose_prior.means[int(np.argmax(pose_prior.weights))].copy()
+        # Template candidates: the pose prior's component means and the rest pose; the neutral template
+        # is the mean nearest the rest pose (the heaviest component can be a reaching, arms-up pose).
+        means = np.asarray(pose_prior.means, dtype=float)
+        template = means[int(np.argmin(np.linalg.norm(means, axis=1)))].copy()
+        candidates = np.vstack([means, np.zeros((1, means.shape[1]))])
         rest = model.forward(np.zeros(72), np.zeros(model.num_betas), np.zeros(3)).vertices
         ids = farthest_point_subset(rest, config.chamfer_vertices, seed=0)
         return EstimatorContext(model=model, pose_mixture=pose_mixture, temporal_mixture=temporal_mixture,
                                 temporal_dt=float(temporal_prior.dt), chamfer_vertex_ids=ids,
-                                template_body_pose=template)
+                                template_body_pose=template, template_candidates=candidates)
 
 
 @dataclass
@@ -145,6 +151,39 @@ def core_points(world_points: np.ndarray, radius_m: float = 0.5) -> np.ndarray:
     return world_points[keep] if keep.any() else world_points
 
 
+def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.ndarray,
+                          world_p_centre: np.ndarray, clip_px: float = 40.0) -> np.ndarray:
+    """Per frame, the candidate body pose (``ctx.template_candidates``) whose keypoints, placed at the
+    initial orientation and centre, best reproject onto the frame's 2D labels (left and right; squared
+    pixel residuals clipped at ``clip_px``).  Returns (T, 69)."""
+    from pedx_graph.body.rotation import log_so3
+
+    cands = ctx.template_candidates
+    n = len(track.frames)
+    if cands is None or len(cands) == 1:
+        return np.tile(ctx.template_body_pose, (n, 1))
+    model = ctx.model
+    nb = model.num_betas
+    pelvis_rest = model.rest_joints(np.zeros(nb))[0]
+    out = np.empty((n, cands.shape[1]))
+    for i, fr in enumerate(track.frames):
+        root = log_so3(world_R_body[i])
+        pose = np.concatenate([np.tile(root, (len(cands), 1)), cands], axis=1)
+        kps = model.keypoints(pose, np.zeros((len(cands), nb)), np.tile(world_p_centre[i] - pelvis_rest,
+                                                                         (len(cands), 1)))
+        calib = track.calibrations[fr.pair]
+        left_uv, right_uv = calib.project(kps)
+        cost = np.zeros(len(cands))
+        for view, uv in ((fr.left, left_uv), (fr.right, right_uv)):
+            if view is None:
+                continue
+            ok = view.labelled
+            d2 = np.sum((uv[:, ok] - view.keypoints[ok]) ** 2, axis=-1)
+            cost += np.minimum(d2, clip_px ** 2).sum(axis=1)
+        out[i] = cands[int(np.argmin(cost))]
+    return out
+
+
 def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
                       yaw_override: np.ndarray | None = None,
                       initial: gtsam.Values | None = None) -> TrackProblem:
@@ -178,10 +217,11 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     keys = [FrameKeys.for_frame(i) for i in range(len(track.frames))]
     values.insert(keys[0].betas, betas0)
     hip_weights = _hip_weights(config)
+    body_pose0 = select_template_poses(track, ctx, world_R_body, init.world_p_centre)
     for i, (fr, k) in enumerate(zip(track.frames, keys)):
         values.insert(k.root, gtsam.Rot3(world_R_body[i]))
         values.insert(k.trans, np.asarray(init.world_p_centre[i] - pelvis_rest, dtype=float))
-        values.insert(k.body_pose, ctx.template_body_pose.copy())
+        values.insert(k.body_pose, body_pose0[i].copy())
         left = fr.left if terms.left_reprojection else None
         right = fr.right if terms.right_reprojection else None
         if left is not None or right is not None:

@@ -98,6 +98,10 @@ class FitConfig:
 
     body_model: str = ""
     """Path of an SMPL-format model file; empty: the shipped open model."""
+    pose_prior: str = ""
+    """Path of a pose GMM ``.npz`` (``pedx-graph train-prior``); empty: the shipped prior."""
+    temporal_prior: str = ""
+    """Path of a temporal GMM ``.npz``; empty: the shipped prior."""
     fps: float = 10.0
     """Nominal frame rate of synchronised samples, used when timestamps are missing."""
     chamfer_vertices: int = 1500

@@ -151,41 +151,74 @@ def _median_filter_nan(x: np.ndarray, half_window: int) -> np.ndarray:
     return out
 
 
+def _local_linear(times: np.ndarray, obs: np.ndarray, sigma: np.ndarray, half_window_s: float) -> np.ndarray:
+    """Weighted local-linear fit (weights 1/sigma^2) of ``obs`` over +-half_window_s around every time;
+    NaN observations are skipped; a window with one observation gives that value (or the nearest one)."""
+    ok = np.isfinite(obs) & np.isfinite(sigma)
+    out = np.empty(len(times))
+    for i, t in enumerate(times):
+        sel = ok & (np.abs(times - t) <= half_window_s)
+        if sel.sum() == 0:
+            j = np.flatnonzero(ok)[np.argmin(np.abs(times[ok] - t))]
+            out[i] = obs[j]
+            continue
+        w = 1.0 / sigma[sel] ** 2
+        dt = times[sel] - t
+        if sel.sum() == 1 or np.ptp(dt) < 1e-9:
+            out[i] = float(np.sum(w * obs[sel]) / np.sum(w))
+            continue
+        a = np.stack([np.ones_like(dt), dt], axis=1) * np.sqrt(w)[:, None]
+        coef, *_ = np.linalg.lstsq(a, obs[sel] * np.sqrt(w), rcond=None)
+        out[i] = float(coef[0])
+    return out
+
+
 def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
-                     min_speed_mps: float = 0.3) -> TrackInit:
+                     min_speed_mps: float = 0.3, lidar_sigma_m: float = 0.15, stereo_px: float = 3.0,
+                     depth_window_s: float = 1.0) -> TrackInit:
     """Initial orientation and centre (pelvis) of every frame of ``track``.
 
-    Centre: on the camera ray of the labelled hips (so the image position is right), at the depth of the
-    instance's LiDAR points plus ``surface_offset_m`` (the visible surface is in front of the pelvis).
-    Stereo disparity of hand-clicked keypoints is a poor depth at range (a few pixels of independent click
-    noise are metres at 30 m), so LiDAR depth is preferred; frames without points interpolate the depth
-    over time, and a track without any LiDAR point uses the median stereo depth of its visible joints.
+    Centre: on the camera ray of the labelled hips (so the image position is right), at a depth smoothed
+    over time (weighted local-linear fit over +-``depth_window_s``) from per-frame measurements: the
+    instance's LiDAR points plus ``surface_offset_m`` (the visible surface is in front of the pelvis;
+    ``lidar_sigma_m``), else the median stereo depth of the joints visible in both images (sigma from
+    ``stereo_px`` of disparity noise).  Stereo disparity of hand-clicked keypoints is poor at range (a few
+    pixels of independent click noise are metres at 30 m), so LiDAR dominates where it exists, but frames
+    without points follow the stereo trend instead of a flat extrapolation (which, through the heading
+    taken from the same trajectory, used to lock walking-towards-the-camera tracks at a wrong depth).
     """
     n = len(track.frames)
     times = np.array([fr.timestamp for fr in track.frames], dtype=float)
     centroids = _lidar_centroids(track)
     tri = np.stack([triangulate_frame(track, fr) for fr in track.frames]) if n else np.zeros((0, 18, 3))
 
-    depth = np.full(n, np.nan)
+    # Per-frame depth measurements with their standard deviations: LiDAR (running median against stray
+    # clusters) where the frame has points, else the median stereo depth of the joints visible in both
+    # images (sigma from the disparity noise: Z^2 / (f b) * sigma_px / sqrt(n)).
+    lidar_depth = np.full(n, np.nan)
     for i, fr in enumerate(track.frames):
         if np.all(np.isfinite(centroids[i])):
-            depth[i] = track.calibrations[fr.pair].world_to_rect(centroids[i])[2] + surface_offset_m
-    depth = _median_filter_nan(depth, half_window=2)     # one frame's stray cluster must not move the start
-    if not np.isfinite(depth).any():
-        stereo_depth = np.full(n, np.nan)
-        for i, fr in enumerate(track.frames):
-            ok = np.all(np.isfinite(tri[i]), axis=1)
-            if fr.left is not None and fr.right is not None:
-                ok &= fr.left.visible & fr.right.visible
-            if ok.any():
-                stereo_depth[i] = np.median(track.calibrations[fr.pair].world_to_rect(tri[i, ok])[:, 2])
-        if np.isfinite(stereo_depth).any():
-            depth[:] = np.nanmedian(stereo_depth)      # one robust depth per track, refined by the solver
-    good = np.isfinite(depth)
+            lidar_depth[i] = track.calibrations[fr.pair].world_to_rect(centroids[i])[2] + surface_offset_m
+    lidar_depth = _median_filter_nan(lidar_depth, half_window=2)
+    stereo_depth = np.full(n, np.nan)
+    stereo_sigma = np.full(n, np.nan)
+    for i, fr in enumerate(track.frames):
+        ok = np.all(np.isfinite(tri[i]), axis=1)
+        if fr.left is not None and fr.right is not None:
+            ok &= fr.left.visible & fr.right.visible
+        if ok.any():
+            calib = track.calibrations[fr.pair]
+            z = float(np.median(calib.world_to_rect(tri[i, ok])[:, 2]))
+            stereo_depth[i] = z
+            stereo_sigma[i] = max(0.2, z * z / (calib.focal_px * calib.baseline_m) * stereo_px
+                                  / np.sqrt(ok.sum()))
+    depth_obs = np.where(np.isfinite(lidar_depth), lidar_depth, stereo_depth)
+    depth_sigma = np.where(np.isfinite(lidar_depth), lidar_sigma_m, stereo_sigma)
+    good = np.isfinite(depth_obs)
     if not good.any():
         raise ValueError(f"track {track.sequence}/{track.tracking_id}: no LiDAR points and no stereo "
                          "keypoints to place the pedestrian")
-    depth[~good] = np.interp(times[~good], times[good], depth[good])
+    depth = _local_linear(times, depth_obs, depth_sigma, depth_window_s)
 
     centre = np.full((n, 3), np.nan)
     for i, fr in enumerate(track.frames):
