@@ -6,7 +6,7 @@ from pedx_graph.cli import main
 
 def test_demo_runs_end_to_end(tmp_path, capsys):
     out = tmp_path / "demo"
-    rc = main(["demo", "--out", str(out), "--pedestrians", "2", "--frames", "4", "--workers", "1", "--seed", "5"])
+    rc = main(["demo", "--out", str(out), "--pedestrians", "3", "--frames", "6", "--workers", "1", "--seed", "3"])
     assert rc == 0
     printed = capsys.readouterr().out
     assert "| visible joints |" in printed
