@@ -174,7 +174,7 @@ def _true_person_points(truth_root: Path, track, frame_index: int) -> np.ndarray
     return fr.world_lidar_points[mask]
 
 
-def truth_values(keys, labels):
+def smpl_values(keys, labels):
     """gtsam Values holding the SMPL parameters of ``labels`` (one per frame, same order as ``keys``):
     ``world_R_body = Exp(pose[:3])``, ``trans``, ``body_pose = pose[3:]``, the first label's ``betas``."""
     import gtsam
@@ -225,7 +225,7 @@ def error_floor(truth: str | os.PathLike, fit_config=None, samples: int = 64, se
         sub = dataclasses.replace(track, frames=frames)
         labels = [by_frame[fr.frame] for fr in frames]
         problem = build_track_graph(sub, ctx, config)
-        values = truth_values(problem.keys, labels)
+        values = smpl_values(problem.keys, labels)
         problem.prefetch(values, True)
         marg = compute_marginals(problem.graph, values, problem.keys)
         pose = np.stack([lab.pose for lab in labels])
@@ -304,7 +304,7 @@ def run_covariances(results: str | os.PathLike, truth: str | os.PathLike) -> dic
             continue
         labels = [by_frame[fr.frame] for fr in track.frames]
         problem = build_track_graph(track, ctx, config)
-        values = truth_values(problem.keys, labels)
+        values = smpl_values(problem.keys, labels)
         problem.prefetch(values, True)
         try:
             marg = compute_marginals(problem.graph, values, problem.keys)
