@@ -92,9 +92,9 @@ def default_scenes() -> list[SceneVariant]:
 class ExperimentConfig:
     """Size and content of the experiment (defaults: the committed docs/results.md run)."""
 
-    pedestrians: int = 10
+    pedestrians: int = 12
     """Pedestrians per scene."""
-    frames: int = 30
+    frames: int = 40
     """Frames per scene (10 fps)."""
     scenes: list[SceneVariant] = field(default_factory=default_scenes)
     """The scenes (merged into one dataset, one sequence each)."""
