@@ -141,6 +141,8 @@ def main(argv=None) -> int:
                 continue
             lm_results.append(res)
             marg_rows.append(timing)
+        if not lm_results:
+            raise RuntimeError(f"batch LM failed on every track: {failed[:3]}")
         fitted = {(r.sequence, r.tracking_id) for r in lm_results}
         tracks = [t for t in tracks if (t.sequence, t.tracking_id) in fitted]
         gtsam_ref = gtsam_marginals_time(max(tracks, key=len), config, ctx)
