@@ -214,12 +214,21 @@ class StreamingEstimator:
         step = pelvis - state.last_pelvis if state.last_pelvis is not None else np.zeros(3)
         return _FrameInit(pelvis + step, rot, float("nan"), 0.0)
 
+    def _starting_pose(self, state: _ActiveTrack, init: _FrameInit) -> np.ndarray:
+        """A new track's first body pose: the candidate (pose prior means) reprojecting best onto its labels."""
+        try:
+            from pedx_graph.graph.build import select_template_poses
+        except ImportError:                       # older graph builder: the single template
+            return self.ctx.template_body_pose.copy()
+        track = Track(self.sequence, state.tracking_id, state.frames[-1:], state.calibrations)
+        return select_template_poses(track, self.ctx, init.world_R_body[None], init.world_p_centre[None])[0].copy()
+
     def _initial_values(self, state: _ActiveTrack, i: int, init) -> gtsam.Values:
         k = state.keys[i]
         values = gtsam.Values()
         if state.previous is None:
             values.insert(k.root, gtsam.Rot3(init.world_R_body))
-            values.insert(k.body_pose, self.ctx.template_body_pose.copy())
+            values.insert(k.body_pose, self._starting_pose(state, init))
             betas = np.zeros(self.ctx.model.num_betas)
             values.insert(k.betas, betas)
         else:
