@@ -15,15 +15,17 @@ COMMAND_MODULES = (
     "pedx_graph.body.cli",       # info
     "pedx_graph.sim.cli",        # simulate
     "pedx_graph.priors.cli",     # train-prior
-    "pedx_graph.solvers.cli",    # fit, stream
+    "pedx_graph.solvers.cli",    # fit
+    "pedx_graph.solvers.stream_cli",  # stream
     "pedx_graph.baselines.cli",  # baseline
-    "pedx_graph.eval.cli",       # eval, report
+    "pedx_graph.eval.cli",       # eval
+    "pedx_graph.eval.report_cli",  # report, experiments
     "pedx_graph.demo",           # demo
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="pedx-graph", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="pedx-graph", description="pedx-graph: metric 3D pedestrian body models from stereo 2D labels and LiDAR (factor graphs).")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:

@@ -46,6 +46,18 @@ def _visibility(truth_root) -> dict:
 
 def evaluate(results: str | os.PathLike, truth: str | os.PathLike, model: BodyModel | None = None) -> dict:
     """MPJPE of ``results`` against ``truth``: the :func:`summarise` dict plus coverage counts."""
+    arrays, missing = evaluate_arrays(results, truth, model)
+    summary = summarise(*arrays)
+    summary["missing_frames"] = missing
+    summary["results"] = str(results)
+    summary["truth"] = str(truth)
+    return summary
+
+
+def evaluate_arrays(results: str | os.PathLike, truth: str | os.PathLike, model: BodyModel | None = None
+                    ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], int]:
+    """Per-frame errors of ``results`` against ``truth``: ((global (N,13), root-relative (N,13),
+    visibility weights (N,13), distance (N,)), number of labelled truth frames without a result)."""
     from pedx_graph.data.reader import read_smpl_labels
 
     model = model or BodyModel.load()
@@ -70,12 +82,8 @@ def evaluate(results: str | os.PathLike, truth: str | os.PathLike, model: BodyMo
         dist_all.append(np.linalg.norm(pelvis[:, :2], axis=1))
     if not glob_all:
         raise ValueError(f"no frame of {results} matches a labelled frame of {truth}")
-    summary = summarise(np.concatenate(glob_all), np.concatenate(rel_all), np.concatenate(w_all),
-                        np.concatenate(dist_all))
-    summary["missing_frames"] = missing
-    summary["results"] = str(results)
-    summary["truth"] = str(truth)
-    return summary
+    arrays = (np.concatenate(glob_all), np.concatenate(rel_all), np.concatenate(w_all), np.concatenate(dist_all))
+    return arrays, missing
 
 
 def write_report(summary: dict, out_dir: str | os.PathLike, title: str = "Accuracy") -> tuple[Path, Path]:
