@@ -214,5 +214,8 @@ def test_report_end_to_end(tiny_experiment, tmp_path):
     floor = out["floor"]
     assert floor is not None and floor["frames"] > 0
     tri = next(r for r in out["runs"] if r["name"] == "triangulation")["eval"]
+    robust = tri["robust"]
+    assert 0 < robust["frames"] <= tri["frames"] and 0.0 <= robust["gross_failure_rate"] <= 1.0
+    assert "median frame, global" in md
     # the floor is the estimator's best case: far below a keypoint triangulation
     assert floor["overall"]["global_mm"] < tri["overall"]["global_mm"]

@@ -448,12 +448,31 @@ def ablation_table(rows: list[tuple[int, str, dict, dict]]) -> str:
     from pedx_graph.eval.experiments import ABLATION_TERM_SYMBOLS
 
     symbols = list(ABLATION_TERM_SYMBOLS.items())
-    lines = ["| row | " + " | ".join(sym for _, sym in symbols) + " | global | root-relative |",
-             "|---|" + ":---:|" * len(symbols) + "---:|---:|"]
+    lines = ["| row | " + " | ".join(sym for _, sym in symbols) + " | global | root-relative | " + _ROBUST_HEAD,
+             "|---|" + ":---:|" * len(symbols) + "---:|---:|---:|---:|---:|"]
     for number, label, terms, s in rows:
         marks = " | ".join("x" if terms.get(field) else "" for field, _ in symbols)
         lines.append(f"| {number}: {label} | {marks} | {_fmt(s['overall']['global_mm'])} | "
-                     f"{_fmt(s['overall']['root_relative_mm'])} |")
+                     f"{_fmt(s['overall']['root_relative_mm'])} | {_robust_cells(s)} |")
+    return "\n".join(lines) + "\n"
+
+
+_ROBUST_HEAD = "median frame, global | median frame, root-rel. | frames > 0.5 m |"
+
+
+def _robust_cells(summary: dict) -> str:
+    rb = summary.get("robust") or {}
+    rate = rb.get("gross_failure_rate")
+    return (f"{_fmt(rb.get('global_median_mm'))} | {_fmt(rb.get('root_relative_median_mm'))} | "
+            f"{_fmt(None if rate is None else 100 * rate)} %")
+
+
+def robust_table(summaries: dict[str, dict]) -> str:
+    """Markdown: mean vs per-frame median MPJPE and the gross-failure rate of each method."""
+    lines = ["| method | global mean | root-rel. mean | " + _ROBUST_HEAD, "|---|---:|---:|---:|---:|---:|"]
+    for name, s in summaries.items():
+        lines.append(f"| {name} | {_fmt(s['overall']['global_mm'])} | {_fmt(s['overall']['root_relative_mm'])} | "
+                     f"{_robust_cells(s)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -470,9 +489,14 @@ def ablation_ordering(rows: list[tuple[int, str, dict, dict]]) -> list[dict]:
     for without, with_, what in ORDERING_STEPS:
         if without in by_row and with_ in by_row:
             a, b = by_row[without]["overall"], by_row[with_]["overall"]
-            out.append({"from_row": without, "to_row": with_, "adds": what,
-                        "global_change_mm": b["global_mm"] - a["global_mm"],
-                        "root_relative_change_mm": b["root_relative_mm"] - a["root_relative_mm"]})
+            step = {"from_row": without, "to_row": with_, "adds": what,
+                    "global_change_mm": b["global_mm"] - a["global_mm"],
+                    "root_relative_change_mm": b["root_relative_mm"] - a["root_relative_mm"]}
+            ra, rb = by_row[without].get("robust") or {}, by_row[with_].get("robust") or {}
+            if "global_median_mm" in ra and "global_median_mm" in rb:
+                step["global_median_change_mm"] = rb["global_median_mm"] - ra["global_median_mm"]
+                step["root_relative_median_change_mm"] = rb["root_relative_median_mm"] - ra["root_relative_median_mm"]
+            out.append(step)
     return out
 
 
@@ -481,9 +505,15 @@ def ordering_text(steps: list[dict]) -> str:
     lines = []
     for st in steps:
         verdict = lambda d: "helps" if d < 0 else "does not help"  # noqa: E731
-        lines.append(f"- row {st['from_row']} -> {st['to_row']}, adding {st['adds']}: global "
-                     f"{st['global_change_mm']:+.1f} mm ({verdict(st['global_change_mm'])}), root-relative "
-                     f"{st['root_relative_change_mm']:+.1f} mm ({verdict(st['root_relative_change_mm'])})")
+        text = (f"- row {st['from_row']} -> {st['to_row']}, adding {st['adds']}: mean global "
+                f"{st['global_change_mm']:+.1f} mm ({verdict(st['global_change_mm'])}), root-relative "
+                f"{st['root_relative_change_mm']:+.1f} mm ({verdict(st['root_relative_change_mm'])})")
+        if "global_median_change_mm" in st:
+            text += (f"; per-frame median global {st['global_median_change_mm']:+.1f} mm "
+                     f"({verdict(st['global_median_change_mm'])}), root-relative "
+                     f"{st['root_relative_median_change_mm']:+.1f} mm "
+                     f"({verdict(st['root_relative_median_change_mm'])})")
+        lines.append(text)
     return "\n".join(lines) + ("\n" if lines else "")
 
 
@@ -525,14 +555,76 @@ def calibration_table(cal: dict) -> str:
 
 # --- the report ----------------------------------------------------------------------------------------
 
+#: A frame whose global MPJPE exceeds this (metres) counts as a gross failure.
+GROSS_FAILURE_M = 0.5
+
+
+def truth_index(truth: str | os.PathLike, model) -> dict:
+    """``{(sequence, tracking_id, frame): ((13, 3) true joints, (13,) visibility weights)}`` of a dataset."""
+    from pedx_graph.data.reader import read_dataset, read_smpl_labels
+
+    gt = read_smpl_labels(truth)
+    vis = {(t.sequence, t.tracking_id, fr.frame): frame_visibility(fr) for t in read_dataset(truth)
+           for fr in t.frames}
+    out = {}
+    for key, labels in gt.items():
+        labels = [lab for lab in labels if (key[0], key[1], lab.frame) in vis]
+        if not labels:
+            continue
+        kp = np.asarray(model.keypoints(np.stack([lab.pose for lab in labels]),
+                                        np.stack([lab.betas for lab in labels]),
+                                        np.stack([lab.trans for lab in labels])))
+        for lab, joints in zip(labels, eval_joints(kp)):
+            out[(key[0], key[1], lab.frame)] = (joints, eval_visibility(vis[(key[0], key[1], lab.frame)]))
+    return out
+
+
+def robust_stats(results: str | os.PathLike, index: dict) -> dict:
+    """Per-frame MPJPE (visibility-weighted over the frame's joints) of a results folder: the median over
+    frames (global, root-relative, mm), the fraction of frames whose global MPJPE exceeds
+    :data:`GROSS_FAILURE_M` and the median over tracks of the track's mean global MPJPE."""
+    from pedx_graph.data.reader import read_smpl_labels
+
+    per_frame_g, per_frame_r, per_track = [], [], []
+    for key, labels in read_smpl_labels(results).items():
+        track_g = []
+        for lab in labels:
+            entry = index.get((key[0], key[1], lab.frame))
+            if entry is None or "keypoints_3d" not in lab.extra:
+                continue
+            truth13, weights = entry
+            if weights.sum() <= 0:
+                continue
+            pred13 = eval_joints(np.asarray(lab.extra["keypoints_3d"], dtype=float))
+            glob, rel = joint_errors(pred13[None], truth13[None])
+            g = float((glob[0] * weights).sum() / weights.sum())
+            per_frame_g.append(g)
+            per_frame_r.append(float((rel[0] * weights).sum() / weights.sum()))
+            track_g.append(g)
+        if track_g:
+            per_track.append(float(np.mean(track_g)))
+    if not per_frame_g:
+        return {"frames": 0}
+    g, r = np.array(per_frame_g), np.array(per_frame_r)
+    return {"frames": int(len(g)), "global_median_mm": 1000 * float(np.median(g)),
+            "root_relative_median_mm": 1000 * float(np.median(r)),
+            "gross_failure_rate": float(np.mean(g > GROSS_FAILURE_M)),
+            "track_median_global_mm": 1000 * float(np.median(per_track))}
+
+
 def collect_runs(results_dirs, truth, model=None) -> list[dict]:
-    """:func:`describe_run` + the :func:`pedx_graph.eval.evaluate.evaluate` summary of every folder."""
+    """:func:`describe_run` + the :func:`pedx_graph.eval.evaluate.evaluate` summary of every folder, with
+    :func:`robust_stats` under ``eval["robust"]``."""
+    from pedx_graph.body import BodyModel
     from pedx_graph.eval.evaluate import evaluate
 
+    model = model or BodyModel.load()
+    index = truth_index(truth, model)
     runs = []
     for path in results_dirs:
         info = describe_run(path)
         info["eval"] = evaluate(path, truth, model)
+        info["eval"]["robust"] = robust_stats(path, index)
         runs.append(info)
     names = [r["name"] for r in runs]
     if len(set(names)) != len(names):
@@ -562,6 +654,8 @@ def assemble(runs: list[dict], floor: dict | None = None, calibrations: dict | N
         tables["table2_root_relative_per_joint"] = per_joint_table(methods, "root_relative_mm", floor)
         tables["table3_global_per_joint"] = per_joint_table(methods, "global_mm", floor)
         tables["per_distance"] = distance_table(methods, floor)
+        if all("robust" in m for m in methods.values()):
+            tables["robust"] = robust_table(methods)
         if floor:
             tables["floor_ratio"] = floor_ratio_table(methods, floor)
     ordering = ablation_ordering(ablation)
@@ -587,6 +681,7 @@ _SECTIONS = (
     ("table3_global_per_joint", "Table III: global MPJPE per joint (mm, world frame, no alignment)"),
     ("table4_ablation", "Table IV: energy-term ablation (our fit; MPJPE mm)"),
     ("table5_noisy_labels", "Table V: annotator vs simulated-detector 2D labels (MPJPE mm)"),
+    ("robust", "Mean vs median: gross failures dominate the global mean (mm)"),
     ("per_distance", "MPJPE per distance bin (mm, global / root-relative)"),
     ("floor_ratio", "Ratio to the error floor (global / root-relative)"),
     ("speed", "Speed"),
