@@ -78,7 +78,8 @@ def test_assemble_groups_runs():
     assert [a["row"] for a in out["ablation"]] == [1, 5]
     assert out["noisy"][0]["method"] == "ours"
     assert out["noisy"][0]["detector"]["global_mm"] == pytest.approx(250.0)
-    assert "| ours | 150.0 | 250.0 | 75.0 | 125.0 |" in out["tables"]["table5_noisy_labels"]
+    assert "| ours | annotator | 150.0 | 75.0 | - | - | - % |" in out["tables"]["table5_noisy_labels"]
+    assert "| ours | detector | 250.0 | 125.0 | - | - | - % |" in out["tables"]["table5_noisy_labels"]
     assert "| ours | 1 (0) | 4 | 1 | 2.0 | 0.250 | 1.00 |" in out["tables"]["speed"]
     md = rp.render_markdown(out)
     assert md.index("Table II") < md.index("Table III") < md.index("Table IV") < md.index("Table V")

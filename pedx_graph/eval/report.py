@@ -519,12 +519,11 @@ def ordering_text(steps: list[dict]) -> str:
 
 def pair_table(pairs: list[tuple[str, dict, dict]]) -> str:
     """Markdown of Table V: (method, clean summary, noisy summary) -> global and root-relative, both label sets."""
-    lines = ["| method | global, clean | global, detector | root-rel., clean | root-rel., detector |",
-             "|---|---:|---:|---:|---:|"]
+    lines = ["| method | labels | global mean | root-rel. mean | " + _ROBUST_HEAD, "|---|---|---:|---:|---:|---:|---:|"]
     for name, clean, noisy in pairs:
-        lines.append(f"| {name} | {_fmt(clean['overall']['global_mm'])} | {_fmt(noisy['overall']['global_mm'])} | "
-                     f"{_fmt(clean['overall']['root_relative_mm'])} | "
-                     f"{_fmt(noisy['overall']['root_relative_mm'])} |")
+        for which, s in (("annotator", clean), ("detector", noisy)):
+            lines.append(f"| {name} | {which} | {_fmt(s['overall']['global_mm'])} | "
+                         f"{_fmt(s['overall']['root_relative_mm'])} | {_robust_cells(s)} |")
     return "\n".join(lines) + "\n"
 
 
