@@ -1,9 +1,11 @@
 """Benchmark of the batch fit: accuracy per distance bin and speed vs track length (seeded).
 
-Accuracy: a simulated scene (held-out CMU motion when ../shared/mocap/cmu exists, else the procedural
-gait), every track fitted with batch LM, MPJPE global and root-relative overall and per distance bin.
-Speed: one pedestrian simulated for 200 frames, its track cut to 25/50/100/200 frames and fitted on one
-core; both LM back-ends (Python-driven over ``graph.linearize`` and gtsam's optimiser) at 50 frames.
+Accuracy: four simulated scenes, the simulator's pedestrian distances centred on each distance bin (held-out
+CMU motion when ../shared/mocap/cmu exists, else the procedural gait), every track fitted with batch LM,
+MPJPE global and root-relative pooled over the scenes, overall and per distance bin.
+Speed: slow walkers (0.5 m/s, procedural gait) simulated for 200 frames, the longest track cut to
+25/50/100/200 frames and fitted on one core; both LM back-ends (Python-driven over ``graph.linearize`` and
+gtsam's optimiser) at 50 frames.
 
     python benchmarks/bench_fit.py [--seed 0] [--pedestrians 10] [--frames 50] [--out benchmarks/results]
 
@@ -26,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pedx_graph.data.reader import read_dataset  # noqa: E402
-from pedx_graph.eval.evaluate import evaluate  # noqa: E402
-from pedx_graph.eval.metrics import markdown_table  # noqa: E402
+from pedx_graph.eval.evaluate import evaluate_arrays  # noqa: E402
+from pedx_graph.eval.metrics import DISTANCE_BINS, markdown_table, summarise  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
 from pedx_graph.sim.config import SimConfig  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
@@ -38,8 +40,10 @@ SHARED_CMU = ROOT.parent / "shared" / "mocap" / "cmu"
 
 
 def hardware() -> str:
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     return f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'unknown cpu'}, " \
-           f"Python {platform.python_version()}, {platform.system()}"
+           f"Python {platform.python_version()}, {platform.system()}; load average at the end {load} " \
+           "(a shared machine: other jobs ran beside the benchmark)"
 
 
 def sim_config(pedestrians: int, frames: int) -> SimConfig:
@@ -53,33 +57,55 @@ def sim_config(pedestrians: int, frames: int) -> SimConfig:
 
 
 def accuracy(seed: int, pedestrians: int, frames: int, workers: int, work: Path) -> dict:
-    scene, results = work / "scene", work / "results"
-    t0 = time.perf_counter()
-    simulate(scene, sim_config(pedestrians, frames), seed=seed)
-    t1 = time.perf_counter()
-    summary = fit_dataset(scene, results, FitConfig(), workers=workers)
-    t2 = time.perf_counter()
-    report = evaluate(results, scene)
-    per_track = [t["seconds"] / max(t["frames"], 1) for t in summary["tracks"]]
-    return {"simulate_seconds": t1 - t0, "fit_wall_seconds": t2 - t1, "workers": workers,
-            "tracks": len(summary["tracks"]), "failed": len(summary["failed"]),
-            "frames": summary["total_frames"], "median_ms_per_frame_per_track": 1000 * float(np.median(per_track))
-            if per_track else None, "eval": report,
-            "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait"}
+    """One scene per distance bin (the simulator's distance weighting centred on the bin), pooled."""
+    arrays, scenes = [], []
+    t_sim = t_fit = 0.0
+    n_tracks = n_failed = n_frames = 0
+    per_track = []
+    for b, (lo, hi) in enumerate(DISTANCE_BINS):
+        scene, results = work / f"scene{b}", work / f"results{b}"
+        cfg = sim_config(pedestrians, frames)
+        cfg.scene.distance_mean_m = 0.5 * (lo + hi)
+        cfg.scene.distance_std_m = 0.35 * (hi - lo)
+        t0 = time.perf_counter()
+        simulate(scene, cfg, seed=seed + b)
+        t1 = time.perf_counter()
+        summary = fit_dataset(scene, results, FitConfig(), workers=workers)
+        t2 = time.perf_counter()
+        t_sim += t1 - t0
+        t_fit += t2 - t1
+        n_tracks += len(summary["tracks"])
+        n_failed += len(summary["failed"])
+        n_frames += summary["total_frames"]
+        per_track += [t["seconds"] / max(t["frames"], 1) for t in summary["tracks"]]
+        arr, _ = evaluate_arrays(results, scene)
+        arrays.append(arr)
+        scenes.append({"seed": seed + b, "distance_mean_m": cfg.scene.distance_mean_m,
+                       "distance_std_m": cfg.scene.distance_std_m, "tracks": len(summary["tracks"]),
+                       "frames": summary["total_frames"]})
+    pooled = summarise(*(np.concatenate([a[i] for a in arrays]) for i in range(4)))
+    return {"simulate_seconds": t_sim, "fit_wall_seconds": t_fit, "workers": workers, "scenes": scenes,
+            "tracks": n_tracks, "failed": n_failed, "frames": n_frames,
+            "median_ms_per_frame_per_track": 1000 * float(np.median(per_track)) if per_track else None,
+            "eval": pooled, "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait"}
 
 
 def speed(seed: int, work: Path) -> dict:
     scene = work / "speed_scene"
-    cfg = sim_config(1, 200)
+    cfg = sim_config(3, 200)
+    cfg.scene.speed_mean_mps = 0.5        # slow walkers stay in view for the 200-frame track
+    cfg.scene.speed_std_mps = 0.05
+    cfg.motion.motion_dir = None          # procedural gait: speed as configured
     simulate(scene, cfg, seed=seed + 1)
     tracks = sorted(read_dataset(scene), key=len, reverse=True)
     track = tracks[0]
     rows = []
     config = FitConfig()
     ctx = _context(config)
-    for length in (25, 50, 100, 200):
-        if len(track) < length:
-            continue
+    lengths = [n for n in (25, 50, 100, 200) if n <= len(track)]
+    if len(track) < 200 and len(track) > lengths[-1]:
+        lengths.append(len(track))            # the longest the scene gave
+    for length in lengths:
         sub = copy.copy(track)
         sub.frames = track.frames[:length]
         res = fit_track(sub, config, ctx)
@@ -100,7 +126,8 @@ def to_markdown(result: dict) -> str:
     acc = result["accuracy"]
     lines = ["# Batch fit benchmark", "",
              f"Command: `{result['command']}`  ", f"Hardware: {result['hardware']}  ",
-             f"Seed {result['seed']}; scene: {result['pedestrians']} pedestrians x {result['frames']} frames, "
+             f"Seed {result['seed']}; four scenes (one centred on each distance bin, seeds seed..seed+3), each "
+             f"{result['pedestrians']} pedestrians x {result['frames']} frames, "
              f"motion: {acc['motion']}; {acc['tracks']} tracks fitted ({acc['failed']} failed), "
              f"{acc['frames']} frames; fit wall time {acc['fit_wall_seconds']:.1f} s with {acc['workers']} workers.",
              "", markdown_table(acc["eval"], title="Accuracy (MPJPE, mm)"), "## Speed (one core, one track)", "",
@@ -124,10 +151,11 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         result = {"command": "python benchmarks/bench_fit.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-                  "hardware": hardware(), "seed": args.seed, "pedestrians": args.pedestrians,
+                  "seed": args.seed, "pedestrians": args.pedestrians,
                   "frames": args.frames,
                   "accuracy": accuracy(args.seed, args.pedestrians, args.frames, args.workers, work),
                   "speed": {"rows": []} if args.skip_speed else speed(args.seed, work)}
+        result["hardware"] = hardware()
     out = Path(args.out)
     atomic_write_json(out / "bench_fit.json", result)
     atomic_write_text(out / "bench_fit.md", to_markdown(result))
