@@ -104,3 +104,17 @@ def test_single_frame_track_and_bad_track_do_not_stop_the_run(scene, tmp_path):
     outcomes = list(fit_tracks([broken, tracks[1]], config, workers=1))
     assert outcomes[0][0] is None and "no frames" in outcomes[0][1][2]
     assert outcomes[1][0] is not None
+
+
+def test_results_carry_marginal_covariances_and_diagnostics(fitted):
+    out, summary = fitted
+    labels = [lab for labs in read_smpl_labels(out).values() for lab in labs]
+    with_cov = [lab for lab in labels if lab.extra.get("covariance_status") == "ok"]
+    assert with_cov, "no frame got covariances"
+    for lab in with_cov:
+        cov = np.asarray(lab.extra["cov_keypoints_3d"])
+        assert cov.shape == (18, 3, 3)
+        assert np.allclose(cov, np.swapaxes(cov, 1, 2), atol=1e-12)
+        assert np.all(np.linalg.eigvalsh(cov) > -1e-12)
+        assert np.asarray(lab.extra["cov_trans"]).shape == (3, 3)
+    assert all("diagnostics" in t for t in summary["tracks"])

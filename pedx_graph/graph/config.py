@@ -114,3 +114,7 @@ class FitConfig:
     """Solver settings."""
     seed: int = 0
     """Seed of every random choice (point subsampling)."""
+    covariances: bool = True
+    """Write marginal covariances (translation, root, body pose, 18 keypoints per frame; shape per track)."""
+    diagnostics: bool = True
+    """Write per-track diagnostics (residuals per factor type and frame, outliers, weakest directions)."""

@@ -17,7 +17,8 @@ def register(subparsers) -> None:
                                           "the PedX SMPL layout under --out, with summary.json and the config.")
     p.add_argument("dataset", help="dataset root (the folder holding labels/ and calib/, or its parent)")
     p.add_argument("--out", required=True, help="results folder")
-    p.add_argument("--solver", default="lm", choices=["lm"], help="solver (lm: batch Levenberg-Marquardt)")
+    p.add_argument("--solver", default="lm", choices=["lm", "admm"],
+                   help="lm: batch Levenberg-Marquardt over the joint graph; admm: the paper's ADMM (reference)")
     p.add_argument("--config", default=None, help="YAML preset (see configs/)")
     p.add_argument("--workers", type=int, default=1, help="processes over tracks")
     p.add_argument("--sequence", action="append", default=None, help="only these sequences (repeatable)")
@@ -28,7 +29,8 @@ def _run_fit(args: argparse.Namespace) -> int:
     from pedx_graph.solvers.fit import fit_dataset
 
     config = load_config(FitConfig, args.config)
-    summary = fit_dataset(args.dataset, args.out, config, workers=args.workers, sequences=args.sequence)
+    summary = fit_dataset(args.dataset, args.out, config, workers=args.workers, sequences=args.sequence,
+                          solver=args.solver)
     n_ok, n_bad = len(summary["tracks"]), len(summary["failed"])
     print(f"fitted {n_ok} tracks ({summary['total_frames']} frames) in {summary['wall_seconds']:.1f} s; "
           f"{n_bad} failed; results in {args.out}")

@@ -99,12 +99,21 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
     else:
         problem, values, report = solve_staged(track, ctx, config)
     est = extract_estimate(problem, values, ctx)
+    seconds = time.perf_counter() - t0
+    per_frame, per_track = [], {}
+    if config.covariances or config.diagnostics:
+        from pedx_graph.solvers.diagnostics import track_extras
+
+        t1 = time.perf_counter()
+        per_frame, per_track = track_extras(problem, values, ctx, marginals=config.covariances,
+                                            diagnostics=config.diagnostics, fit_config=config)
+        per_track["extras_seconds"] = time.perf_counter() - t1
     return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
                        frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
                        trans=est.trans, world_keypoints=est.world_keypoints,
                        final_error=report.final_error, initial_error=report.initial_error,
-                       iterations=report.iterations, seconds=time.perf_counter() - t0,
-                       solver=f"lm-{report.backend}")
+                       iterations=report.iterations, seconds=seconds, solver=f"lm-{report.backend}",
+                       extra_per_frame=per_frame, extra_track=per_track)
 
 
 def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
@@ -152,18 +161,28 @@ def _single_frame_search(track: Track, ctx, config: FitConfig, n_headings: int =
     return best
 
 
+#: Solvers of ``pedx-graph fit --solver``: batch LM over the joint graph, or the paper's ADMM.
+SOLVERS = ("lm", "admm")
+
+
 def _fit_one(args):
-    track, config = args
+    track, config, solver = args
     try:
+        if solver == "admm":
+            from pedx_graph.solvers.admm import fit_track_admm
+            return fit_track_admm(track, config, _context(config), marginals=config.covariances,
+                                  diagnostics=config.diagnostics), None
         return fit_track(track, config), None
     except Exception as exc:  # one bad track never kills the run
         return None, (track.sequence, track.tracking_id, f"{type(exc).__name__}: {exc}",
                       traceback.format_exc(limit=4))
 
 
-def fit_tracks(tracks: list[Track], config: FitConfig, workers: int = 1):
+def fit_tracks(tracks: list[Track], config: FitConfig, workers: int = 1, solver: str = "lm"):
     """Fit tracks (process pool when ``workers > 1``); yields (result or None, error or None) in order."""
-    jobs = [(tr, config) for tr in tracks]
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    jobs = [(tr, config, solver) for tr in tracks]
     if workers <= 1 or len(tracks) <= 1:
         for job in jobs:
             yield _fit_one(job)
@@ -173,7 +192,7 @@ def fit_tracks(tracks: list[Track], config: FitConfig, workers: int = 1):
 
 
 def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitConfig | None = None,
-                workers: int = 1, sequences: list[str] | None = None) -> dict:
+                workers: int = 1, sequences: list[str] | None = None, solver: str = "lm") -> dict:
     """Fit every track of ``dataset`` and write results under ``out`` (PedX SMPL layout); returns the summary."""
     from pedx_graph.data.reader import read_dataset
 
@@ -183,8 +202,8 @@ def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitC
     save_config(config, out / "fit_config.yaml")
     t0 = time.perf_counter()
     tracks = read_dataset(dataset, sequences=sequences)
-    summary = {"dataset": str(dataset), "tracks": [], "failed": [], "workers": workers}
-    return write_outcomes(fit_tracks(tracks, config, workers), out, summary, t0)
+    summary = {"dataset": str(dataset), "solver": solver, "tracks": [], "failed": [], "workers": workers}
+    return write_outcomes(fit_tracks(tracks, config, workers, solver), out, summary, t0)
 
 
 def write_outcomes(outcomes, out: Path, summary: dict, t0: float) -> dict:
