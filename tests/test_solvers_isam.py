@@ -6,7 +6,7 @@ import pytest
 from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
 from pedx_graph.graph.build import build_track_graph, extract_estimate
 from pedx_graph.graph.config import SolverConfig
-from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig, isam_solve, local_lm
+from pedx_graph.solvers.isam import IsamConfig, isam_solve, local_lm
 from pedx_graph.solvers.lm import python_lm
 from pedx_graph.solvers.marginals import gtsam_marginals, isam_frame_covariance
 
