@@ -29,7 +29,7 @@ from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojectio
 from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.body import BodyModel
-from pedx_graph.data.types import Track
+from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import TrackInit, initialise_track, world_R_body_from_yaw
@@ -184,6 +184,62 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
     return out
 
 
+def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
+                  previous: tuple[FrameKeys, float] | None, heading_yaw: float, speed_mps: float,
+                  model, ctx: EstimatorContext, config: FitConfig,
+                  rng: np.random.Generator) -> list[tuple[gtsam.NonlinearFactor, str]]:
+    """The factors of one frame (every term but the track's shape prior), as ``(factor, kind)`` pairs.
+
+    ``k``: the frame's keys; ``previous``: (keys, timestamp) of the track's previous observed frame for the
+    temporal prior, or None; ``heading_yaw``/``speed_mps``: the trajectory heading (NaN: unknown) and
+    speed; ``model``: the body model the factors evaluate (a :class:`BatchedBodyModel` in batch fits);
+    ``rng``: draws the LiDAR subsample.  Shared by the batch builder and the streaming estimator so the
+    two graphs stay identical.
+    """
+    noise, terms = config.noise, config.terms
+    out: list[tuple[gtsam.NonlinearFactor, str]] = []
+
+    def add(factor, kind: str) -> None:
+        if factor is not None:
+            out.append((factor, kind))
+
+    left = fr.left if terms.left_reprojection else None
+    right = fr.right if terms.right_reprojection else None
+    if left is not None or right is not None:
+        add(make_stereo_reprojection_factor(
+            k, model, StereoKeypoints.from_views(left, right), calibration,
+            sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
+            keypoint_weights=_hip_weights(config), robust=_robust(noise.reprojection_loss),
+            robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
+    points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
+    if terms.lidar_chamfer and len(points):
+        add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
+                                      robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
+                                      candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
+    if terms.translation_prior and len(points):
+        add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points),
+                                          num_betas=model.num_betas,
+                                          depth_offset_m=noise.translation_depth_offset_m,
+                                          sigma_ray_m=noise.translation_ray_sigma_m,
+                                          sigma_lateral_m=noise.translation_sigma_m,
+                                          sigma_vertical_m=noise.translation_vertical_sigma_m,
+                                          robust=_robust(noise.translation_loss),
+                                          robust_scale=noise.translation_loss_scale), "translation_prior")
+    if terms.heading_prior and np.isfinite(heading_yaw):
+        add(make_heading_prior_factor(k.root, heading_yaw, speed_mps, sigma0_rad=noise.heading_sigma_rad,
+                                      v0=noise.heading_min_speed_mps * 2,
+                                      min_speed=noise.heading_min_speed_mps), "heading_prior")
+    if terms.pose_prior:
+        add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture), "pose_prior")
+        add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits")
+    if terms.temporal_prior and previous is not None:
+        kp, previous_time = previous
+        gap = max(1, int(round((fr.timestamp - previous_time) / ctx.temporal_dt)))
+        add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
+                                       mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior")
+    return out
+
+
 def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
                       yaw_override: np.ndarray | None = None,
                       initial: gtsam.Values | None = None) -> TrackProblem:
@@ -194,7 +250,7 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     """
     if len(track.frames) == 0:
         raise ValueError(f"track {track.sequence}/{track.tracking_id} has no frames")
-    noise, terms = config.noise, config.terms
+    noise = config.noise
     model = BatchedBodyModel(ctx.model, ctx.chamfer_vertex_ids)
     nb = model.num_betas
     init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
@@ -216,46 +272,16 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     pelvis_rest = ctx.model.rest_joints(betas0)[0]
     keys = [FrameKeys.for_frame(i) for i in range(len(track.frames))]
     values.insert(keys[0].betas, betas0)
-    hip_weights = _hip_weights(config)
     body_pose0 = select_template_poses(track, ctx, world_R_body, init.world_p_centre)
     for i, (fr, k) in enumerate(zip(track.frames, keys)):
         values.insert(k.root, gtsam.Rot3(world_R_body[i]))
         values.insert(k.trans, np.asarray(init.world_p_centre[i] - pelvis_rest, dtype=float))
         values.insert(k.body_pose, body_pose0[i].copy())
-        left = fr.left if terms.left_reprojection else None
-        right = fr.right if terms.right_reprojection else None
-        if left is not None or right is not None:
-            add(make_stereo_reprojection_factor(
-                k, model, StereoKeypoints.from_views(left, right), track.calibrations[fr.pair],
-                sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
-                keypoint_weights=hip_weights, robust=_robust(noise.reprojection_loss),
-                robust_scale=noise.reprojection_loss_scale), "stereo_reprojection", i)
-        points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
-        if terms.lidar_chamfer and len(points):
-            add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
-                                          robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
-                                          candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer", i)
-        if terms.translation_prior and len(points):
-            add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points), num_betas=nb,
-                                              depth_offset_m=noise.translation_depth_offset_m,
-                                              sigma_ray_m=noise.translation_ray_sigma_m,
-                                              sigma_lateral_m=noise.translation_sigma_m,
-                                              sigma_vertical_m=noise.translation_vertical_sigma_m,
-                                              robust=_robust(noise.translation_loss),
-                                              robust_scale=noise.translation_loss_scale),
-                "translation_prior", i)
-        if terms.heading_prior and np.isfinite(init.heading_yaw[i]):
-            add(make_heading_prior_factor(k.root, float(init.heading_yaw[i]), float(init.speed_mps[i]),
-                                          sigma0_rad=noise.heading_sigma_rad, v0=noise.heading_min_speed_mps * 2,
-                                          min_speed=noise.heading_min_speed_mps), "heading_prior", i)
-        if terms.pose_prior:
-            add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture), "pose_prior", i)
-            add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits", i)
-        if terms.temporal_prior and i > 0:
-            kp = keys[i - 1]
-            gap = max(1, int(round((init.times[i] - init.times[i - 1]) / ctx.temporal_dt)))
-            add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
-                                           mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior", i)
+        previous = (keys[i - 1], track.frames[i - 1].timestamp) if i > 0 else None
+        for factor, kind in frame_factors(k, fr, track.calibrations[fr.pair], previous,
+                                          float(init.heading_yaw[i]), float(init.speed_mps[i]),
+                                          model, ctx, config, rng):
+            add(factor, kind, i)
     add(make_shape_prior_factor(keys[0].betas, num_betas=nb, sigma=noise.shape_sigma), "shape_prior", -1)
     if initial is not None:
         values = gtsam.Values(initial)

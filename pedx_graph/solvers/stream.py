@@ -30,16 +30,9 @@ import gtsam
 import numpy as np
 
 from factors.common import FrameKeys
-from factors.heading_prior import make_heading_prior_factor
-from factors.joint_limits import make_joint_limit_factor
-from factors.lidar_chamfer import make_lidar_chamfer_factor
-from factors.pose_prior import make_pose_prior_factor
 from factors.shape_prior import make_shape_prior_factor
-from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
-from factors.temporal_prior import make_temporal_prior_factor
-from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
-from pedx_graph.graph.build import _hip_weights, _robust, _subsample, core_points
+from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import initialise_track, triangulate_frame
 from pedx_graph.keypoints import PEDX_KEYPOINTS
@@ -140,9 +133,9 @@ class StreamingEstimator:
         self.finished: list = []
         self._pelvis_rest0 = ctx.model.rest_joints(np.zeros(ctx.model.num_betas))[0]
 
-    # --- factors of one new frame (mirrors pedx_graph.graph.build.build_track_graph) ---------------------
+    # --- factors of one new frame (pedx_graph.graph.build.frame_factors, as the batch graph) -------------
     def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: Track):
-        noise, terms, ctx, model = self.config.noise, self.config.terms, self.ctx, self.ctx.model
+        noise, ctx, model = self.config.noise, self.ctx, self.ctx.model
         k = state.keys[i]
         graph = gtsam.NonlinearFactorGraph()
 
@@ -153,42 +146,10 @@ class StreamingEstimator:
                 state.factor_frames.append(i if kind != "shape_prior" else -1)
 
         init = self._causal_init(state, window)
-        left = fr.left if terms.left_reprojection else None
-        right = fr.right if terms.right_reprojection else None
-        if left is not None or right is not None:
-            add(make_stereo_reprojection_factor(
-                k, model, StereoKeypoints.from_views(left, right), state.calibrations[fr.pair],
-                sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
-                keypoint_weights=_hip_weights(self.config), robust=_robust(noise.reprojection_loss),
-                robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
-        points = _subsample(fr.world_lidar_points, noise.lidar_max_points, state.rng)
-        if terms.lidar_chamfer and len(points):
-            add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
-                                          robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
-                                          candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
-        if terms.translation_prior and len(points):
-            add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points),
-                                              num_betas=model.num_betas,
-                                              depth_offset_m=noise.translation_depth_offset_m,
-                                              sigma_ray_m=noise.translation_ray_sigma_m,
-                                              sigma_lateral_m=noise.translation_sigma_m,
-                                              sigma_vertical_m=noise.translation_vertical_sigma_m,
-                                              robust=_robust(noise.translation_loss),
-                                              robust_scale=noise.translation_loss_scale),
-                "translation_prior")
-        heading, speed = init.heading_yaw, init.speed_mps
-        if terms.heading_prior and np.isfinite(heading):
-            add(make_heading_prior_factor(k.root, heading, speed, sigma0_rad=noise.heading_sigma_rad,
-                                          v0=noise.heading_min_speed_mps * 2,
-                                          min_speed=noise.heading_min_speed_mps), "heading_prior")
-        if terms.pose_prior:
-            add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture), "pose_prior")
-            add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits")
-        if terms.temporal_prior and i > 0:
-            kp = state.keys[i - 1]
-            gap = max(1, int(round((fr.timestamp - state.frames[i - 1].timestamp) / ctx.temporal_dt)))
-            add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
-                                           mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior")
+        previous = (state.keys[i - 1], state.frames[i - 1].timestamp) if i > 0 else None
+        for factor, kind in frame_factors(k, fr, state.calibrations[fr.pair], previous, init.heading_yaw,
+                                          init.speed_mps, model, ctx, self.config, state.rng):
+            add(factor, kind)
         if i == 0:
             add(make_shape_prior_factor(k.betas, num_betas=model.num_betas, sigma=noise.shape_sigma),
                 "shape_prior")
