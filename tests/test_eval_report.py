@@ -220,3 +220,23 @@ def test_report_end_to_end(tiny_experiment, tmp_path):
     assert "median frame, global" in md
     # the floor is the estimator's best case: far below a keypoint triangulation
     assert floor["overall"]["global_mm"] < tri["overall"]["global_mm"]
+
+
+def test_experiment_config_round_trip(tmp_path):
+    from pedx_graph.config import load_config, save_config
+    from pedx_graph.eval.experiments import resolved_scenes
+
+    save_config(ExperimentConfig(), tmp_path / "experiment.yaml")
+    loaded = load_config(ExperimentConfig, tmp_path / "experiment.yaml")
+    assert resolved_scenes(loaded) == ExperimentConfig().scenes
+    with pytest.raises(ValueError, match="distinct 'sequence'"):
+        resolved_scenes(ExperimentConfig(scenes=[SceneVariant("a"), SceneVariant("b")]))
+
+
+def test_notes_survive_regeneration(tmp_path):
+    from pedx_graph.eval.report_cli import NOTES_BEGIN, NOTES_END, kept_notes
+
+    path = tmp_path / "results.md"
+    assert kept_notes(path).strip() == f"{NOTES_BEGIN}\n{NOTES_END}"
+    path.write_text(f"# old numbers\n\n{NOTES_BEGIN}\nhand-written\n{NOTES_END}\n")
+    assert kept_notes(path).strip() == f"{NOTES_BEGIN}\nhand-written\n{NOTES_END}"

@@ -117,6 +117,21 @@ class ExperimentConfig:
     """Monte Carlo samples per frame of the error floor."""
 
 
+def resolved_scenes(config: ExperimentConfig) -> list[SceneVariant]:
+    """``config.scenes`` as :class:`SceneVariant` objects (a YAML config gives plain dicts); names and sequences
+    must be distinct."""
+    from pedx_graph.config import from_dict
+
+    scenes = [s if isinstance(s, SceneVariant) else from_dict(SceneVariant, s, source="<experiment config>",
+                                                               prefix=f"scenes[{i}].")
+              for i, s in enumerate(config.scenes)]
+    for field_name in ("name", "sequence"):
+        values = [getattr(s, field_name) for s in scenes]
+        if len(set(values)) != len(values):
+            raise ValueError(f"experiment config: scenes need distinct '{field_name}' values, got {values}")
+    return scenes
+
+
 def resolve_motion_dir(setting: str) -> str | None:
     """The BVH folder to use: ``auto`` looks for ``shared/mocap/cmu`` beside the project root."""
     if setting == "auto":
@@ -201,6 +216,7 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
     from pedx_graph.solvers.fit import fit_dataset
 
     config = config or ExperimentConfig()
+    config = dataclasses.replace(config, scenes=resolved_scenes(config))
     out = Path(out)
     if (out / "runs").exists() or (out / "dataset").exists():
         raise FileExistsError(f"{out}: already holds an experiment (choose a new folder)")
