@@ -46,13 +46,15 @@ def _check_name(name: str) -> str:
 
 
 def load_pose_mixture(covariance_scale: float = 1.0):
-    """The shipped GMM pose prior as a ``MaxMixture`` and its template body pose (heaviest component's mean)."""
+    """The shipped GMM pose prior as a ``MaxMixture`` and its template body pose (the component mean
+    nearest the rest pose, as the graph's initialisation uses)."""
     from factors.common import MaxMixture
+    from pedx_graph.graph.build import neutral_template
     from pedx_graph.priors import load_pose_prior
 
     prior = load_pose_prior()
     mixture = MaxMixture.from_gmm(prior, covariance_scale=covariance_scale)
-    return mixture, np.asarray(prior.means[int(np.argmax(prior.weights))], dtype=float).copy()
+    return mixture, neutral_template(prior.means)
 
 
 def run_baseline(name: str, track: Track, model, config: BaselineConfig | None = None,

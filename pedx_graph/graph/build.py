@@ -63,6 +63,13 @@ def farthest_point_subset(points: np.ndarray, count: int, seed: int = 0) -> np.n
     return np.sort(chosen)
 
 
+def neutral_template(means: np.ndarray) -> np.ndarray:
+    """The pose prior's component mean (K, 69) nearest the rest pose, a copy: the starting body pose when
+    nothing better is known (the heaviest component can be a reaching, arms-up pose)."""
+    means = np.asarray(means, dtype=float)
+    return means[int(np.argmin(np.linalg.norm(means, axis=1)))].copy()
+
+
 @dataclass
 class EstimatorContext:
     """What every track's graph shares: the body model, the priors and the chamfer vertex subset."""
@@ -88,7 +95,7 @@ class EstimatorContext:
         # Template candidates: the pose prior's component means and the rest pose; the neutral template
         # is the mean nearest the rest pose (the heaviest component can be a reaching, arms-up pose).
         means = np.asarray(pose_prior.means, dtype=float)
-        template = means[int(np.argmin(np.linalg.norm(means, axis=1)))].copy()
+        template = neutral_template(means)
         candidates = np.vstack([means, np.zeros((1, means.shape[1]))])
         rest = model.forward(np.zeros(72), np.zeros(model.num_betas), np.zeros(3)).vertices
         ids = farthest_point_subset(rest, config.chamfer_vertices, seed=0)
