@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{args.seed}, full 32 x 2000-ray sweeps, both pairs, right images labelled, "
                   f"{args.workers} worker process(es)",
         "workers": args.workers,
-        "body_model": body.source, "body_vertices": body.num_vertices, "body_faces": int(len(body.faces)),
+        "body_model": Path(body.source).name, "body_vertices": body.num_vertices, "body_faces": int(len(body.faces)),
         "motion": args.motion_dir or "procedural gait",
         "pedestrians": args.pedestrians, "frames": args.frames,
         "seconds_total": seconds, "seconds_per_frame": seconds / args.frames, "target_seconds": 60.0,
