@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
+from _common import public_args  # noqa: E402
 from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin  # noqa: E402
 from pedx_graph.graph.build import extract_estimate  # noqa: E402
@@ -187,21 +188,6 @@ def to_markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _public_args(args: list[str]) -> list[str]:
-    """The command-line arguments without ``--out DIR`` (no machine paths in the written results)."""
-    out, skip = [], False
-    for a in args:
-        if skip:
-            skip = False
-            continue
-        if a == "--out":
-            skip = True
-            continue
-        if not a.startswith("--out="):
-            out.append(a)
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -215,7 +201,7 @@ def main(argv=None) -> int:
 
     threadpool_limits(limits=1, user_api="blas")
     ctx = _context(FitConfig())
-    result = {"command": "python benchmarks/bench_calibration.py " + " ".join(_public_args(argv if argv is not None else sys.argv[1:])),
+    result = {"command": "python benchmarks/bench_calibration.py " + " ".join(public_args(argv if argv is not None else sys.argv[1:])),
               "hardware": hardware(), "seed": args.seed, "pedestrians": args.pedestrians, "frames": args.frames,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait", "variants": {}}
     with tempfile.TemporaryDirectory() as tmp:

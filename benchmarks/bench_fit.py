@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -27,6 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _common import hardware, public_args  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.eval.evaluate import evaluate_arrays  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, markdown_table, summarise  # noqa: E402
@@ -37,13 +36,6 @@ from pedx_graph.solvers.fit import _context, fit_dataset, fit_track  # noqa: E40
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 SHARED_CMU = ROOT.parent / "shared" / "mocap" / "cmu"
-
-
-def hardware() -> str:
-    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    return f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'unknown cpu'}, " \
-           f"Python {platform.python_version()}, {platform.system()}; load average at the end {load} " \
-           "(a shared machine: other jobs ran beside the benchmark)"
 
 
 def sim_config(pedestrians: int, frames: int) -> SimConfig:
@@ -150,7 +142,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        result = {"command": "python benchmarks/bench_fit.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        result = {"command": "python benchmarks/bench_fit.py " + " ".join(public_args(argv if argv is not None else sys.argv[1:])),
                   "seed": args.seed, "pedestrians": args.pedestrians,
                   "frames": args.frames,
                   "accuracy": accuracy(args.seed, args.pedestrians, args.frames, args.workers, work),

@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
+from _common import public_args  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.data.writer import write_results  # noqa: E402
 from pedx_graph.eval.evaluate import evaluate  # noqa: E402
@@ -92,21 +93,6 @@ def evaluate_subset(results: list, scene: Path, work: Path, name: str) -> dict:
     for r in results:
         write_results(folder, r.to_labels())
     return evaluate(folder, scene)["overall"]
-
-
-def _public_args(args: list[str]) -> list[str]:
-    """The command-line arguments without ``--out DIR`` (no machine paths in the written results)."""
-    out, skip = [], False
-    for a in args:
-        if skip:
-            skip = False
-            continue
-        if a == "--out":
-            skip = True
-            continue
-        if not a.startswith("--out="):
-            out.append(a)
-    return out
 
 
 def main(argv=None) -> int:
@@ -219,7 +205,7 @@ def main(argv=None) -> int:
     goals["streamed_final_within_5pct_of_batch"]["met"] = bool(
         goals["streamed_final_within_5pct_of_batch"]["ratio"] <= 1.05)
     goals["marginals_le_5ms_per_frame"]["met"] = bool(marg_ms <= 5)
-    result = {"command": "python benchmarks/bench_solvers.py " + " ".join(_public_args(argv if argv is not None else sys.argv[1:])),
+    result = {"command": "python benchmarks/bench_solvers.py " + " ".join(public_args(argv if argv is not None else sys.argv[1:])),
               "hardware": hardware(), "seed": args.seed, "pedestrians": args.pedestrians, "frames": args.frames,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "simulate_seconds": sim_s, "tracks": len(tracks), "lm_failed": failed,

@@ -1,0 +1,28 @@
+"""Helpers shared by the benchmark scripts: the command line as recorded, a hardware note."""
+from __future__ import annotations
+
+import os
+import platform
+
+
+def public_args(args: list[str]) -> list[str]:
+    """The command-line arguments without ``--out DIR`` (no machine paths in the written results)."""
+    out, skip = [], False
+    for a in args:
+        if skip:
+            skip = False
+            continue
+        if a == "--out":
+            skip = True
+            continue
+        if not a.startswith("--out="):
+            out.append(a)
+    return out
+
+
+def hardware() -> str:
+    """Machine, cores, Python and the load average now (benchmarks run on a shared machine)."""
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    return (f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'unknown cpu'}, "
+            f"Python {platform.python_version()}, {platform.system()}; load average at the end {load} "
+            "(a shared machine: other jobs may have run beside the benchmark)")
