@@ -120,7 +120,8 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     """Solve in two stages, as the paper's staged fitting: first without the LiDAR chamfer term (its
     nearest-vertex correspondences only pull the right way once the body is roughly in place), then with
     every term from that estimate.  Returns (problem, values, report) of the final stage; the report's
-    iterations and initial error cover both stages."""
+    iterations and seconds cover both stages, its initial error is the full graph's at the first stage's
+    estimate."""
     import dataclasses
 
     from pedx_graph.graph.build import build_track_graph
