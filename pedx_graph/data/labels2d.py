@@ -18,7 +18,6 @@ ignored.  Any other malformation raises :class:`DataFormatError` naming the file
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import re
@@ -28,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pedx_graph.data.jsonfile import read_json_file
 from pedx_graph.data.types import PEDX_KEYPOINTS, DataFormatError, View2D
 from pedx_graph.utils import atomic_write_json
 
@@ -200,12 +200,7 @@ def read_label2d(path: str | os.PathLike, sequence: str, camera: str, frame: int
     ``tracking_id`` that differs from the file name's is warned about (the file name wins).
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise DataFormatError(path, None, f"cannot read file ({exc.strerror or exc})") from exc
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DataFormatError(path, "<json>", f"malformed JSON ({exc})") from exc
+    data = read_json_file(path)
     if not isinstance(data, dict):
         raise DataFormatError(path, "<json>", f"top level must be an object, got {type(data).__name__}")
     if "category" not in data:

@@ -10,13 +10,13 @@ from :attr:`SmplLabel.extra`; on reading, every key other than the three release
 """
 from __future__ import annotations
 
-import json
 import os
 import re
 from pathlib import Path
 
 import numpy as np
 
+from pedx_graph.data.jsonfile import read_json_file
 from pedx_graph.data.types import DataFormatError, SmplLabel
 from pedx_graph.utils import atomic_write_json, to_jsonable
 
@@ -92,12 +92,7 @@ def read_smpl_label(path: str | os.PathLike, sequence: str | None = None, frame:
             raise DataFormatError(path, "<file name>", f"does not match '{sequence}_<frame>_<tid>.json'")
         frame = parsed[0] if frame is None else frame
         tracking_id = parsed[1] if tracking_id is None else tracking_id
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise DataFormatError(path, None, f"cannot read file ({exc.strerror or exc})") from exc
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DataFormatError(path, "<json>", f"malformed JSON ({exc})") from exc
+    data = read_json_file(path)
     return smpl_label_from_json(data, path, sequence, frame, tracking_id, n_betas=n_betas)
 
 
