@@ -383,7 +383,7 @@ def load_model_data(path: str | Path, num_betas: int = 10) -> ModelData:
 # ------------------------------------------------------------------------------------- synthetic models
 
 #: Rough SMPL-like T-pose joint locations (metres, Y up, +Z forward, left = +X) for synthetic models.
-_SYNTHETIC_JOINTS = np.array([
+SYNTHETIC_REST_JOINTS = np.array([
     [0.0, 0.0, 0.0], [0.06, -0.09, 0.0], [-0.06, -0.09, 0.0], [0.0, 0.11, -0.02],
     [0.10, -0.47, 0.0], [-0.10, -0.47, 0.0], [0.0, 0.24, 0.0], [0.09, -0.87, -0.04],
     [-0.09, -0.87, -0.04], [0.0, 0.29, 0.02], [0.11, -0.93, 0.08], [-0.11, -0.93, 0.08],
@@ -408,7 +408,7 @@ def synthetic_model_arrays(num_vertices: int = 300, seed: int = 0, num_betas: in
 
     rng = make_rng(seed)
     parents = np.array(SMPL_PARENTS)
-    joints = _SYNTHETIC_JOINTS
+    joints = SYNTHETIC_REST_JOINTS
     # Vertices along bones (parent -> child), radius ~5 cm, plus a head sphere of radius 10 cm.
     num_head = max(num_vertices // 10, 8)
     num_body = num_vertices - num_head
