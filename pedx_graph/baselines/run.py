@@ -11,8 +11,6 @@ from __future__ import annotations
 import logging
 import os
 import time
-import traceback
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +19,7 @@ import numpy as np
 from pedx_graph.baselines.smplify_disparity import SmplifyDispConfig
 from pedx_graph.config import save_config
 from pedx_graph.data.types import Track
+from pedx_graph.solvers.fit import map_tracks, track_failure
 
 log = logging.getLogger(__name__)
 
@@ -102,20 +101,13 @@ def _run_one(args):
         state = _worker_state(name, config)
         return run_baseline(name, track, state["model"], config, state["mixture"], state["template"]), None
     except Exception as exc:  # one bad track never kills the run
-        return None, (track.sequence, track.tracking_id, f"{type(exc).__name__}: {exc}",
-                      traceback.format_exc(limit=4))
+        return None, track_failure(track, exc)
 
 
 def run_tracks(name: str, tracks: list[Track], config: BaselineConfig, workers: int = 1):
     """Run baseline ``name`` on tracks (process pool when ``workers > 1``); yields (result, error) in order."""
     _check_name(name)
-    jobs = [(name, tr, config) for tr in tracks]
-    if workers <= 1 or len(tracks) <= 1:
-        for job in jobs:
-            yield _run_one(job)
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(_run_one, jobs, chunksize=1)
+    yield from map_tracks(_run_one, [(name, tr, config) for tr in tracks], workers)
 
 
 def fit_dataset_baseline(dataset: str | os.PathLike, out: str | os.PathLike, name: str, workers: int = 1,

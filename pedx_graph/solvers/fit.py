@@ -166,6 +166,22 @@ def _single_frame_search(track: Track, ctx, config: FitConfig, n_headings: int =
 SOLVERS = ("lm", "admm")
 
 
+def track_failure(track: Track, exc: BaseException) -> tuple[str, str, str, str]:
+    """The error record of a track that failed: (sequence, tracking_id, message, short traceback)."""
+    return (track.sequence, track.tracking_id, f"{type(exc).__name__}: {exc}", traceback.format_exc(limit=4))
+
+
+def map_tracks(job_fn, jobs: list, workers: int = 1):
+    """``job_fn`` over ``jobs`` in order, in a process pool when ``workers > 1`` (``job_fn`` must be a
+    module-level function returning (result or None, error or None))."""
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield job_fn(job)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        yield from pool.map(job_fn, jobs, chunksize=1)
+
+
 def _fit_one(args):
     track, config, solver = args
     try:
@@ -175,21 +191,14 @@ def _fit_one(args):
                                   diagnostics=config.diagnostics), None
         return fit_track(track, config), None
     except Exception as exc:  # one bad track never kills the run
-        return None, (track.sequence, track.tracking_id, f"{type(exc).__name__}: {exc}",
-                      traceback.format_exc(limit=4))
+        return None, track_failure(track, exc)
 
 
 def fit_tracks(tracks: list[Track], config: FitConfig, workers: int = 1, solver: str = "lm"):
     """Fit tracks (process pool when ``workers > 1``); yields (result or None, error or None) in order."""
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    jobs = [(tr, config, solver) for tr in tracks]
-    if workers <= 1 or len(tracks) <= 1:
-        for job in jobs:
-            yield _fit_one(job)
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(_fit_one, jobs, chunksize=1)
+    yield from map_tracks(_fit_one, [(tr, config, solver) for tr in tracks], workers)
 
 
 def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitConfig | None = None,
