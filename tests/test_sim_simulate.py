@@ -162,31 +162,54 @@ def test_person_hits_lie_on_the_mesh(sim_run, body):
     assert checked >= 3
 
 
-def test_unoccluded_pedestrian_segment_is_mostly_on_the_person(tmp_path, body):
-    """Lone pedestrian, camera at the LiDAR (no parallax), no polygon noise: >= 90 % of the segment's
-    points lie within 5 cm of the ground-truth mesh."""
+def _lone_pedestrian_config(gate_m: float) -> SimConfig:
     cfg = small_config(n_frames=3, n_pedestrians=1)
     cfg.scene.n_parked_cars = cfg.scene.n_moving_cars = cfg.scene.n_buildings_per_corner = 0
-    cfg.cameras.forward.left_camera_xyz = (0.0, 0.0, 0.0)
-    cfg.cameras.left.left_camera_xyz = (0.0, 0.0, 0.0)
-    cfg.labels.polygon_noise_px = 0.0
     cfg.lidar.azimuth_step_deg = 0.18
-    fractions = []
+    cfg.labels.segment_depth_gate_m = gate_m
+    return cfg
+
+
+def test_unoccluded_pedestrian_segment_is_mostly_on_the_person(tmp_path, body):
+    """Lone pedestrian, default rig (cameras ahead of and below the LiDAR), default polygon noise:
+    >= 90 % of the segment's points lie within 5 cm of the ground-truth mesh; the depth gate removes only
+    points that are not on the person."""
+    fractions, gated_on_person, raw_on_person, removed = [], 0, 0, 0
     for seed in range(3):
-        out = tmp_path / f"s{seed}"
-        simulate(out, cfg, seed=seed, body_model=body)
-        seq = cfg.scene.sequence
-        for (s, tid), labels in read_smpl_labels(out).items():
+        runs = {}
+        for gate in (0.0, 1.5):
+            out = tmp_path / f"s{seed}-{gate}"
+            simulate(out, _lone_pedestrian_config(gate), seed=seed, body_model=body)
+            runs[gate] = out
+        seq = SimConfig().scene.sequence
+        for (s, tid), labels in read_smpl_labels(runs[1.5]).items():
             for lab in labels:
-                truth = np.load(out / "truth" / seq / f"{seq}_{lab.frame:07d}.npz")
-                idx = truth[f"segment_index__{tid}"]
+                name = f"{seq}_{lab.frame:07d}.npz"
+                gated = np.load(runs[1.5] / "truth" / seq / name)
+                raw = np.load(runs[0.0] / "truth" / seq / name)
+                raw_on_person += int(raw[f"segment_is_person__{tid}"].sum())
+                gated_on_person += int(gated[f"segment_is_person__{tid}"].sum())
+                removed += len(raw[f"segment_index__{tid}"]) - len(gated[f"segment_index__{tid}"])
+                idx = gated[f"segment_index__{tid}"]
                 if len(idx) < 5:
                     continue
                 dist = mesh_distance(body.forward(lab.pose, lab.betas, lab.trans).vertices, body.faces,
-                                     truth["scene_points"][idx])
+                                     gated["scene_points"][idx])
                 fractions.append(np.mean(dist < 0.05))
     assert len(fractions) >= 3
     assert np.median(fractions) >= 0.9
+    assert gated_on_person == raw_on_person > 0
+    assert removed > 0  # the raw polygon assignment does pick up background here
+
+
+def test_depth_gate_keeps_near_and_drops_far_points():
+    from pedx_graph.sim.labels import depth_gate
+
+    pts = np.array([[10.0, 0, 0], [10.2, 0, 0], [9.9, 0.1, 0], [10.1, 0, 1], [12.0, 0, 0], [5.0, 0, 0]])
+    idx = np.arange(6)
+    assert list(depth_gate(idx, pts, 0.6)) == [0, 1, 2, 3, 5]   # the occluder in front stays
+    assert list(depth_gate(idx, pts, 0.0)) == list(idx)
+    assert len(depth_gate(np.zeros(0, dtype=int), pts, 0.6)) == 0
 
 
 def test_same_seed_same_bytes(tmp_path, body):

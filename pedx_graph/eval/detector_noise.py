@@ -69,6 +69,9 @@ class DetectorNoiseConfig:
     """Start from the exact projections of the simulator's true keypoints when ``truth/`` exists."""
     resegment: bool = True
     """Re-cut the LiDAR segments from the full sweeps (``pointclouds/``) with the noisy left polygons."""
+    segment_depth_gate_m: float = 1.5
+    """Far-side depth gate applied to the re-cut segments (as the simulator's
+    ``labels.segment_depth_gate_m``), metres; 0 disables it."""
 
 
 _IDX = {name: i for i, name in enumerate(PEDX_KEYPOINTS)}
@@ -169,7 +172,7 @@ def make_noisy_dataset(src: str | os.PathLike, dst: str | os.PathLike, config: D
     from pedx_graph.data.reader import camera_sides, list_sequences, read_scene_points, resolve_root
     from pedx_graph.data.types import View2D
     from pedx_graph.data.writer import write_segment
-    from pedx_graph.sim.labels import segment_indices_from_projection
+    from pedx_graph.sim.labels import depth_gate, segment_indices_from_projection
 
     config = config or DetectorNoiseConfig()
     src, dst = resolve_root(src), Path(dst)
@@ -244,6 +247,7 @@ def make_noisy_dataset(src: str | os.PathLike, dst: str | os.PathLike, config: D
                     uv, depth = projected[pair]
                     index.append(segment_indices_from_projection(uv, depth, polygon))
                 idx = np.unique(np.concatenate(index)) if index else np.zeros(0, dtype=np.int64)
+                idx = depth_gate(idx, scene, config.segment_depth_gate_m)
                 if len(idx):
                     write_segment(dst, seq, frame, tid, scene[idx])
                     counts["segments"] += 1

@@ -113,6 +113,10 @@ class LabelConfig:
     """Douglas-Peucker tolerance used to simplify the silhouette polygon, pixels."""
     polygon_noise_px: float = 1.5
     """Std. dev. of the noise added to each polygon vertex, pixels."""
+    segment_depth_gate_m: float = 1.5
+    """Far-side depth gate of the LiDAR segment: polygon points whose horizontal range exceeds the
+    segment's median range by more than this are dropped (background seen past the silhouette), metres;
+    0 disables the gate (raw polygon assignment)."""
     id_buffer_max_cells: int = 96
     """The visible-silhouette mask is ray cast on a grid of at most this many cells along the person's
     longer image side (cell size >= 1 px)."""

@@ -15,6 +15,12 @@ paper's mistakes: ground, background or other people seen through/around the sil
 visible to the LiDAR but hidden from the camera (the sensors sit ~0.3 m apart).  The exact membership
 (hit object == this person) is kept separately under ``truth/``.
 
+The labelling tool then applies a far-side depth gate (:func:`depth_gate`): points whose horizontal range
+from the LiDAR exceeds the segment's median range by more than ``LabelConfig.segment_depth_gate_m`` are
+dropped.  That removes the ground and walls seen *behind* the person through the silhouette edge (most of
+them come from the camera-LiDAR parallax) but keeps every mistake at the person's own depth or in front
+of it (occluders, ground at the feet, neighbours in a group).
+
 Random draws are made for all 18 keypoints and every polygon vertex in a fixed order, whatever the
 visibility, so a run is reproducible from its seed.
 """
@@ -84,3 +90,16 @@ def segment_indices_from_projection(uv: np.ndarray, depth: np.ndarray, polygon: 
     cand = np.flatnonzero((u >= lo[0]) & (u <= hi[0]))
     cand = cand[(v[cand] >= lo[1]) & (v[cand] <= hi[1]) & (depth[cand] > min_depth_m)]
     return cand[points_in_polygon(uv[cand], polygon)]
+
+
+def depth_gate(index: np.ndarray, world_points: np.ndarray, gate_m: float) -> np.ndarray:
+    """The rows of ``index`` (into the (N, 3) LiDAR-frame ``world_points``) kept by the far-side depth gate.
+
+    A point is kept when its horizontal range ``|p_xy|`` (metres, from the LiDAR) is at most
+    ``median(|p_xy| over index) + gate_m``.  ``gate_m <= 0`` keeps everything.
+    """
+    index = np.asarray(index, dtype=np.int64)
+    if gate_m <= 0 or len(index) == 0:
+        return index
+    ranges = np.hypot(world_points[index, 0], world_points[index, 1])
+    return index[ranges <= np.median(ranges) + gate_m]

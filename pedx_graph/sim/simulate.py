@@ -234,6 +234,7 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
                 uv, depth = pair_projection[pair_name]
                 seg.append(labels.segment_indices_from_projection(uv, depth, vl.polygon))
             index = np.unique(np.concatenate(seg)) if seg else np.zeros(0, dtype=np.int64)
+            index = labels.depth_gate(index, scene_points, config.labels.segment_depth_gate_m)
             is_person = sweep.object_id[index] == person.object_id
             truth_arrays[f"segment_index__{tid}"] = index.astype(np.int32)
             truth_arrays[f"segment_is_person__{tid}"] = is_person
