@@ -161,7 +161,9 @@ def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
     per_frame = [{"residuals": t} for t in per_frame_tables]
     if marginals is None and ctx is not None:
         try:
-            marginals = compute_marginals(problem.graph, values, problem.keys)
+            marginals = compute_marginals(problem.graph, values, problem.keys,
+                                          prefetch=getattr(problem, "prefetch", None),
+                                          factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model)
         except Exception as exc:  # diagnostics never fail a track
             marginals = None
             track_table = dict(track_table)
@@ -217,7 +219,8 @@ def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, dia
     if marginals or diagnostics:
         try:
             computed = compute_marginals(problem.graph, values, problem.keys, marginals_config,
-                                         prefetch=getattr(problem, "prefetch", None))
+                                         prefetch=getattr(problem, "prefetch", None),
+                                         factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model)
         except (RuntimeError, LinAlgError, ValueError) as exc:
             logging.getLogger(__name__).warning("marginals failed: %s", exc)
             track["marginals_error"] = f"{type(exc).__name__}: {exc}"

@@ -28,6 +28,23 @@ Keypoint covariances (metres^2, world frame): ``Sigma_k = J_k Sigma_i J_k^T`` wi
 d_body_pose, d_betas]`` (3, 75 + B) of keypoint k from ``BodyModel.point_jacobians`` (right perturbation of
 the root, as the ``Rot3`` retraction).
 
+LiDAR chamfer information (``MarginalsConfig.chamfer_information``).  The chamfer factor linearises
+point-to-point: each point's 3D offset to its nearest model vertex with the match held fixed, so sliding the
+body along its surface by ``d`` looks like ``d`` of residual at every point (``N / sigma^2`` of information
+in every direction).  The cost the solver actually minimises re-matches at every evaluation and is nearly
+flat along the surface: moving a surface under its points changes their distances only along the surface
+normals.  On the simulated benchmark scene the curvature of the re-matched chamfer cost along the
+translation axes was 1/2.9 (depth), 1/4.1 (lateral) and 1/11 (vertical) of the point-to-point Hessian,
+and within a factor 1.4 of the point-to-plane one (``benchmarks/bench_calibration.py``).  With
+``point_to_plane`` (default) each point contributes only along the unit normal ``n`` of its matched vertex
+(area-weighted vertex normal of the posed mesh at the estimate): one row ``|M n| n^T J_v`` instead of the
+three rows ``M J_v`` (``M`` the point's robust-weighted whitening, ``J_v`` the matched vertex's Jacobian).
+``M`` and ``J_v`` are read off the linearised factor itself (its translation block is ``M``, since
+``d v / d trans = I``), and the matched vertex's position from its root-rotation block
+(``d v / d delta = -R [v_body]_x``), so no factor internals are needed; a factor whose rows do not
+decode to a mesh vertex (within ``vertex_match_tol_m``) keeps its point-to-point information.  The point
+estimate is not affected.
+
 Under-constrained frames (no LiDAR and one view, a missing term): when a frame's information block is not
 positive definite, a diffuse information ``diffuse_information`` is added on its diagonal so the pass
 carries on, and the frame is reported with ``covariance_status = "under_constrained"``; its covariances are
@@ -68,6 +85,14 @@ class MarginalsConfig:
     """Above this root-orientation standard deviation (rad) a frame's covariances are reported as null."""
     body_pose_blocks: bool = True
     """Write the body pose covariance as 23 per-joint (3, 3) blocks (the full (69, 69) is in the API)."""
+    chamfer_information: str = "point_to_plane"
+    """Information of the LiDAR chamfer factors: ``point_to_plane`` (each point constrains only along the
+    surface normal of its matched vertex, as the re-matched cost the solver minimises; see the module
+    docstring) or ``point_to_point`` (the factor's fixed-correspondence linearisation as is, overconfident
+    along the surface).  Needs the factor kinds and the body model (``compute_marginals``'s
+    ``factor_kinds`` and ``model``); without them the linearisation is used as is."""
+    vertex_match_tol_m: float = 1e-6
+    """A chamfer point's decoded vertex position must lie this close (m) to a posed mesh vertex."""
 
 
 class NotAChainError(ValueError):
@@ -125,12 +150,15 @@ def _dims_of(values: gtsam.Values, key: int) -> int:
         return int(np.asarray(values.atVector(key)).shape[0])
 
 
-def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int) -> ChainInformation:
+def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int,
+                      replace_rows: dict | None = None) -> ChainInformation:
     """Scatter the Hessians ``A^T A`` of the (whitened) linear factors into :class:`ChainInformation`.
 
-    ``keys`` are the track's :class:`FrameKeys` (frame order).  Raises :class:`NotAChainError` when a factor
-    links frames more than one apart.
+    ``keys`` are the track's :class:`FrameKeys` (frame order); ``replace_rows``: factor index -> whitened
+    Jacobian to use instead of the factor's own (same columns).  Raises :class:`NotAChainError` when a
+    factor links frames more than one apart.
     """
+    replace_rows = replace_rows or {}
     layout, shape_key = _key_layout(keys)
     t, d, b = len(keys), FRAME_DIM, num_betas
     info = ChainInformation(frame=np.zeros((t, d, d)), next=np.zeros((max(t - 1, 0), d, d)),
@@ -139,7 +167,7 @@ def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int) -
         factor = linear.at(j)
         if factor is None:
             continue
-        a_mat, _ = factor.jacobian()
+        a_mat = replace_rows[j] if j in replace_rows else factor.jacobian()[0]
         fkeys = [int(k) for k in factor.keys()]
         # column ranges of each key in A
         spans, col = [], 0
@@ -169,6 +197,97 @@ def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int) -
                     elif fb == fa + 1:
                         info.next[fa][ra, rb] += block
     return info
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) unit area-weighted vertex normals of a mesh (vertices (V, 3), faces (F, 3))."""
+    v0, v1, v2 = (vertices[faces[:, c]] for c in range(3))
+    face_n = np.cross(v1 - v0, v2 - v0)
+    normals = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(normals, faces[:, c], face_n)
+    return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+
+
+def point_to_plane_rows(a_mat: np.ndarray, root_cols: slice, trans_cols: slice, world_R_body: np.ndarray,
+                        centre: np.ndarray, vertices: np.ndarray, normals: np.ndarray,
+                        tol_m: float = 1e-6, tree=None) -> np.ndarray | None:
+    """Point-to-plane rows (M, n) from a chamfer factor's whitened point-to-point Jacobian ``a_mat`` (3M, n).
+
+    Per point (3 rows ``A_i = M_i J_v``): ``M_i`` = the translation block (``d v / d trans = I``), ``J_v =
+    M_i^-1 A_i``; the root block of ``J_v`` is ``-R [y]_x`` with ``y`` the matched vertex relative to
+    ``centre`` (the pelvis, the root's centre of rotation) in the body frame, so the vertex is at ``R y +
+    centre``; its normal ``n`` is looked up among ``vertices`` (posed, world) and the row is ``|M_i n| n^T
+    J_v``.  ``None`` when a point does not decode to a mesh vertex within ``tol_m`` (not a chamfer factor of
+    this layout)."""
+    from scipy.spatial import cKDTree
+
+    a_mat = np.asarray(a_mat, float)
+    if a_mat.shape[0] % 3:
+        return None
+    m = a_mat.shape[0] // 3
+    blocks = a_mat.reshape(m, 3, -1)
+    weight = blocks[:, :, trans_cols]
+    try:
+        jac_v = np.linalg.solve(weight, blocks)                                  # (M, 3, n)
+    except np.linalg.LinAlgError:
+        return None
+    skew = -np.einsum("ji,mjk->mik", world_R_body, jac_v[:, :, root_cols])       # [y]_x
+    y = np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], axis=1)
+    world_v = y @ world_R_body.T + centre
+    dist, idx = (tree or cKDTree(vertices)).query(world_v)
+    if not np.all(np.isfinite(dist)) or np.max(dist) > tol_m:
+        return None
+    n = normals[idx]
+    w = np.linalg.norm(np.einsum("mij,mj->mi", weight, n), axis=1)
+    return w[:, None] * np.einsum("mi,min->mn", n, jac_v)
+
+
+def chamfer_plane_rows(linear: gtsam.GaussianFactorGraph, values: gtsam.Values, keys, factor_kinds,
+                       model, tol_m: float = 1e-6) -> dict:
+    """Factor index -> point-to-plane rows for every LiDAR chamfer factor of ``linear`` (kind
+    ``lidar_chamfer`` in ``factor_kinds``) that decodes (:func:`point_to_plane_rows`)."""
+    from scipy.spatial import cKDTree
+
+    layout, shape_key = _key_layout(keys)
+    chamfer = [j for j, kind in enumerate(factor_kinds) if kind == "lidar_chamfer" and j < linear.size()]
+    if not chamfer:
+        return {}
+    betas = np.asarray(values.atVector(int(keys[0].betas)), float)
+    pelvis_rest = np.asarray(model.rest_joints(betas))[0]
+    faces = np.asarray(model.faces)
+    out, meshes = {}, {}
+    for j in chamfer:
+        factor = linear.at(j)
+        if factor is None:
+            continue
+        fkeys = [int(k) for k in factor.keys()]
+        frames = {layout[k][0] for k in fkeys if k != shape_key}
+        if len(frames) != 1:
+            continue
+        i = frames.pop()
+        cols, col = {}, 0
+        for k in fkeys:
+            dim = len(betas) if k == shape_key else layout[k][1].stop - layout[k][1].start
+            cols[k] = slice(col, col + dim)
+            col += dim
+        k = keys[i]
+        if int(k.root) not in cols or int(k.trans) not in cols:
+            continue
+        rot = values.atRot3(k.root).matrix()
+        trans = np.asarray(values.atVector(k.trans), float)
+        if i not in meshes:
+            pose = np.concatenate([gtsam.Rot3.Logmap(values.atRot3(k.root)), values.atVector(k.body_pose)])
+            verts = np.asarray(model.forward(pose, betas, trans).vertices, float)
+            meshes[i] = (verts, vertex_normals(verts, faces), cKDTree(verts))
+        verts, normals, tree = meshes[i]
+        rows = point_to_plane_rows(factor.jacobian()[0], cols[int(k.root)], cols[int(k.trans)], rot,
+                                   pelvis_rest + trans, verts, normals, tol_m, tree)
+        if rows is None:
+            log.info("marginals: chamfer factor %d does not decode to mesh vertices; kept point-to-point", j)
+            continue
+        out[j] = rows
+    return out
 
 
 def _chol(matrix: np.ndarray, diffuse: float) -> tuple[tuple, bool]:
@@ -253,12 +372,15 @@ def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key
 
 def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
                       config: MarginalsConfig | None = None,
-                      linear: gtsam.GaussianFactorGraph | None = None, prefetch=None) -> TrackMarginals:
+                      linear: gtsam.GaussianFactorGraph | None = None, prefetch=None,
+                      factor_kinds=None, model=None) -> TrackMarginals:
     """Joint marginals of every frame with the shape (``config.method``; chain falls back to gtsam).
 
     ``linear``: the graph already linearised at ``values`` (e.g. by the solver's last iteration), which
     saves the factor callbacks (most of the cost); ``prefetch(values, jacobians)``: called before linearising
-    (``TrackProblem.prefetch`` batch-evaluates the body model for all frames)."""
+    (``TrackProblem.prefetch`` batch-evaluates the body model for all frames).  ``factor_kinds`` (the
+    problem's kind of each factor) and ``model`` (the body model): needed for the point-to-plane chamfer
+    information (``config.chamfer_information``; the gtsam method always uses the linearisation as is)."""
     config = config or MarginalsConfig()
     num_betas = _dims_of(values, int(keys[0].betas))
     if config.method == "gtsam":
@@ -271,8 +393,14 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
             prefetch(values, True)
         linear = graph.linearize(values)
     t_lin = time.perf_counter() - t0
+    replace = {}
+    if config.chamfer_information == "point_to_plane" and factor_kinds is not None and model is not None:
+        replace = chamfer_plane_rows(linear, values, keys, factor_kinds, model, config.vertex_match_tol_m)
+    elif config.chamfer_information not in ("point_to_plane", "point_to_point"):
+        raise ValueError(f"chamfer_information must be 'point_to_plane' or 'point_to_point', "
+                         f"got {config.chamfer_information!r}")
     try:
-        info = chain_information(linear, keys, num_betas)
+        info = chain_information(linear, keys, num_betas, replace)
     except NotAChainError as exc:
         log.info("marginals: %s; using gtsam.Marginals", exc)
         return gtsam_marginals(graph, values, keys, num_betas)
@@ -361,7 +489,8 @@ def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig 
     config = config or MarginalsConfig()
     try:
         marginals = compute_marginals(problem.graph, values, problem.keys, config,
-                                      prefetch=getattr(problem, "prefetch", None))
+                                      prefetch=getattr(problem, "prefetch", None),
+                                      factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model)
     except (RuntimeError, LinAlgError, ValueError) as exc:
         log.warning("marginals failed: %s", exc)
         return ([{"covariance_status": "failed"} for _ in problem.keys],
