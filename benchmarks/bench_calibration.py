@@ -15,7 +15,10 @@ switch off one suspected cause at a time: ``default`` (shipped config), ``matche
 noise set to the simulator's: 2 px visible / 8 px occluded clicks, 2 cm LiDAR range noise),
 ``gaussian`` (no robust losses), ``no_temporal_prior`` (the shipped temporal GMM favours standing
 still; see the findings), ``no_chamfer`` / ``lidar_sigma_x3`` (the chamfer's points are not independent:
-nearest-vertex matching on a vertex subset makes correlated errors); ``a+b`` combines variants.
+nearest-vertex matching on a vertex subset makes correlated errors); ``point_to_point_chamfer`` (same fit,
+covariances with the chamfer factor's fixed-correspondence information instead of the point-to-plane
+information of ``MarginalsConfig``); ``a+b`` combines variants.  Every variant is also reported on the
+frames the diagnostics judge consistent (``fit_consistent``, see ``pedx_graph.solvers.diagnostics``).
 
     python benchmarks/bench_calibration.py [--seed 0] [--pedestrians 10] [--frames 50] [--variants ...]
 
@@ -43,14 +46,18 @@ from pedx_graph.graph.build import extract_estimate  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.solvers.fit import _context, solve_staged  # noqa: E402
-from pedx_graph.solvers.marginals import TRANS_SLICE, compute_marginals, keypoint_covariances  # noqa: E402
+from pedx_graph.solvers.diagnostics import track_extras  # noqa: E402
+from pedx_graph.solvers.marginals import MarginalsConfig  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 CHI2_3_95 = 7.814727903251178
 
 
-def _modify(config: FitConfig, name: str) -> None:
+def _modify(config: FitConfig, name: str, marginals: MarginalsConfig | None = None) -> None:
     if name == "default":
+        return
+    if name == "point_to_point_chamfer":
+        marginals.chamfer_information = "point_to_point"
         return
     if name == "matched_noise":
         config.noise.keypoint_sigma_px = 2.0
@@ -70,12 +77,12 @@ def _modify(config: FitConfig, name: str) -> None:
         raise ValueError(f"unknown variant {name!r}")
 
 
-def variant_config(name: str) -> FitConfig:
-    """The fit config of a variant; ``a+b`` applies both modifications."""
-    config = FitConfig()
+def variant_config(name: str) -> tuple[FitConfig, MarginalsConfig]:
+    """The fit and marginals configs of a variant; ``a+b`` applies both modifications."""
+    config, marginals = FitConfig(), MarginalsConfig()
     for part in name.split("+"):
-        _modify(config, part)
-    return config
+        _modify(config, part, marginals)
+    return config, marginals
 
 
 def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -83,16 +90,23 @@ def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
 
 
-def collect(tracks, truth, config, ctx) -> dict:
-    """Per-frame NEES arrays of one variant: keypoints (N, 18), translation (N,), distances (N,)."""
-    kp_nees, tr_nees, dist, visible, kp_err = [], [], [], [], []
+def collect(tracks, truth, config, ctx, marginals_config: MarginalsConfig | None = None) -> dict:
+    """Per-frame NEES arrays of one variant: keypoints (N, 18), translation (N,), distances (N,), and whether
+    the diagnostics judged the frame's fit consistent (N,).  The covariances are the ones ``pedx-graph fit``
+    writes (``track_extras``: chain marginals, point-to-plane chamfer information unless
+    ``marginals_config`` says otherwise); frames with an under-constrained status are left out."""
+    kp_nees, tr_nees, dist, visible, kp_err, consistent = [], [], [], [], [], []
     failed, seconds = 0, 0.0
     for tr in tracks:
         t0 = time.perf_counter()
         try:
             problem, values, _ = solve_staged(tr, ctx, config)
-            marg = compute_marginals(problem.graph, values, problem.keys)
+            per_frame, track_fields = track_extras(problem, values, ctx, marginals_config=marginals_config,
+                                                   fit_config=config)
         except Exception:
+            failed += 1
+            continue
+        if "marginals_error" in track_fields:
             failed += 1
             continue
         seconds += time.perf_counter() - t0
@@ -100,16 +114,16 @@ def collect(tracks, truth, config, ctx) -> dict:
         labels = {lab.frame: lab for lab in truth.get((tr.sequence, tr.tracking_id), [])}
         for i, fr in enumerate(tr.frames):
             lab = labels.get(fr.frame)
-            if lab is None or marg.regularised[i]:
+            f = per_frame[i]
+            if lab is None or f.get("covariance_status") != "ok":
                 continue
             true_kp = np.asarray(ctx.model.keypoints(lab.pose, lab.betas, lab.trans))
-            cov_kp = keypoint_covariances(ctx.model, est.pose[i], est.betas, est.trans[i],
-                                          marg.frame_covariances[i])
             e = est.world_keypoints[i] - true_kp
-            kp_nees.append(nees(e, cov_kp))
+            kp_nees.append(nees(e, np.asarray(f["cov_keypoints_3d"])))
             kp_err.append(np.linalg.norm(e, axis=1))
             et = est.trans[i] - lab.trans
-            tr_nees.append(float(nees(et[None], marg.frame_covariances[i][None, TRANS_SLICE, TRANS_SLICE])[0]))
+            tr_nees.append(float(nees(et[None], np.asarray(f["cov_trans"])[None])[0]))
+            consistent.append(bool(f.get("fit_consistent", True)))
             pelvis = true_kp[[12, 13]].mean(axis=0)
             dist.append(float(np.hypot(pelvis[0], pelvis[1])))
             vis = np.zeros(18, bool)
@@ -119,7 +133,7 @@ def collect(tracks, truth, config, ctx) -> dict:
             visible.append(vis)
     return {"kp_nees": np.array(kp_nees).reshape(-1, 18), "tr_nees": np.array(tr_nees), "dist": np.array(dist),
             "visible": np.array(visible, dtype=bool).reshape(-1, 18), "kp_err": np.array(kp_err).reshape(-1, 18),
-            "failed_tracks": failed, "fit_seconds": seconds}
+            "consistent": np.array(consistent, dtype=bool), "failed_tracks": failed, "fit_seconds": seconds}
 
 
 def stats(values: np.ndarray, dof: int = 3) -> dict:
@@ -131,7 +145,11 @@ def stats(values: np.ndarray, dof: int = 3) -> dict:
             "coverage95": float(np.mean(values <= CHI2_3_95))}
 
 
-def summarise(data: dict) -> dict:
+def _subset(data: dict, mask: np.ndarray) -> dict:
+    return {k: (v[mask] if isinstance(v, np.ndarray) and len(v) == len(mask) else v) for k, v in data.items()}
+
+
+def summarise(data: dict, split_consistent: bool = True) -> dict:
     bins = np.array([distance_bin(d) for d in data["dist"]], dtype=object)
     out = {"frames": int(len(data["dist"])), "failed_tracks": data["failed_tracks"],
            "fit_seconds": data["fit_seconds"],
@@ -151,6 +169,14 @@ def summarise(data: dict) -> dict:
 
         per_kp = data["kp_nees"].mean(axis=0) / 3
         out["per_keypoint_mean_nees_over_dof"] = {name: float(v) for name, v in zip(PEDX_KEYPOINTS, per_kp)}
+    if split_consistent:
+        ok = data["consistent"]
+        out["inconsistent_frames"] = int((~ok).sum())
+        out["inconsistent_keypoint_error_mm_mean"] = (float(data["kp_err"][~ok].mean() * 1000) if (~ok).any()
+                                                      else None)
+        out["inconsistent_per_distance"] = {f"{lo:g}-{hi:g}": int(((bins == f"{lo:g}-{hi:g}") & ~ok).sum())
+                                            for lo, hi in DISTANCE_BINS}
+        out["consistent_only"] = summarise(_subset(data, ok), split_consistent=False)
     return out
 
 
@@ -165,27 +191,37 @@ def to_markdown(result: dict) -> str:
              f"({result['motion']}); batch LM (staged) + chain marginals per track. NEES / dof should be 1 "
              "(goal 0.8-1.25); coverage of the 95 % ellipsoid 92-97 %.", ""]
     for name, res in result["variants"].items():
-        o = res["overall"]
-        lines += [f"## Variant `{name}`", "",
-                  f"{res['frames']} frames, {res['failed_tracks']} tracks failed; mean keypoint error "
-                  f"{_f(o['keypoint_error_mm_mean'], '.1f')} mm.", "",
-                  "| set | n | mean NEES/dof | median NEES/dof | 95 % coverage |", "|---|---:|---:|---:|---:|"]
-        for label, key in (("keypoints (all 18)", "keypoints"), ("keypoints labelled visible", "keypoints_visible"),
-                           ("keypoints not visible", "keypoints_occluded"), ("translation", "translation")):
-            s = o[key]
-            lines.append(f"| {label} | {s['n']} | {_f(s['mean_nees_over_dof'])} | {_f(s['median_nees_over_dof'])} | "
-                         f"{_f(None if s['coverage95'] is None else 100 * s['coverage95'], '.1f')} % |")
-        lines += ["", "| distance (m) | frames | keypoints NEES/dof | keypoints coverage | translation NEES/dof | "
-                  "translation coverage |", "|---|---:|---:|---:|---:|---:|"]
-        for key, row in res["per_distance"].items():
-            k, t = row["keypoints"], row["translation"]
-            lines.append(f"| {key} | {row['frames']} | {_f(k['mean_nees_over_dof'])} | "
-                         f"{_f(None if k['coverage95'] is None else 100 * k['coverage95'], '.1f')} % | "
-                         f"{_f(t['mean_nees_over_dof'])} | {_f(None if t['coverage95'] is None else 100 * t['coverage95'], '.1f')} % |")
-        lines.append("")
+        lines += [f"## Variant `{name}`", ""] + _tables(res, "all frames with covariances")
+        if "consistent_only" in res:
+            lines += [f"{res['inconsistent_frames']} frames flagged `fit_consistent = false` by the diagnostics "
+                      f"(per distance bin {res['inconsistent_per_distance']}), mean keypoint error "
+                      f"{_f(res['inconsistent_keypoint_error_mm_mean'], '.1f')} mm. Without them:", ""]
+            lines += _tables(res["consistent_only"], "frames judged consistent")
     if result.get("notes"):
         lines += ["## Findings", ""] + [f"- {n}" for n in result["notes"]]
     return "\n".join(lines) + "\n"
+
+
+def _tables(res: dict, title: str) -> list[str]:
+    lines = []
+    o = res["overall"]
+    lines += [f"{title}: {res['frames']} frames, {res['failed_tracks']} tracks failed; mean keypoint error "
+              f"{_f(o['keypoint_error_mm_mean'], '.1f')} mm.", "",
+              "| set | n | mean NEES/dof | median NEES/dof | 95 % coverage |", "|---|---:|---:|---:|---:|"]
+    for label, key in (("keypoints (all 18)", "keypoints"), ("keypoints labelled visible", "keypoints_visible"),
+                       ("keypoints not visible", "keypoints_occluded"), ("translation", "translation")):
+        s = o[key]
+        lines.append(f"| {label} | {s['n']} | {_f(s['mean_nees_over_dof'])} | {_f(s['median_nees_over_dof'])} | "
+                     f"{_f(None if s['coverage95'] is None else 100 * s['coverage95'], '.1f')} % |")
+    lines += ["", "| distance (m) | frames | keypoints NEES/dof | keypoints coverage | translation NEES/dof | "
+              "translation coverage |", "|---|---:|---:|---:|---:|---:|"]
+    for key, row in res["per_distance"].items():
+        k, t = row["keypoints"], row["translation"]
+        lines.append(f"| {key} | {row['frames']} | {_f(k['mean_nees_over_dof'])} | "
+                     f"{_f(None if k['coverage95'] is None else 100 * k['coverage95'], '.1f')} % | "
+                     f"{_f(t['mean_nees_over_dof'])} | {_f(None if t['coverage95'] is None else 100 * t['coverage95'], '.1f')} % |")
+    lines.append("")
+    return lines
 
 
 def main(argv=None) -> int:
@@ -193,8 +229,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--pedestrians", type=int, default=10)
     ap.add_argument("--frames", type=int, default=50)
-    ap.add_argument("--variants", nargs="+", default=["default", "matched_noise", "no_temporal_prior",
-                                                      "no_temporal_prior+lidar_sigma_x3", "gaussian"])
+    ap.add_argument("--variants", nargs="+", default=["default", "point_to_point_chamfer", "lidar_sigma_x3"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     from threadpoolctl import threadpool_limits
@@ -210,7 +245,8 @@ def main(argv=None) -> int:
         tracks = [t for t in read_dataset(scene) if len(t.frames) >= 2]
         truth = read_smpl_labels(scene)
         for name in args.variants:
-            data = collect(tracks, truth, variant_config(name), ctx)
+            fit_config, marginals_config = variant_config(name)
+            data = collect(tracks, truth, fit_config, ctx, marginals_config)
             result["variants"][name] = summarise(data)
             print(name, result["variants"][name]["overall"], flush=True)
     out = Path(args.out)
