@@ -6,7 +6,7 @@ import pytest
 from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
 from pedx_graph.graph.build import build_track_graph, extract_estimate
 from pedx_graph.graph.config import SolverConfig
-from pedx_graph.solvers.isam import IsamConfig, isam_solve, local_lm
+from pedx_graph.solvers.isam import IsamConfig, gauss_newton_step, isam_solve, local_lm
 from pedx_graph.solvers.lm import python_lm
 from pedx_graph.solvers.marginals import gtsam_marginals, isam_frame_covariance
 
@@ -71,6 +71,38 @@ def test_local_lm_holds_fixed_keys():
     out, error, _ = local_lm(graph, values, [2], max_iterations=10)
     np.testing.assert_allclose(out.atVector(1), [0.0, 0.0])
     np.testing.assert_allclose(out.atVector(2), [3.0, 2.5], atol=1e-4)     # midway: x1 + (1, 0) and (5, 5)
+
+
+def test_gauss_newton_step_is_first_local_lm_iteration():
+    """The cheap presolve step equals local_lm's first (accepted) iteration, held keys untouched."""
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    graph.add(gtsam.BetweenFactorVector(1, 2, np.array([1.0, 0.0]), noise))
+    graph.add(gtsam.PriorFactorVector(2, np.array([5.0, 5.0]), noise))
+    graph.add(gtsam.BetweenFactorVector(2, 4, np.array([1.0, 0.0]), noise))
+    graph.add(gtsam.PriorFactorRot3(3, gtsam.Rot3.Rz(0.3), gtsam.noiseModel.Isotropic.Sigma(3, 0.5)))
+    values = gtsam.Values()
+    values.insert(1, np.zeros(2))
+    values.insert(2, np.zeros(2))
+    values.insert(3, gtsam.Rot3())
+    values.insert(4, np.ones(2))
+    lm, _, _ = local_lm(graph, values, [2, 3], max_iterations=1)
+    gn = gauss_newton_step(graph, values, [2, 3])
+    np.testing.assert_allclose(gn.atVector(2), lm.atVector(2), atol=1e-9)
+    np.testing.assert_allclose(gtsam.Rot3.Logmap(gn.atRot3(3)), gtsam.Rot3.Logmap(lm.atRot3(3)), atol=1e-9)
+    np.testing.assert_allclose(gn.atVector(1), [0.0, 0.0])
+    np.testing.assert_allclose(gn.atVector(4), [1.0, 1.0])
+
+
+def test_presolve_methods_agree(ctx, smooth_case):
+    problem, _, report, _ = smooth_case
+    gn, gn_report, _ = isam_solve(problem, IsamConfig(finalize="isam", presolve_method="gn"))
+    lm, lm_report, _ = isam_solve(problem, IsamConfig(finalize="isam", presolve_method="lm"))
+    assert gn_report.final_error <= report.final_error * 1.01
+    a, b = extract_estimate(problem, gn, ctx), extract_estimate(problem, lm, ctx)
+    assert np.max(np.linalg.norm(a.world_keypoints - b.world_keypoints, axis=-1)) < 0.03
+    with pytest.raises(ValueError, match="presolve_method"):
+        isam_solve(problem, IsamConfig(presolve_method="newton"))
 
 
 def test_shape_is_held_between_relinearisations(ctx):

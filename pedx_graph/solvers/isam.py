@@ -44,8 +44,12 @@ class IsamConfig:
     relinearize_skip: int = 10
     """Check relinearisation every N updates (gtsam ``relinearizeSkip``)."""
     presolve_iterations: int = 1
-    """LM iterations on a new frame's own variables (neighbours and shape held) before it enters iSAM2, so
+    """Iterations on a new frame's own variables (neighbours and shape held) before it enters iSAM2, so
     one iSAM2 update per frame starts near the optimum; 0 disables."""
+    presolve_method: str = "gn"
+    """``gn``: each presolve iteration is one lightly damped Gauss-Newton step (one linearisation of the new
+    factors, a dense solve, no error evaluation); ``lm``: :func:`local_lm` (evaluates the error before and
+    after each step and rejects steps that increase it: two more passes over the new factors)."""
     finalize: str = "lm"
     """How an ended track is smoothed: ``lm`` (batch Levenberg-Marquardt over all its factors, warm-started
     from the iSAM2 estimate) or ``isam`` (extra forced iSAM2 updates; stops within the relinearisation
@@ -122,6 +126,41 @@ def local_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys,
         if decrease <= relative_tol * max(err, 1e-12):
             break
     return values, float(err), accepted_iterations
+
+
+def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys,
+                      damping: float = 1e-2) -> gtsam.Values:
+    """One damped Gauss-Newton step over ``free_keys``; every other key of ``values`` is held fixed.
+
+    Solves ``(H_ff + damping I) delta_f = eta_f`` densely (``H``, ``eta``: the graph linearised at
+    ``values``; ``f``: the free keys) and retracts the free keys.  This is :func:`local_lm`'s first
+    iteration (the same damping) without its error evaluations, i.e. the step is not checked.
+    Returns the updated ``values`` (a copy).
+    """
+    free = [int(k) for k in free_keys]
+    free_set = set(free)
+    held = [int(k) for k in values.keys() if int(k) not in free_set]
+    linear = graph.linearize(values)
+    ordering = gtsam.Ordering()
+    for key in free + held:
+        ordering.push_back(key)
+    hessian, eta = linear.hessian(ordering)
+    zero = values.zeroVectors()
+    dims = [int(zero.at(k).shape[0]) for k in free]
+    n = int(sum(dims))
+    h_ff = hessian[:n, :n] + damping * np.eye(n)
+    try:
+        delta = np.linalg.solve(h_ff, np.asarray(eta, float).reshape(-1)[:n])
+    except np.linalg.LinAlgError:
+        delta = np.linalg.lstsq(h_ff, np.asarray(eta, float).reshape(-1)[:n], rcond=None)[0]
+    step = gtsam.VectorValues()
+    offset = 0
+    for key, d in zip(free, dims):
+        step.insert(key, delta[offset:offset + d])
+        offset += d
+    for key in held:
+        step.insert(key, np.zeros(int(zero.at(key).shape[0])))
+    return values.retract(step)
 
 
 @dataclass
@@ -203,7 +242,13 @@ class IncrementalTrack:
                     local.insert(key, self.isam.calculateEstimateRot3(key))
                 else:
                     local.insert(key, np.asarray(self.isam.calculateEstimateVector(key), float).reshape(-1))
-        local, _, _ = local_lm(factors, local, free, max_iterations=self.config.presolve_iterations)
+        if self.config.presolve_method == "lm":
+            local, _, _ = local_lm(factors, local, free, max_iterations=self.config.presolve_iterations)
+        elif self.config.presolve_method == "gn":
+            for _ in range(self.config.presolve_iterations):
+                local = gauss_newton_step(factors, local, free)
+        else:
+            raise ValueError(f"presolve_method must be 'gn' or 'lm', got {self.config.presolve_method!r}")
         out = gtsam.Values()
         for key in free:
             out.insert(key, _key_value(local, key))

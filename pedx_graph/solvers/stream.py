@@ -17,8 +17,8 @@ on the points' core; ``StreamingEstimator._frame_factors`` mirrors ``build_track
 its changes: ``test_stream_factors_match_batch_graph`` checks it) except the heading prior,
 whose trajectory heading is estimated from the frames up to now (a one-sided window of ``half_window_s``)
 instead of a centred one.  New variables start from the previous frame's estimate (root, body pose) and
-the frame's LiDAR / stereo centre (translation), then a few LM iterations on the new frame alone
-(``IsamConfig.presolve_iterations``) before the iSAM2 update.
+the frame's LiDAR / stereo centre (translation), then a damped Gauss-Newton step on the new frame alone
+(``IsamConfig.presolve_iterations`` / ``presolve_method``) before the iSAM2 update.
 """
 from __future__ import annotations
 
