@@ -118,11 +118,40 @@ class TrackProblem:
     """Frame index (into the track) of each factor; -1 for track-level factors."""
     body: BatchedBodyModel | None = None
     """The batched body model the factors of this graph evaluate."""
+    _layout: object = field(default=None, repr=False)
+
+    active_kinds: frozenset | None = None
+    """The factor kinds this graph holds when it is a :meth:`without` view (None: all registered)."""
 
     def prefetch(self, values: gtsam.Values, jacobians: bool) -> None:
         """Batch-evaluate the body model for every frame before the graph is linearised / evaluated."""
         if self.body is not None:
-            self.body.prefetch(values, self.keys, jacobians)
+            kinds = self.active_kinds
+            self.body.prefetch(values, self.keys, jacobians,
+                               vertices=kinds is None or "lidar_chamfer" in kinds, kinds=kinds)
+
+    def without(self, kinds) -> "TrackProblem":
+        """The same problem minus the factors of ``kinds`` (same factor objects, keys and initial values;
+        e.g. the first, chamfer-free stage of the staged fit)."""
+        drop = set(kinds)
+        graph = gtsam.NonlinearFactorGraph()
+        kept_kinds, kept_frames = [], []
+        for j, (kind, frame) in enumerate(zip(self.factor_kinds, self.factor_frames)):
+            if kind not in drop:
+                graph.add(self.graph.at(j))
+                kept_kinds.append(kind)
+                kept_frames.append(frame)
+        return TrackProblem(graph=graph, initial=self.initial, keys=self.keys, init=self.init,
+                            factor_kinds=kept_kinds, factor_frames=kept_frames, body=self.body,
+                            active_kinds=frozenset(kept_kinds))
+
+    @property
+    def layout(self):
+        """The chain + arrow layout of this track's keys (:class:`pedx_graph.solvers.chain.ChainLayout`)."""
+        if self._layout is None:
+            from pedx_graph.solvers.chain import ChainLayout
+            self._layout = ChainLayout(self.keys, int(self.initial.atVector(self.keys[0].betas).shape[0]))
+        return self._layout
 
 
 @dataclass
@@ -237,13 +266,15 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                                       v0=noise.heading_min_speed_mps * 2,
                                       min_speed=noise.heading_min_speed_mps), "heading_prior")
     if terms.pose_prior:
-        add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture), "pose_prior")
+        add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture, cache=getattr(model, "term_cache", None)),
+            "pose_prior")
         add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits")
     if terms.temporal_prior and previous is not None:
         kp, previous_time = previous
         gap = max(1, int(round((fr.timestamp - previous_time) / ctx.temporal_dt)))
         add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
-                                       mixture=ctx.temporal_mixture, frame_gap=gap), "temporal_prior")
+                                       mixture=ctx.temporal_mixture, frame_gap=gap,
+                                       cache=getattr(model, "term_cache", None)), "temporal_prior")
     return out
 
 
@@ -278,12 +309,15 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     betas0 = np.zeros(nb)
     pelvis_rest = ctx.model.rest_joints(betas0)[0]
     keys = [FrameKeys.for_frame(i) for i in range(len(track.frames))]
-    values.insert(keys[0].betas, betas0)
-    body_pose0 = select_template_poses(track, ctx, world_R_body, init.world_p_centre)
+    if initial is None:
+        values.insert(keys[0].betas, betas0)
+    body_pose0 = None if initial is not None else select_template_poses(track, ctx, world_R_body,
+                                                                         init.world_p_centre)
     for i, (fr, k) in enumerate(zip(track.frames, keys)):
-        values.insert(k.root, gtsam.Rot3(world_R_body[i]))
-        values.insert(k.trans, np.asarray(init.world_p_centre[i] - pelvis_rest, dtype=float))
-        values.insert(k.body_pose, body_pose0[i].copy())
+        if initial is None:
+            values.insert(k.root, gtsam.Rot3(world_R_body[i]))
+            values.insert(k.trans, np.asarray(init.world_p_centre[i] - pelvis_rest, dtype=float))
+            values.insert(k.body_pose, body_pose0[i].copy())
         previous = (keys[i - 1], track.frames[i - 1].timestamp) if i > 0 else None
         for factor, kind in frame_factors(k, fr, track.calibrations[fr.pair], previous,
                                           float(init.heading_yaw[i]), float(init.speed_mps[i]),

@@ -125,19 +125,23 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     import dataclasses
 
     from pedx_graph.graph.build import build_track_graph
+    from pedx_graph.solvers.batched import BatchedLinearizer
     from pedx_graph.solvers.lm import solve
 
     if not config.terms.lidar_chamfer:
         problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
-        values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch)
+        values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch, problem.layout,
+                               BatchedLinearizer(problem))
         return problem, values, report
-    coarse_cfg = dataclasses.replace(config, terms=dataclasses.replace(config.terms, lidar_chamfer=False))
-    coarse = build_track_graph(track, ctx, coarse_cfg, yaw_override=yaw_override)
+    problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
+    coarse = problem.without({"lidar_chamfer"})          # the same factors, the chamfer left out
     coarse_solver = dataclasses.replace(config.solver, max_iterations=config.solver.coarse_max_iterations,
                                         relative_error_tol=config.solver.coarse_relative_error_tol)
-    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver, coarse.prefetch)
-    problem = build_track_graph(track, ctx, config, initial=coarse_values)
-    values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch)
+    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver, coarse.prefetch,
+                                         coarse.layout, BatchedLinearizer(coarse))
+    problem.initial = coarse_values
+    values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch, problem.layout,
+                               BatchedLinearizer(problem))
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
     return problem, values, report

@@ -2,9 +2,11 @@
 
 Two back-ends with the same stopping rules:
 
-* :func:`python_lm` drives LM from Python: ``graph.linearize(values)`` once per iteration, damping added
-  as unit-noise ``sqrt(lambda) * I`` Jacobian factors per variable, ``GaussianFactorGraph.optimize()`` and
-  ``Values.retract``.  Every CustomFactor callback then runs from Python at ~10 us overhead, instead of the
+* :func:`python_lm` drives LM from Python: ``graph.linearize(values)`` once per iteration, the damped
+  system ``(A^T A + lambda I) delta = A^T b`` solved either by GTSAM (damping added as unit-noise
+  ``sqrt(lambda) * I`` Jacobian factors per variable, ``GaussianFactorGraph.optimize()``, sparse QR) or,
+  for a track's chain + arrow graph (``layout``), by the block Cholesky sweep of
+  :mod:`pedx_graph.solvers.chain`; then ``Values.retract``.  Every CustomFactor callback then runs from Python at ~10 us overhead, instead of the
   ~200 us (growing with the graph) it costs inside gtsam's optimisers (see docs/solver.md for the measured
   comparison).
 * :func:`gtsam_lm` runs ``gtsam.LevenbergMarquardtOptimizer`` with matching parameters.
@@ -19,7 +21,10 @@ from typing import Callable
 import gtsam
 import numpy as np
 
+from scipy.linalg import LinAlgError
+
 from pedx_graph.graph.config import SolverConfig
+from pedx_graph.solvers.chain import ChainLayout, NotAChainError, solve_chain
 
 
 @dataclass
@@ -47,11 +52,17 @@ Prefetch = Callable[[gtsam.Values, bool], None]
 
 def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
               config: SolverConfig | None = None,
-              prefetch: Prefetch | None = None) -> tuple[gtsam.Values, SolveReport]:
+              prefetch: Prefetch | None = None,
+              layout: ChainLayout | None = None,
+              linearizer=None) -> tuple[gtsam.Values, SolveReport]:
     """Minimise ``graph.error`` from ``values`` with LM driven from Python; returns (estimate, report).
 
     ``prefetch`` lets the caller batch-evaluate what the factors will ask for (see
-    :mod:`pedx_graph.graph.batch`); it never changes the result.
+    :mod:`pedx_graph.graph.batch`); it never changes the result.  ``layout``: the track's
+    :class:`~pedx_graph.solvers.chain.ChainLayout` to solve each damped system by the block sweep (same
+    step as GTSAM's QR up to round-off; falls back to GTSAM when the graph is not a chain).
+    ``linearizer`` (with ``layout``): a :class:`~pedx_graph.solvers.batched.BatchedLinearizer` of this graph,
+    which gives ``graph.error`` and the chain system of ``graph.linearize`` from batched evaluations.
     """
     config = config or SolverConfig()
     prefetch = prefetch or (lambda values, jacobians: None)
@@ -60,30 +71,54 @@ def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     damping_models = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims.values())}
     eyes = {d: np.eye(d) for d in set(dims.values())}
     zeros = {d: np.zeros(d) for d in set(dims.values())}
-    prefetch(values, False)
-    err = graph.error(values)
+    if layout is None:
+        linearizer = None
+
+    def evaluate(at: gtsam.Values, jacobians: bool) -> float:
+        if linearizer is not None:
+            return linearizer.error(at, jacobians)
+        prefetch(at, jacobians)
+        return graph.error(at)
+
+    err = evaluate(values, False)
     initial = err
     lam = config.lambda_initial
     errors: list[float] = []
     converged = False
     iterations = 0
     for iterations in range(1, config.max_iterations + 1):
-        prefetch(values, True)
-        linear = graph.linearize(values)
+        linear = system = None
+        if linearizer is not None:
+            system = linearizer.system(values)
+        else:
+            prefetch(values, True)
+            linear = graph.linearize(values)
+            if layout is not None:
+                try:
+                    system = layout.assemble(linear)
+                except NotAChainError:
+                    layout = None
         accepted = False
         while lam <= config.lambda_max:
-            damped = linear.clone()
-            sqrt_lam = math.sqrt(lam)
-            for key, d in dims.items():
-                damped.add(gtsam.JacobianFactor(key, sqrt_lam * eyes[d], zeros[d], damping_models[d]))
-            try:
-                delta = damped.optimize()
-            except RuntimeError:
-                lam *= 10.0
-                continue
+            if system is not None:
+                try:
+                    delta = layout.to_vector_values(*solve_chain(system, lam))
+                except LinAlgError:
+                    lam *= 10.0
+                    continue
+            else:
+                damped = linear.clone()
+                sqrt_lam = math.sqrt(lam)
+                for key, d in dims.items():
+                    damped.add(gtsam.JacobianFactor(key, sqrt_lam * eyes[d], zeros[d], damping_models[d]))
+                try:
+                    delta = damped.optimize()
+                except RuntimeError:
+                    lam *= 10.0
+                    continue
             candidate = values.retract(delta)
-            prefetch(candidate, False)
-            new_err = graph.error(candidate)
+            # With derivatives: an accepted step is linearised at this same point next (served from the cache).
+            new_err = evaluate(candidate, True)
             if np.isfinite(new_err) and new_err <= err:
                 accepted = True
                 decrease = err - new_err
@@ -128,11 +163,13 @@ def gtsam_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
 
 def solve(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
           config: SolverConfig | None = None,
-          prefetch: Prefetch | None = None) -> tuple[gtsam.Values, SolveReport]:
-    """Dispatch on ``config.backend`` (``prefetch`` serves the Python-driven LM only)."""
+          prefetch: Prefetch | None = None,
+          layout: ChainLayout | None = None, linearizer=None) -> tuple[gtsam.Values, SolveReport]:
+    """Dispatch on ``config.backend`` (``prefetch``, ``layout`` and ``linearizer`` serve the Python-driven
+    LM only)."""
     config = config or SolverConfig()
     if config.backend == "python":
-        return python_lm(graph, values, config, prefetch)
+        return python_lm(graph, values, config, prefetch, layout, linearizer)
     if config.backend == "gtsam":
         return gtsam_lm(graph, values, config)
     raise ValueError(f"solver.backend must be 'python' or 'gtsam', got {config.backend!r}")
