@@ -268,17 +268,57 @@ class MaxMixture:
 
         The Jacobian is a read-only array shared between calls (copy it before modifying).
         """
-        diff = np.asarray(x, dtype=np.float64)[None, :, None] - self.means[:, :, None]   # (K, D, 1)
-        white = np.matmul(self.lt, diff)[:, :, 0]                                       # (K, D)
-        cost = 0.5 * (white * white).sum(axis=1) + self.c
-        best = int(np.argmin(cost))
-        r = np.append(white[best], self.extra[best])
-        return r, (self._jac[best] if want_jacobian else None), best
+        r, best = self.residual_batch(np.asarray(x, dtype=np.float64)[None])
+        k = int(best[0])
+        return r[0], (self._jac[k] if want_jacobian else None), k
+
+    def residual_batch(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`residual` of N points at once: residuals (N, D+1) and selected components (N,).
+
+        The Jacobian of row n is ``self.jacobian(best[n])`` (:meth:`jacobian`).
+        """
+        diff = np.asarray(x, dtype=np.float64)[:, None, :, None] - self.means[None, :, :, None]   # (N, K, D, 1)
+        white = np.matmul(self.lt[None], diff)[..., 0]                                          # (N, K, D)
+        cost = 0.5 * (white * white).sum(axis=2) + self.c[None]
+        best = np.argmin(cost, axis=1)
+        rows = np.arange(len(best))
+        return np.concatenate([white[rows, best], self.extra[best][:, None]], axis=1), best
+
+    def jacobian(self, component: int) -> np.ndarray:
+        """The residual's Jacobian (D+1, D) when ``component`` is selected (read-only, shared)."""
+        return self._jac[int(component)]
 
     def negative_log_likelihood(self, x: np.ndarray) -> float:
         """``0.5 ||r(x)||^2`` (max-mixture cost, up to a constant)."""
         r, _, _ = self.residual(x)
         return 0.5 * float(r @ r)
+
+
+def row_loss_and_weight(white: np.ndarray, kernel: str, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row loss ``rho(e)`` and IRLS weight ``w(e) = rho'(e) / e`` of whitened rows ``e``, as GTSAM's
+    ``mEstimator`` with ``ReweightScheme.Scalar`` uses them (:func:`make_noise`): the factor's error is
+    ``sum rho(e_i)`` and its linearisation scales row i of ``A`` and ``b`` by ``sqrt(w(e_i))``.
+
+    Geman-McClure ``rho = c^2 e^2 / (2 (c^2 + e^2))``, ``w = c^4 / (c^2 + e^2)^2``; Huber ``rho = e^2/2``,
+    ``w = 1`` for ``|e| <= c``, else ``c |e| - c^2/2`` and ``c / |e|``; Cauchy ``rho = c^2/2 log(1 + e^2/c^2)``,
+    ``w = c^2 / (c^2 + e^2)``; ``"none"``: ``e^2/2`` and 1.
+    """
+    e = np.asarray(white, dtype=np.float64)
+    c = float(scale)
+    kernel = kernel.lower()
+    if kernel == "none":
+        return 0.5 * e * e, np.ones_like(e)
+    q = c * c + e * e
+    if kernel == "gemanmcclure":
+        return 0.5 * c * c * e * e / q, (c * c / q) ** 2
+    if kernel == "cauchy":
+        return 0.5 * c * c * np.log1p(e * e / (c * c)), c * c / q
+    if kernel == "huber":
+        a = np.abs(e)
+        inside = a <= c
+        return (np.where(inside, 0.5 * e * e, c * a - 0.5 * c * c),
+                np.where(inside, 1.0, c / np.where(inside, 1.0, a)))
+    raise ValueError(f"unknown robust kernel {kernel!r}; expected one of {ROBUST_KERNELS}")
 
 
 def group_robust_weights(norms: np.ndarray, kernel: str, scale: float) -> tuple[np.ndarray, np.ndarray]:

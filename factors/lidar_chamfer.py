@@ -25,6 +25,7 @@ spacing, and a Geman-McClure kernel with a small scale stalls far from the solut
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import gtsam
@@ -59,20 +60,50 @@ def nearest_vertices(model: BodyModelLike, state: FrameState, world_points: np.n
 
 def lidar_chamfer_error(model: BodyModelLike, state: FrameState, world_points: np.ndarray,
                         candidate_vertex_ids: np.ndarray | None = None, want_jacobians: bool = False,
-                        matches: tuple[np.ndarray, np.ndarray] | None = None
+                        matches: tuple[np.ndarray, np.ndarray] | None = None, vertex_jacobians=None
                         ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Unwhitened residual (3M,) in metres and, when asked, ``[J_root, J_trans, J_body_pose, J_betas]``.
 
-    ``matches`` = the output of :func:`nearest_vertices` at this same ``state``, if already known.
+    ``matches`` = the output of :func:`nearest_vertices` at this same ``state``, if already known;
+    ``vertex_jacobians`` = the body model's point Jacobians of ``np.unique(matched ids)`` at ``state`` (in
+    that order), if already known (a batched evaluator computes them for all frames at once).
     """
     ids, verts = nearest_vertices(model, state, world_points, candidate_vertex_ids) if matches is None else matches
     if not want_jacobians:
         return (verts - world_points).reshape(-1), None
     unique, inverse = np.unique(ids, return_inverse=True)
-    jac = model.point_jacobians(state.full_pose, state.betas, state.trans, vertex_ids=unique)
+    jac = vertex_jacobians if vertex_jacobians is not None else \
+        model.point_jacobians(state.full_pose, state.betas, state.trans, vertex_ids=unique)
     r = (np.asarray(jac.points)[inverse] - world_points).reshape(-1)
     eye = np.broadcast_to(np.eye(3), (len(ids), 3, 3))
     return r, stack_point_jacobians(eye, jac, inverse)
+
+
+@dataclass(frozen=True)
+class ChamferSpec:
+    """What one chamfer factor measures and how (fixed at construction)."""
+
+    world_points: np.ndarray
+    """(M, 3) LiDAR points, world frame, metres."""
+    candidate_vertex_ids: np.ndarray | None
+    sigma_m: float
+    robust: str
+    robust_scale: float
+    robust_per_point: bool
+
+
+def chamfer_residual(model: BodyModelLike, state: FrameState, spec: ChamferSpec, want_jacobians: bool,
+                     matches: tuple[np.ndarray, np.ndarray] | None = None, vertex_jacobians=None
+                     ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """The factor's residual (whitened and robustified per point when ``spec.robust_per_point``, else
+    unwhitened) and Jacobian blocks; ``matches`` / ``vertex_jacobians`` as in :func:`lidar_chamfer_error`."""
+    r, blocks = lidar_chamfer_error(model, state, spec.world_points, spec.candidate_vertex_ids, want_jacobians,
+                                    matches, vertex_jacobians)
+    if spec.robust_per_point:
+        inv = 1.0 / spec.sigma_m
+        r, blocks = robustify_groups(r.reshape(-1, 3) * inv, spec.robust, spec.robust_scale,
+                                     None if blocks is None else [b * inv for b in blocks])
+    return r, blocks
 
 
 def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, world_points: np.ndarray,
@@ -98,22 +129,26 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
         raise ValueError("lidar chamfer: candidate_vertex_ids is empty")
     rows = 3 * pts.shape[0]
     memo: dict = {}             # last (state bytes -> matches): LM evaluates the error, then linearises there
+    spec = ChamferSpec(pts, cand, float(sigma_m), robust, float(robust_scale), bool(robust_per_point))
+    cache = getattr(model, "term_cache", None)
+    if cache is not None:
+        cache.register("lidar_chamfer", frame_key_list(keys), spec)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        state = read_frame_state(values, this.keys())
-        tag = b"".join(a.tobytes() for a in (state.root_rotvec, state.trans, state.body_pose, state.betas))
-        matches = memo.get(tag)
-        if matches is None:
-            matches = nearest_vertices(model, state, pts, cand)
-            memo.clear()
-            memo[tag] = matches
-        r, blocks = lidar_chamfer_error(model, state, pts, cand, H is not None, matches)
-        if robust_per_point:
-            inv = 1.0 / sigma_m
-            r, blocks = robustify_groups(r.reshape(-1, 3) * inv, robust, robust_scale,
-                                         None if blocks is None else [b * inv for b in blocks])
+        hit = None if cache is None else cache.lookup("lidar_chamfer", this.keys(), values, H is not None)
+        if hit is not None:
+            r, blocks = hit
+        else:
+            state = read_frame_state(values, this.keys())
+            tag = b"".join(a.tobytes() for a in (state.root_rotvec, state.trans, state.body_pose, state.betas))
+            matches = memo.get(tag)
+            if matches is None:
+                matches = nearest_vertices(model, state, pts, cand)
+                memo.clear()
+                memo[tag] = matches
+            r, blocks = chamfer_residual(model, state, spec, H is not None, matches)
         if H is not None:
-            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, state.betas.size])
+            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, np.shape(blocks[3])[1]])
         return r
 
     if robust_per_point:

@@ -31,11 +31,12 @@ def pose_prior_error(body_pose: np.ndarray, mixture: MaxMixture,
 def make_pose_prior_factor(key_body_pose: int, weights: np.ndarray | None = None,
                            means: np.ndarray | None = None, prec_chol: np.ndarray | None = None, *,
                            mixture: MaxMixture | None = None,
-                           covariance_scale: float = 1.0) -> gtsam.CustomFactor:
+                           covariance_scale: float = 1.0, cache=None) -> gtsam.CustomFactor:
     """Unary max-mixture pose prior on ``key_body_pose`` (vector, 69).
 
     Pass either the arrays ``weights, means, prec_chol`` or a prebuilt ``mixture`` (shared by many factors;
-    then ``covariance_scale`` is ignored: it is baked into the mixture).
+    then ``covariance_scale`` is ignored: it is baked into the mixture).  ``cache``: a batched evaluator
+    (``pedx_graph.graph.batch.BatchedBodyModel``) that may serve the residual for the current values.
     """
     if mixture is None:
         if weights is None or means is None or prec_chol is None:
@@ -45,9 +46,16 @@ def make_pose_prior_factor(key_body_pose: int, weights: np.ndarray | None = None
         raise ValueError(f"pose prior mixture must be {BODY_POSE_DIM}-d, got {mixture.dim}")
     rows = mixture.dim + 1
 
+    if cache is not None:
+        cache.register("pose_prior", [key_body_pose], mixture)
+
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        x = values.atVector(this.keys()[0])
-        r, jac, _ = mixture.residual(x, H is not None)
+        hit = None if cache is None else cache.lookup("pose_prior", this.keys(), values, H is not None)
+        if hit is not None:
+            r, blocks = hit
+            jac = None if blocks is None else blocks[0]
+        else:
+            r, jac, _ = mixture.residual(values.atVector(this.keys()[0]), H is not None)
         if H is not None:
             set_jacobians(H, [jac], rows, [mixture.dim])
         return as_f64(r)

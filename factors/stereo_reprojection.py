@@ -27,7 +27,7 @@ import numpy as np
 
 from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
                             frame_key_list,
-                            make_noise, read_frame_state, set_jacobians, stack_point_jacobians)
+                            make_noise, read_frame_state, set_jacobians)
 from pedx_graph.data.types import StereoCalibration, View2D
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
@@ -86,6 +86,16 @@ class StereoSetup:
         return int(self.sigmas.size)
 
 
+@dataclass(frozen=True)
+class StereoTerm:
+    """A stereo factor's fixed setup and its noise: per-row sigmas ``setup.sigmas`` (pixels) and the robust
+    kernel (per row, scale in whitened units) of :func:`factors.common.make_noise`."""
+
+    setup: StereoSetup
+    robust: str
+    robust_scale: float
+
+
 def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px: float = 2.0,
                        sigma_occluded_px: float = 6.0, keypoint_weights: np.ndarray | None = None,
                        min_depth: float = 0.1) -> StereoSetup:
@@ -115,23 +125,50 @@ def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibrat
     return StereoSetup(images=(images[0], images[1]), sigmas=np.concatenate(sigmas), min_depth=float(min_depth))
 
 
-def project_points(world_p: np.ndarray, proj_m: np.ndarray, proj_c: np.ndarray,
-                   min_depth: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (N, 2) of world points (N, 3) under ``[uw, vw, w] = M p + c`` and ``d uv / d p`` (N, 2, 3)."""
-    hom = world_p @ proj_m.T + proj_c                        # (N, 3)
-    depth = hom[:, 2]
-    clamped = depth < min_depth
-    w = np.where(clamped, min_depth, depth)
-    uv = hom[:, :2] / w[:, None]
-    d_uv = proj_m[None, :2, :] - np.where(clamped, 0.0, 1.0)[:, None, None] * uv[:, :, None] * proj_m[None, 2:3, :]
-    return uv, d_uv / w[:, None, None]
-
-
 def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
     """(18, 3) world keypoints; ``model.keypoints`` (cheap: few vertices) when the model has it."""
     if hasattr(model, "keypoints") and callable(model.keypoints):
         return model.keypoints(state.full_pose, state.betas, state.trans)
     return model.forward(state.full_pose, state.betas, state.trans).keypoints
+
+
+def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
+                              ) -> list[tuple[np.ndarray, list[np.ndarray] | None]]:
+    """Unwhitened residuals and (when ``jac`` is given) Jacobian blocks of T frames at once.
+
+    ``points`` (T, 18, 3) world keypoints; ``setups`` one :class:`StereoSetup` per frame; ``jac`` the
+    keypoints' ``PointJacobians`` with leading dimension T (or None).  Returns per frame ``(r (m,),
+    [J_root, J_trans, J_body_pose, J_betas] or None)`` — the projection of every keypoint into both images
+    is one batched product, the per-frame rows are then selected.
+    """
+    points = as_f64(points)
+    proj_m = np.stack([[img.proj_m for img in su.images] for su in setups])          # (T, 2, 3, 3)
+    proj_c = np.stack([[img.proj_c for img in su.images] for su in setups])          # (T, 2, 3)
+    min_depth = np.array([su.min_depth for su in setups])[:, None, None]
+    hom = points[:, None] @ np.swapaxes(proj_m, 2, 3) + proj_c[:, :, None]          # (T, 2, 18, 3)
+    depth = hom[..., 2]
+    clamped = depth < min_depth
+    w = np.where(clamped, min_depth, depth)
+    uv = hom[..., :2] / w[..., None]                                                 # (T, 2, 18, 2)
+    full = None
+    if jac is not None:
+        keep = np.where(clamped, 0.0, 1.0)[..., None, None]
+        d_uv = (proj_m[:, :, None, :2, :] - keep * uv[..., :, None] * proj_m[:, :, None, 2:3, :]) \
+            / w[..., None, None]                                                     # (T, 2, 18, 2, 3)
+        full = [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]     # (T, 2, 18, 2, k)
+                for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
+    out = []
+    for f, su in enumerate(setups):
+        (left, right) = su.images
+        r = np.concatenate([(uv[f, 0, left.index] - left.uv).reshape(-1),
+                            (uv[f, 1, right.index] - right.uv).reshape(-1)])
+        blocks = None
+        if full is not None:
+            blocks = [as_f64(np.concatenate([b[f, 0, left.index].reshape(-1, b.shape[-1]),
+                                             b[f, 1, right.index].reshape(-1, b.shape[-1])]))
+                      for b in full]
+        out.append((r, blocks))
+    return out
 
 
 def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: StereoSetup,
@@ -140,19 +177,19 @@ def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: St
     if want_jacobians:
         jac = model.point_jacobians(state.full_pose, state.betas, state.trans)
         points = np.asarray(jac.points, dtype=np.float64)
+        jac = _Leading(jac)
     else:                                    # residual only: the keypoints without their Jacobians
         jac = None
         points = np.asarray(_keypoints(model, state), dtype=np.float64)
-    residuals, maps, index = [], [], []
-    for img in setup.images:
-        uv, d_uv = project_points(points[img.index], img.proj_m, img.proj_c, setup.min_depth)
-        residuals.append((uv - img.uv).reshape(-1))
-        maps.append(d_uv)
-        index.append(img.index)
-    r = np.concatenate(residuals)
-    if not want_jacobians:
-        return r, None
-    return r, stack_point_jacobians(np.concatenate(maps), jac, np.concatenate(index))
+    return stereo_reprojection_batch(points[None], [setup], jac)[0]
+
+
+class _Leading:
+    """A single frame's point Jacobians seen with a leading batch dimension of 1."""
+
+    def __init__(self, jac):
+        for name in ("d_root", "d_trans", "d_body_pose", "d_betas"):
+            setattr(self, name, np.asarray(getattr(jac, name))[None])
 
 
 def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, measurement: StereoKeypoints,
@@ -169,12 +206,19 @@ def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: Body
     if setup.rows == 0:
         return None
     rows = setup.rows
+    cache = getattr(model, "term_cache", None)
+    if cache is not None:
+        cache.register("stereo_reprojection", frame_key_list(keys), StereoTerm(setup, robust, float(robust_scale)))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        state = read_frame_state(values, this.keys())
-        r, blocks = stereo_reprojection_error(model, state, setup, H is not None)
+        hit = None if cache is None else cache.lookup("stereo_reprojection", this.keys(), values, H is not None)
+        if hit is not None:
+            r, blocks = hit
+        else:
+            state = read_frame_state(values, this.keys())
+            r, blocks = stereo_reprojection_error(model, state, setup, H is not None)
         if H is not None:
-            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, state.betas.size])
+            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, np.shape(blocks[3])[1]])
         return r
 
     noise = make_noise(setup.sigmas, robust=robust, robust_scale=robust_scale)

@@ -27,7 +27,7 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, set_jacobians
-from pedx_graph.body.rotation import log_so3
+from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
 
 #: Dimension of the temporal difference.
 TEMPORAL_DIM = TRANS_DIM + ROOT_DIM + BODY_POSE_DIM          # 75
@@ -65,15 +65,15 @@ def sequence_differences(world_R_body: np.ndarray, trans: np.ndarray, body_pose:
 
 
 def _difference_parts(world_R_body_i, trans_i, body_pose_i, world_R_body_j, trans_j, body_pose_j):
-    """d (75,), the step s (3,), R_i^T (3, 3), R_ij = R_i^T R_j (3, 3) and J_r^-1(w) (3, 3) for one pair."""
-    rot_i = as_f64(world_R_body_i)
-    rot_i_t = rot_i.T
-    step = rot_i_t @ (as_f64(trans_j) - as_f64(trans_i))
-    rel = rot_i_t @ as_f64(world_R_body_j)
-    rel_rot = gtsam.Rot3(rel)
-    w = np.asarray(gtsam.Rot3.Logmap(rel_rot))
-    jr_inv = np.asarray(gtsam.Rot3.LogmapDerivative(w))
-    d = np.concatenate([step, w, as_f64(body_pose_j) - as_f64(body_pose_i)])
+    """Batched over P pairs: d (P, 75), the step s (P, 3), R_i^T (P, 3, 3), R_ij = R_i^T R_j (P, 3, 3) and
+    J_r^-1(w) (P, 3, 3)."""
+    rot_i_t = np.swapaxes(as_f64(world_R_body_i).reshape(-1, 3, 3), 1, 2)
+    step = np.einsum("pab,pb->pa", rot_i_t, as_f64(trans_j).reshape(-1, 3) - as_f64(trans_i).reshape(-1, 3))
+    rel = rot_i_t @ as_f64(world_R_body_j).reshape(-1, 3, 3)
+    w = log_so3(rel)
+    jr_inv = right_jacobian_inverse(w)
+    pose_diff = as_f64(body_pose_j).reshape(len(step), -1) - as_f64(body_pose_i).reshape(len(step), -1)
+    d = np.concatenate([step, w, pose_diff], axis=1)
     return d, step, rot_i_t, rel, jr_inv
 
 
@@ -86,17 +86,36 @@ def temporal_difference_jacobians(world_R_body_i: np.ndarray, trans_i: np.ndarra
     """
     d, step, rot_i_t, rel, jr_inv = _difference_parts(world_R_body_i, trans_i, body_pose_i,
                                                       world_R_body_j, trans_j, body_pose_j)
-    return d, _chain(np.eye(TEMPORAL_DIM), step, rot_i_t, rel, jr_inv)
+    blocks = _chain(np.eye(TEMPORAL_DIM)[None], step, rot_i_t, rel, jr_inv)
+    return d[0], [b[0] for b in blocks]
 
 
 def _chain(jac_x: np.ndarray, step: np.ndarray, rot_i_t: np.ndarray, rel: np.ndarray,
            jr_inv: np.ndarray) -> list[np.ndarray]:
-    """``jac_x @ dd/d(key)`` for the six keys, with ``jac_x`` (m, 75) the derivative w.r.t. d."""
-    a_s, a_w, a_p = jac_x[:, 0:3], jac_x[:, 3:6], jac_x[:, 6:]
-    hat_s = np.array([[0.0, -step[2], step[1]], [step[2], 0.0, -step[0]], [-step[1], step[0], 0.0]])
+    """``jac_x @ dd/d(key)`` for the six keys, batched over P pairs: ``jac_x`` (P, m, 75) the derivative
+    w.r.t. d; returns six (P, m, k) blocks."""
+    a_s, a_w, a_p = jac_x[:, :, 0:3], jac_x[:, :, 3:6], jac_x[:, :, 6:]
     a_w_jr = a_w @ jr_inv
-    return [as_f64(a_s @ hat_s - a_w_jr @ rel.T), as_f64(-(a_s @ rot_i_t)), as_f64(-a_p),
-            as_f64(a_w_jr), as_f64(a_s @ rot_i_t), as_f64(a_p)]
+    a_s_rt = a_s @ rot_i_t
+    return [a_s @ hat(step) - a_w_jr @ np.swapaxes(rel, 1, 2), -a_s_rt, -a_p, a_w_jr, a_s_rt, a_p]
+
+
+def temporal_prior_batch(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
+                         world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray,
+                         mixture: MaxMixture, frame_gap: np.ndarray, want_jacobian: bool = False
+                         ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """:func:`temporal_prior_error` for P pairs at once: residuals (P, 76) and six (P, 76, k) blocks.
+
+    Inputs stacked over pairs: rotations (P, 3, 3), translations (P, 3), body poses (P, 69), gaps (P,).
+    """
+    gap = np.asarray(frame_gap, dtype=np.float64).reshape(-1)
+    d, step, rot_i_t, rel, jr_inv = _difference_parts(world_R_body_i, trans_i, body_pose_i,
+                                                      world_R_body_j, trans_j, body_pose_j)
+    r, best = mixture.residual_batch(d / gap[:, None])
+    if not want_jacobian:
+        return r, None
+    jac_x = np.stack([mixture.jacobian(k) for k in best]) / gap[:, None, None]
+    return r, _chain(jac_x, step, rot_i_t, rel, jr_inv)
 
 
 def temporal_prior_error(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
@@ -104,19 +123,16 @@ def temporal_prior_error(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_p
                          mixture: MaxMixture, frame_gap: int = 1, want_jacobian: bool = False
                          ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Max-mixture residual (76,) of ``d(i, j) / frame_gap`` and its six Jacobian blocks when asked."""
-    d, step, rot_i_t, rel, jr_inv = _difference_parts(world_R_body_i, trans_i, body_pose_i,
-                                                      world_R_body_j, trans_j, body_pose_j)
-    r, jac_x, _ = mixture.residual(d / frame_gap, want_jacobian)
-    if not want_jacobian:
-        return r, None
-    return r, _chain(jac_x / frame_gap, step, rot_i_t, rel, jr_inv)
+    r, blocks = temporal_prior_batch(world_R_body_i, trans_i, body_pose_i, world_R_body_j, trans_j,
+                                     body_pose_j, mixture, np.array([frame_gap]), want_jacobian)
+    return r[0], None if blocks is None else [as_f64(b[0]) for b in blocks]
 
 
 def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_i: int,
                                key_root_j: int, key_trans_j: int, key_body_pose_j: int,
                                weights: np.ndarray | None = None, means: np.ndarray | None = None,
                                prec_chol: np.ndarray | None = None, *, mixture: MaxMixture | None = None,
-                               frame_gap: int = 1, covariance_scale: float = 1.0) -> gtsam.CustomFactor:
+                               frame_gap: int = 1, covariance_scale: float = 1.0, cache=None) -> gtsam.CustomFactor:
     """Temporal max-mixture prior between frame i and frame j = i + ``frame_gap`` (frame periods).
 
     Pass the GMM arrays (weights (K,), means (K, 75), prec_chol (K, 75, 75)) or a prebuilt ``mixture``
@@ -133,8 +149,18 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
     gap = int(frame_gap)
     rows = TEMPORAL_DIM + 1
 
+    keys = [key_root_i, key_trans_i, key_body_pose_i, key_root_j, key_trans_j, key_body_pose_j]
+    if cache is not None:
+        cache.register("temporal_prior", keys, (mixture, gap))
+
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         k = this.keys()
+        hit = None if cache is None else cache.lookup("temporal_prior", k, values, H is not None)
+        if hit is not None:
+            r, blocks = hit
+            if H is not None:
+                set_jacobians(H, blocks, rows, _DIMS)
+            return r
         r, blocks = temporal_prior_error(
             values.atRot3(k[0]).matrix(), values.atVector(k[1]), values.atVector(k[2]),
             values.atRot3(k[3]).matrix(), values.atVector(k[4]), values.atVector(k[5]),
@@ -143,5 +169,4 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
             set_jacobians(H, blocks, rows, _DIMS)
         return r
 
-    keys = [key_root_i, key_trans_i, key_body_pose_i, key_root_j, key_trans_j, key_body_pose_j]
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)

@@ -116,30 +116,33 @@ def vertex_jacobians(kin: Kinematics, bases: np.ndarray, rest_points: np.ndarray
 
     rest_points (N, P, 3) = shaped + pose-corrected rest positions ``x_v``; weights (P, J); shapedirs_flat
     (3P, B) and posedirs_flat (3P, 9 (J-1)) or None: the blend shapes of those vertices, rows ordered (vertex,
-    coordinate); drot_body (N, J-1, 3, 3, 3) = ``dR_j/dtheta_j`` (needed with posedirs).
+    coordinate); drot_body (N, J-1, 3, 3, 3) = ``dR_j/dtheta_j`` (needed with posedirs).  ``weights``,
+    ``shapedirs_flat`` and ``posedirs_flat`` may also carry a leading N (a different vertex set per batch
+    element: (N, P, J), (N, 3P, B), (N, 3P, 9 (J-1))).
     Returns points (N, P, 3), d_root (N, P, 3, 3), d_body (N, P, 3, 3 (J-1)), d_betas (N, P, 3, B).
     """
     world_rot, origin = kin.world_rot, kin.world_origin
     num_n, num_j = world_rot.shape[:2]
     num_p = rest_points.shape[1]
+    weights_n = weights if weights.ndim == 3 else weights[None]                      # (N or 1, P, J)
     # Position of each vertex under each bone: y_vk = Rg_k x_v + t_k, (N, P, J, 3), as one product.
     rot_cols = world_rot.transpose(0, 3, 1, 2).reshape(num_n, 3, 3 * num_j)           # [n, b, (k, a)]
     under_bone = (rest_points @ rot_cols).reshape(num_n, num_p, num_j, 3) + kin.bone_trans[:, None]
-    weighted = weights[None, :, :, None] * under_bone
-    subtree_w = weights @ desc.T                                     # W_j(v), (P, J)
-    levers = desc @ weighted - subtree_w[None, :, :, None] * origin[:, None]
+    weighted = weights_n[..., None] * under_bone
+    subtree_w = weights_n @ desc.T                                   # W_j(v), (N or 1, P, J)
+    levers = desc @ weighted - subtree_w[..., None] * origin[:, None]
     # The root's subtree is every joint, so its lever is p - W_0 o_0: the points come for free.
-    points = levers[:, :, 0] + subtree_w[None, :, 0, None] * origin[:, None, 0]
+    points = levers[:, :, 0] + subtree_w[..., 0, None] * origin[:, None, 0]
     blocks = _rotation_blocks(levers, bases)                         # (N, J, P, 3, 3)
-    blended_rot = (weights @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
+    blended_rot = (weights_n @ world_rot.reshape(num_n, num_j, 9)).reshape(num_n, num_p, 3, 3)   # M_v
     if posedirs_flat is not None:
-        per_joint = posedirs_flat.reshape(3 * num_p, num_j - 1, 9).transpose(1, 0, 2)       # (J-1, 3P, 9)
+        per_joint = posedirs_flat.reshape(-1, 3 * num_p, num_j - 1, 9).transpose(0, 2, 1, 3)  # (., J-1, 3P, 9)
         dq = per_joint @ drot_body.reshape(num_n, num_j - 1, 9, 3)                          # (N, J-1, 3P, 3)
         blocks[:, 1:] += blended_rot[:, None] @ dq.reshape(num_n, num_j - 1, num_p, 3, 3)
     d_root, d_body = _split_blocks(blocks)
-    num_b = shapedirs_flat.shape[1]
-    d_betas = (blended_rot @ shapedirs_flat.reshape(num_p, 3, num_b)[None]
-               + (weights @ dt_dbeta.reshape(num_n, num_j, 3 * num_b)).reshape(num_n, num_p, 3, num_b))
+    num_b = shapedirs_flat.shape[-1]
+    d_betas = (blended_rot @ shapedirs_flat.reshape(-1, num_p, 3, num_b)
+               + (weights_n @ dt_dbeta.reshape(num_n, num_j, 3 * num_b)).reshape(num_n, num_p, 3, num_b))
     return points, d_root, d_body, d_betas
 
 

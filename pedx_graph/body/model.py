@@ -348,6 +348,36 @@ class BodyModel:
             d_body_pose=d_body.reshape(lead + (num_p, 3, d_body.shape[-1])), d_trans=d_trans,
             d_betas=d_betas.reshape(lead + (num_p, 3, self.num_betas)))
 
+    def vertex_jacobians_per_frame(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
+                                   vertex_ids: np.ndarray) -> jac.PointJacobians:
+        """Positions and Jacobians of a different vertex set per frame, in one batched pass.
+
+        pose (N, 72), betas (N, B), trans (N, 3), vertex_ids (N, P) (pad short sets by repeating an id).
+        Returns ``PointJacobians`` with points (N, P, 3), d_root (N, P, 3, 3), d_body_pose (N, P, 3, 69),
+        d_trans (N, P, 3, 3), d_betas (N, P, 3, B) — row n, p equals
+        ``point_jacobians(pose[n], betas[n], trans[n], vertex_ids=vertex_ids[n])`` at vertex p.
+        """
+        pose, betas, trans, lead = self._prepare(pose, betas, trans)
+        ids = np.asarray(vertex_ids, dtype=np.int64)
+        if ids.ndim != 2 or ids.shape[0] != pose.shape[0]:
+            raise ValueError(f"vertex_ids must be (N={pose.shape[0]}, P), got {ids.shape}")
+        if ids.size and (ids.min() < 0 or ids.max() >= self.num_vertices):
+            raise ValueError(f"vertex_ids must lie in [0, {self.num_vertices})")
+        num_n, num_p = ids.shape
+        kin, bases, dt_dbeta, drot = self._jacobian_setup(pose, betas)
+        rows = (3 * ids[:, :, None] + np.arange(3)).reshape(num_n, 3 * num_p)
+        shapedirs = self._shapedirs_flat[rows]                                     # (N, 3P, B)
+        flat = np.einsum("nb,ncb->nc", betas, shapedirs) + self._v_template_col[rows, 0]
+        posedirs = None
+        if self._posedirs_flat is not None:
+            posedirs = self._posedirs_flat[rows]                                   # (N, 3P, 207)
+            flat += np.einsum("nf,ncf->nc", pose_features(kin.rot_mats), posedirs)
+        pts, d_root, d_body, d_betas = jac.vertex_jacobians(kin, bases, flat.reshape(num_n, num_p, 3),
+                                                            self.weights[ids], self._desc, shapedirs, dt_dbeta,
+                                                            posedirs, drot)
+        return jac.PointJacobians(points=pts + trans[:, None], d_root=d_root, d_body_pose=d_body,
+                                  d_trans=np.broadcast_to(np.eye(3), (num_n, num_p, 3, 3)), d_betas=d_betas)
+
     def joints_and_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None,
                              joint_ids: np.ndarray | None = None) -> jac.PointJacobians:
         """Posed joints (all, or ``joint_ids``) and their analytic Jacobians (same layout as point_jacobians)."""

@@ -10,6 +10,14 @@ all frames are evaluated in one batched call and cached by the exact bytes of ea
 ``(pose, betas, trans)``.  A factor's call with the same inputs is then a dictionary look-up; any other call
 (gtsam's own optimisers, iSAM2, Marginals, a changed estimate) falls through to the model, so results never
 depend on the cache — only speed does.
+
+It is also the factors' *term cache* (``term_cache``): the stereo, chamfer, pose-prior and temporal factors
+of a track register what they measure when they are built (:meth:`register`); :meth:`prefetch` then
+evaluates each of these terms for all frames in one batched call (``stereo_reprojection_batch``,
+``MaxMixture.residual_batch``, ``temporal_prior_batch``; the chamfer's k-d trees and matched-vertex
+Jacobians per frame) and a factor's callback takes its residual and Jacobians from :meth:`lookup` — after
+checking that the values it is called with are exactly the prefetched ones (otherwise it computes them
+itself).  One GTSAM callback then costs a look-up instead of the term's numpy work.
 """
 from __future__ import annotations
 
@@ -18,7 +26,10 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.common import FrameKeys, read_frame_state
+from factors.common import FrameKeys, FrameState, read_frame_state
+from factors.lidar_chamfer import chamfer_residual, nearest_vertices
+from factors.stereo_reprojection import stereo_reprojection_batch
+from factors.temporal_prior import temporal_prior_batch
 from pedx_graph.body import BodyModel
 
 
@@ -46,15 +57,110 @@ class BatchedBodyModel:
         self._keypoint_jacobians: dict[bytes, _FrameJacobians] = {}
         self._keypoints: dict[bytes, np.ndarray] = {}
         self._subset_vertices: dict[bytes, np.ndarray] = {}
+        self._specs: dict[str, dict[tuple[int, ...], object]] = {}
+        self._terms: dict[tuple[str, tuple[int, ...]], tuple] = {}
+        self._terms_have_jacobians = False
+        self._key_bytes: dict[int, bytes] = {}
+        self._root_keys: set[int] = set()
+        self._last_signature: tuple | None = None
+        self._last_jacobians = False
 
     def __getattr__(self, name):          # faces, num_betas, rest_joints, ... come from the model
+        if name.startswith("_"):
+            raise AttributeError(name)
         return getattr(self.model, name)
+
+    @property
+    def term_cache(self) -> "BatchedBodyModel":
+        """The object the factors register their terms with (this one)."""
+        return self
+
+    # -- term cache ----------------------------------------------------------------------------------
+    def register(self, kind: str, keys, spec) -> None:
+        """A factor of ``kind`` on ``keys`` with its fixed measurement ``spec`` (see the module docstring)."""
+        self._specs.setdefault(kind, {})[tuple(int(k) for k in keys)] = spec
+
+    def lookup(self, kind: str, keys, values: gtsam.Values, jacobians: bool):
+        """``(residual, blocks)`` of the factor ``kind`` on ``keys`` prefetched at exactly ``values``, or None."""
+        hit = self._terms.get((kind, tuple(keys)))
+        if hit is None or (jacobians and not self._terms_have_jacobians):
+            return None
+        cached = self._key_bytes
+        roots = self._root_keys
+        for key in keys:
+            current = values.atRot3(key).matrix() if key in roots else values.atVector(key)
+            if current.tobytes() != cached.get(key):
+                return None
+        return hit
+
+    def _evaluate_terms(self, keys: list[FrameKeys], states: list[FrameState], jac, keypoints,
+                        kinds=None) -> None:
+        """Every registered term (of ``kinds``; all when None) at the prefetched states; ``jac`` (keypoint
+        Jacobians of all frames) or ``keypoints`` (T, 18, 3) from :meth:`prefetch`."""
+        specs = self._specs if kinds is None else {k: v for k, v in self._specs.items() if k in kinds}
+        jacobians = jac is not None
+        self._terms.clear()
+        self._terms_have_jacobians = jacobians
+        frame_of = {k.root: i for i, k in enumerate(keys)}
+        stereo = specs.get("stereo_reprojection", {})
+        if stereo:
+            fkeys = [fk for fk in stereo if fk[0] in frame_of]
+            idx = np.array([frame_of[fk[0]] for fk in fkeys], dtype=np.int64)
+            sub = None if jac is None else _FrameJacobians(jac.points[idx], jac.d_root[idx], jac.d_body_pose[idx],
+                                                           jac.d_trans[idx], jac.d_betas[idx])
+            points = keypoints[idx] if jac is None else sub.points
+            results = stereo_reprojection_batch(points, [stereo[fk].setup for fk in fkeys], sub)
+            for fk, res in zip(fkeys, results):
+                self._terms[("stereo_reprojection", fk)] = res
+        chamfer = [(fk, spec) for fk, spec in specs.get("lidar_chamfer", {}).items() if fk[0] in frame_of]
+        if chamfer:
+            fstates = [states[frame_of[fk[0]]] for fk, _ in chamfer]
+            matches = [nearest_vertices(self, st, spec.world_points, spec.candidate_vertex_ids)
+                       for st, (_, spec) in zip(fstates, chamfer)]
+            per_frame = [None] * len(chamfer)
+            if jacobians:             # the matched vertices' Jacobians of every frame in one batched pass
+                unique = [np.unique(ids) for ids, _ in matches]
+                width = max(len(u) for u in unique)
+                padded = np.stack([np.pad(u, (0, width - len(u)), mode="edge") for u in unique])
+                vjac = self.model.vertex_jacobians_per_frame(np.stack([st.full_pose for st in fstates]),
+                                                             np.stack([st.betas for st in fstates]),
+                                                             np.stack([st.trans for st in fstates]), padded)
+                per_frame = [_FrameJacobians(vjac.points[n, :len(u)], vjac.d_root[n, :len(u)],
+                                             vjac.d_body_pose[n, :len(u)], vjac.d_trans[n, :len(u)],
+                                             vjac.d_betas[n, :len(u)]) for n, u in enumerate(unique)]
+            for (fk, spec), st, match, vj in zip(chamfer, fstates, matches, per_frame):
+                self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
+        prior = specs.get("pose_prior", {})
+        pose_index = {k.body_pose: i for i, k in enumerate(keys)}
+        for mixture in {id(m): m for m in prior.values()}.values():
+            fkeys = [fk for fk, m in prior.items() if m is mixture and fk[0] in pose_index]
+            res, best = mixture.residual_batch(np.stack([states[pose_index[fk[0]]].body_pose for fk in fkeys]))
+            for fk, r, k in zip(fkeys, res, best):
+                self._terms[("pose_prior", fk)] = (r, [mixture.jacobian(k)] if jacobians else None)
+        temporal = specs.get("temporal_prior", {})
+        groups: dict[int, list] = {}
+        for fk, (mixture, gap) in temporal.items():
+            if fk[0] not in frame_of or fk[3] not in frame_of:
+                continue
+            groups.setdefault(id(mixture), []).append((fk, mixture, gap))
+        for items in groups.values():
+            a = [states[frame_of[fk[0]]] for fk, _, _ in items]
+            b = [states[frame_of[fk[3]]] for fk, _, _ in items]
+            res, blocks = temporal_prior_batch(
+                np.stack([s.world_R_body for s in a]), np.stack([s.trans for s in a]),
+                np.stack([s.body_pose for s in a]), np.stack([s.world_R_body for s in b]),
+                np.stack([s.trans for s in b]), np.stack([s.body_pose for s in b]), items[0][1],
+                np.array([gap for _, _, gap in items]), jacobians)
+            for n, (fk, _, _) in enumerate(items):
+                self._terms[("temporal_prior", fk)] = (
+                    res[n], None if blocks is None else [np.ascontiguousarray(blk[n]) for blk in blocks])
 
     # -- prefetch ------------------------------------------------------------------------------------
     def prefetch(self, values: gtsam.Values, keys: list[FrameKeys], jacobians: bool,
-                 vertices: bool = True) -> None:
+                 vertices: bool = True, kinds=None) -> None:
         """Evaluate every frame of ``keys`` at ``values`` in one batch (keypoints, with Jacobians when
-        ``jacobians``; the subset vertices when ``vertices`` and a subset is set); forget older entries."""
+        ``jacobians``; the subset vertices when ``vertices`` and a subset is set; the registered terms of
+        ``kinds``, all when None); forget older entries."""
         states = [read_frame_state(values, k.as_list()) for k in keys]
         if not states:
             return
@@ -62,9 +168,22 @@ class BatchedBodyModel:
         betas = np.stack([s.betas for s in states])
         trans = np.stack([s.trans for s in states])
         tags = [_tag(s.full_pose, s.betas, s.trans) for s in states]
+        signature = (tuple(k.root for k in keys), tuple(tags), vertices, kinds)
+        if signature == self._last_signature and (self._last_jacobians or not jacobians):
+            return                     # already evaluated at these values (with at least these derivatives)
+        self._last_signature, self._last_jacobians = signature, jacobians
         self._keypoint_jacobians.clear()
         self._keypoints.clear()
         self._subset_vertices.clear()
+        self._terms.clear()
+        self._key_bytes.clear()
+        self._root_keys = {k.root for k in keys}
+        for k, st in zip(keys, states):
+            self._key_bytes[k.root] = np.ascontiguousarray(st.world_R_body).tobytes()
+            self._key_bytes[k.trans] = st.trans.tobytes()
+            self._key_bytes[k.body_pose] = st.body_pose.tobytes()
+            self._key_bytes[k.betas] = st.betas.tobytes()
+        jac = kps = None
         if jacobians:
             jac = self.model.point_jacobians(pose, betas, trans)
             for i, tag in enumerate(tags):
@@ -78,6 +197,8 @@ class BatchedBodyModel:
             verts = self.model.vertices_subset(pose, betas, trans, self.subset_vertex_ids)
             for i, tag in enumerate(tags):
                 self._subset_vertices[tag] = verts[i]
+        if self._specs:
+            self._evaluate_terms(keys, states, jac, kps, kinds)
 
     # -- the BodyModel interface used by the factors -----------------------------------------------------
     def point_jacobians(self, pose, betas, trans=None, vertex_ids=None):
