@@ -1,0 +1,188 @@
+"""The batched evaluation path of the batch LM equals GTSAM's own evaluation of the same graph.
+
+* the term cache (:class:`BatchedBodyModel`) serves a factor only at exactly the prefetched values;
+* :class:`ChainLayout` + :func:`solve_chain` give GTSAM's damped Gauss-Newton step;
+* :class:`BatchedLinearizer` gives ``graph.error`` and the chain system of ``graph.linearize``;
+* the batched body-model, mixture, stereo and temporal functions equal their per-frame versions.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors.stereo_reprojection import StereoKeypoints, build_stereo_setup, stereo_reprojection_batch
+from factors.temporal_prior import temporal_prior_batch, temporal_prior_error
+from factors.testing import make_test_calibration
+from pedx_graph.graph.build import build_track_graph
+from pedx_graph.solvers.batched import BatchedLinearizer
+from pedx_graph.solvers.chain import ChainLayout, NotAChainError, solve_chain
+from pedx_graph.solvers.lm import python_lm
+from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
+
+
+@pytest.fixture(scope="module")
+def problem_and_point():
+    ctx = synthetic_context()
+    track, _ = synthetic_track(ctx, num_frames=6, seed=3)
+    problem = build_track_graph(track, ctx, synthetic_config())
+    rng = np.random.default_rng(0)
+    values = gtsam.Values(problem.initial)
+    for k in problem.keys:                       # a generic point: every variable away from its start
+        values.update(k.root, values.atRot3(k.root).compose(gtsam.Rot3.Expmap(rng.normal(scale=0.05, size=3))))
+        values.update(k.trans, values.atVector(k.trans) + rng.normal(scale=0.05, size=3))
+        values.update(k.body_pose, values.atVector(k.body_pose) + rng.normal(scale=0.1, size=69))
+    betas_key = problem.keys[0].betas
+    values.update(betas_key, rng.normal(scale=0.3, size=values.atVector(betas_key).shape[0]))
+    return ctx, track, problem, values
+
+
+def _assert_systems_equal(a, b, rtol=1e-9):
+    for name in ("frame", "next", "frame_shape", "shape", "grad_frame", "grad_shape"):
+        x, y = getattr(a, name), getattr(b, name)
+        scale = max(np.abs(y).max(), 1e-12)
+        np.testing.assert_allclose(x, y, rtol=0, atol=rtol * scale, err_msg=name)
+
+
+def test_chain_solve_equals_gtsam_damped_step(problem_and_point):
+    _, _, problem, values = problem_and_point
+    linear = problem.graph.linearize(values)
+    layout = ChainLayout(problem.keys, values.atVector(problem.keys[0].betas).shape[0])
+    lam = 0.3
+    delta = layout.to_vector_values(*solve_chain(layout.assemble(linear), lam))
+    damped = linear.clone()
+    for key in values.keys():
+        d = values.zeroVectors().at(key).shape[0]
+        damped.add(gtsam.JacobianFactor(key, np.sqrt(lam) * np.eye(d), np.zeros(d), gtsam.noiseModel.Unit.Create(d)))
+    reference = damped.optimize()
+    for key in values.keys():
+        np.testing.assert_allclose(delta.at(key), reference.at(key), atol=1e-10 * max(1.0, np.abs(reference.at(key)).max()))
+
+
+def test_layout_rejects_a_factor_linking_distant_frames(problem_and_point):
+    _, _, problem, _ = problem_and_point
+    layout = ChainLayout(problem.keys, 10)
+    k0, k2 = problem.keys[0], problem.keys[2]
+    with pytest.raises(NotAChainError):
+        layout.segments((int(k0.trans), int(k2.trans)))
+
+
+@pytest.mark.parametrize("coarse", [False, True])
+def test_batched_linearizer_equals_graph_linearize(problem_and_point, coarse):
+    _, _, full, values = problem_and_point
+    problem = full.without({"lidar_chamfer"}) if coarse else full
+    lin = BatchedLinearizer(problem)
+    served = sum(len(v) for v in lin.served.values())
+    assert served >= 3 * len(problem.keys) - 1          # stereo, pose prior, temporal (+ chamfer) are batched
+    err = lin.error(values)
+    system = lin.system(values)
+    assert err == pytest.approx(problem.graph.error(values), rel=1e-10)
+    reference = problem.layout.assemble(problem.graph.linearize(values))
+    _assert_systems_equal(system, reference)
+
+
+def test_term_cache_serves_only_the_prefetched_values(problem_and_point):
+    ctx, track, problem, values = problem_and_point
+    problem.prefetch(values, True)
+    other = gtsam.Values(values)
+    k = problem.keys[1]
+    other.update(k.body_pose, other.atVector(k.body_pose) + 0.01)
+    fresh = build_track_graph(track, ctx, synthetic_config())       # never prefetched: computes everything
+    assert problem.graph.error(other) == pytest.approx(fresh.graph.error(other), rel=1e-12)
+    assert problem.graph.error(values) == pytest.approx(fresh.graph.error(values), rel=1e-12)
+    assert problem.body.lookup("pose_prior", [int(k.body_pose)], other, False) is None
+    assert problem.body.lookup("pose_prior", [int(k.body_pose)], values, False) is not None
+
+
+def test_lm_with_batched_linearizer_follows_the_plain_lm(problem_and_point):
+    ctx, track, _, _ = problem_and_point
+    config = synthetic_config()
+    config.solver.max_iterations = 4
+    a = build_track_graph(track, ctx, config)
+    est_a, rep_a = python_lm(a.graph, a.initial, config.solver, a.prefetch, a.layout, BatchedLinearizer(a))
+    b = build_track_graph(track, ctx, config)
+    est_b, rep_b = python_lm(b.graph, b.initial, config.solver)       # GTSAM linearize + QR, no cache
+    assert rep_a.iterations == rep_b.iterations
+    np.testing.assert_allclose(rep_a.errors, rep_b.errors, rtol=1e-7)
+    for k in a.keys:
+        np.testing.assert_allclose(est_a.atRot3(k.root).matrix(), est_b.atRot3(k.root).matrix(), atol=1e-7)
+        for key in (k.trans, k.body_pose, k.betas):
+            np.testing.assert_allclose(est_a.atVector(key), est_b.atVector(key), atol=1e-7)
+
+
+def test_vertex_jacobians_per_frame_equal_single_frame_calls():
+    ctx = synthetic_context()
+    model = ctx.model
+    rng = np.random.default_rng(4)
+    n = 5
+    pose = rng.normal(scale=0.3, size=(n, 72))
+    betas = rng.normal(size=(n, model.num_betas))
+    trans = rng.normal(size=(n, 3))
+    ids = np.stack([rng.choice(model.num_vertices, 7, replace=False) for _ in range(n)])
+    batch = model.vertex_jacobians_per_frame(pose, betas, trans, ids)
+    for i in range(n):
+        one = model.point_jacobians(pose[i], betas[i], trans[i], vertex_ids=ids[i])
+        for name in ("points", "d_root", "d_body_pose", "d_trans", "d_betas"):
+            np.testing.assert_allclose(getattr(batch, name)[i], getattr(one, name), atol=1e-12, err_msg=name)
+    with pytest.raises(ValueError):
+        model.vertex_jacobians_per_frame(pose, betas, trans, ids[:2])
+
+
+def test_mixture_and_temporal_batches_equal_single_calls():
+    ctx = synthetic_context()
+    rng = np.random.default_rng(5)
+    from factors.common import MaxMixture
+    k, d = 3, 6
+    mix = MaxMixture(np.array([0.2, 0.5, 0.3]), rng.normal(size=(k, d)),
+                     np.stack([np.linalg.cholesky(np.eye(d) * (i + 1)) for i in range(k)]))
+    x = rng.normal(size=(9, d)) * 2
+    r, best = mix.residual_batch(x)
+    for i in range(len(x)):
+        r1, j1, b1 = mix.residual(x[i], True)
+        np.testing.assert_allclose(r[i], r1)
+        assert best[i] == b1
+        np.testing.assert_array_equal(mix.jacobian(best[i]), j1)
+    p = 4
+    rots = np.stack([gtsam.Rot3.Expmap(rng.normal(size=3)).matrix() for _ in range(2 * p)])
+    tr = rng.normal(size=(2 * p, 3))
+    bp = rng.normal(scale=0.2, size=(2 * p, 69))
+    gaps = np.array([1, 2, 1, 3])
+    rb, blocks = temporal_prior_batch(rots[:p], tr[:p], bp[:p], rots[p:], tr[p:], bp[p:], ctx.temporal_mixture,
+                                      gaps, True)
+    for i in range(p):
+        r1, b1 = temporal_prior_error(rots[i], tr[i], bp[i], rots[p + i], tr[p + i], bp[p + i],
+                                      ctx.temporal_mixture, int(gaps[i]), True)
+        np.testing.assert_allclose(rb[i], r1, atol=1e-12)
+        for a, b in zip(blocks, b1):
+            np.testing.assert_allclose(a[i], b, atol=1e-12)
+
+
+def test_stereo_batch_equals_single_frames():
+    ctx = synthetic_context()
+    model = ctx.model
+    rng = np.random.default_rng(6)
+    calib = make_test_calibration()
+    setups, pts = [], []
+    for i in range(3):
+        uv = rng.uniform(100, 900, size=(18, 2))
+        uv[rng.choice(18, 4, replace=False)] = np.nan
+        vis = rng.uniform(size=18) > 0.3
+        meas = StereoKeypoints(uv, uv + [[-30.0, 0.0]], vis, vis)
+        setups.append(build_stereo_setup(meas, calib, 2.0, 6.0))
+    pose = rng.normal(scale=0.2, size=(3, 72))
+    betas = rng.normal(size=(3, model.num_betas))
+    trans = np.array([[8.0, 0.5, 0.0], [9.0, -0.5, 0.2], [12.0, 0.0, 0.1]])
+    jac = model.point_jacobians(pose, betas, trans)
+    batch = stereo_reprojection_batch(jac.points, setups, jac)
+    for i in range(3):
+        one = model.point_jacobians(pose[i], betas[i], trans[i])
+
+        class Lead:
+            pass
+        lead = Lead()
+        for name in ("d_root", "d_trans", "d_body_pose", "d_betas"):
+            setattr(lead, name, np.asarray(getattr(one, name))[None])
+        r1, b1 = stereo_reprojection_batch(np.asarray(one.points)[None], [setups[i]], lead)[0]
+        np.testing.assert_allclose(batch[i][0], r1, atol=1e-9)
+        for a, b in zip(batch[i][1], b1):
+            np.testing.assert_allclose(a, b, atol=1e-9)
