@@ -132,15 +132,11 @@ def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
     return model.forward(state.full_pose, state.betas, state.trans).keypoints
 
 
-def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
-                              ) -> list[tuple[np.ndarray, list[np.ndarray] | None]]:
-    """Unwhitened residuals and (when ``jac`` is given) Jacobian blocks of T frames at once.
-
-    ``points`` (T, 18, 3) world keypoints; ``setups`` one :class:`StereoSetup` per frame; ``jac`` the
-    keypoints' ``PointJacobians`` with leading dimension T (or None).  Returns per frame ``(r (m,),
-    [J_root, J_trans, J_body_pose, J_betas] or None)`` — the projection of every keypoint into both images
-    is one batched product, the per-frame rows are then selected.
-    """
+def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
+                   ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Pixels of all 18 keypoints of T frames in both images, ``uv`` (T, 2, 18, 2), and (when ``jac``, the
+    keypoints' ``PointJacobians`` with leading dimension T, is given) ``[d uv / d root, trans, body_pose,
+    betas]``, each (T, 2, 18, 2, k) — every frame with its own setup's projections, in batched products."""
     points = as_f64(points)
     proj_m = np.stack([[img.proj_m for img in su.images] for su in setups])          # (T, 2, 3, 3)
     proj_c = np.stack([[img.proj_c for img in su.images] for su in setups])          # (T, 2, 3)
@@ -150,25 +146,51 @@ def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup],
     clamped = depth < min_depth
     w = np.where(clamped, min_depth, depth)
     uv = hom[..., :2] / w[..., None]                                                 # (T, 2, 18, 2)
-    full = None
-    if jac is not None:
-        keep = np.where(clamped, 0.0, 1.0)[..., None, None]
-        d_uv = (proj_m[:, :, None, :2, :] - keep * uv[..., :, None] * proj_m[:, :, None, 2:3, :]) \
-            / w[..., None, None]                                                     # (T, 2, 18, 2, 3)
-        full = [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]     # (T, 2, 18, 2, k)
+    if jac is None:
+        return uv, None
+    keep = np.where(clamped, 0.0, 1.0)[..., None, None]
+    d_uv = (proj_m[:, :, None, :2, :] - keep * uv[..., :, None] * proj_m[:, :, None, 2:3, :]) \
+        / w[..., None, None]                                                         # (T, 2, 18, 2, 3)
+    return uv, [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]
                 for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
-    out = []
-    for f, su in enumerate(setups):
-        (left, right) = su.images
-        r = np.concatenate([(uv[f, 0, left.index] - left.uv).reshape(-1),
-                            (uv[f, 1, right.index] - right.uv).reshape(-1)])
-        blocks = None
-        if full is not None:
-            blocks = [as_f64(np.concatenate([b[f, 0, left.index].reshape(-1, b.shape[-1]),
-                                             b[f, 1, right.index].reshape(-1, b.shape[-1])]))
-                      for b in full]
-        out.append((r, blocks))
-    return out
+
+
+def stereo_select(uv: np.ndarray, full: list[np.ndarray] | None, setup: StereoSetup, frame: int
+                  ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """One frame's factor rows out of :func:`stereo_project`: residual (m,) and blocks (m, k) or None."""
+    left, right = setup.images
+    r = np.concatenate([(uv[frame, 0, left.index] - left.uv).reshape(-1),
+                        (uv[frame, 1, right.index] - right.uv).reshape(-1)])
+    if full is None:
+        return r, None
+    return r, [as_f64(np.concatenate([b[frame, 0, left.index].reshape(-1, b.shape[-1]),
+                                      b[frame, 1, right.index].reshape(-1, b.shape[-1])])) for b in full]
+
+
+def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
+                              ) -> list[tuple[np.ndarray, list[np.ndarray] | None]]:
+    """Unwhitened residuals and (when ``jac`` is given) Jacobian blocks of T frames at once.
+
+    ``points`` (T, 18, 3) world keypoints; ``setups`` one :class:`StereoSetup` per frame; ``jac`` the
+    keypoints' ``PointJacobians`` with leading dimension T (or None).  Returns per frame ``(r (m,),
+    [J_root, J_trans, J_body_pose, J_betas] or None)``: :func:`stereo_project` then :func:`stereo_select`.
+    """
+    uv, full = stereo_project(points, setups, jac)
+    return [stereo_select(uv, full, su, f) for f, su in enumerate(setups)]
+
+
+def stereo_dense_rows(setup: StereoSetup) -> tuple[np.ndarray, np.ndarray]:
+    """The setup's measurements and inverse sigmas laid out like :func:`stereo_project`'s ``uv`` rows:
+    (2, 18, 2) each, with inverse sigma 0 (and measurement 0) on the rows the factor does not use."""
+    meas = np.zeros((2, NUM_KEYPOINTS, 2))
+    inv_sigma = np.zeros((2, NUM_KEYPOINTS, 2))
+    start = 0
+    for c, img in enumerate(setup.images):
+        n = len(img.index)
+        meas[c, img.index] = img.uv
+        inv_sigma[c, img.index] = 1.0 / setup.sigmas[start:start + 2 * n].reshape(n, 2)
+        start += 2 * n
+    return meas, inv_sigma
 
 
 def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: StereoSetup,

@@ -28,7 +28,7 @@ import numpy as np
 
 from factors.common import FrameKeys, FrameState, read_frame_state
 from factors.lidar_chamfer import chamfer_residual, nearest_vertices
-from factors.stereo_reprojection import stereo_reprojection_batch
+from factors.stereo_reprojection import stereo_project, stereo_select
 from factors.temporal_prior import temporal_prior_batch
 from pedx_graph.body import BodyModel
 
@@ -60,6 +60,8 @@ class BatchedBodyModel:
         self._specs: dict[str, dict[tuple[int, ...], object]] = {}
         self._terms: dict[tuple[str, tuple[int, ...]], tuple] = {}
         self._terms_have_jacobians = False
+        self._where: dict[tuple[str, tuple[int, ...]], tuple[dict, int]] = {}
+        self._batches: dict[str, list[dict]] = {}
         self._key_bytes: dict[int, bytes] = {}
         self._root_keys: set[int] = set()
         self._last_signature: tuple | None = None
@@ -82,9 +84,15 @@ class BatchedBodyModel:
 
     def lookup(self, kind: str, keys, values: gtsam.Values, jacobians: bool):
         """``(residual, blocks)`` of the factor ``kind`` on ``keys`` prefetched at exactly ``values``, or None."""
-        hit = self._terms.get((kind, tuple(keys)))
-        if hit is None or (jacobians and not self._terms_have_jacobians):
+        name = (kind, tuple(keys))
+        if jacobians and not self._terms_have_jacobians:
             return None
+        hit = self._terms.get(name)
+        if hit is None:
+            where = self._where.get(name)
+            if where is None:
+                return None
+            hit = self._terms[name] = self._materialise(kind, *where)
         cached = self._key_bytes
         roots = self._root_keys
         for key in keys:
@@ -93,6 +101,27 @@ class BatchedBodyModel:
                 return None
         return hit
 
+    def batch(self, kind: str) -> list[dict]:
+        """The batched results of ``kind`` at the last prefetch: groups with ``keys`` (the factors' key
+        tuples) and their arrays (see :meth:`_evaluate_terms`)."""
+        return self._batches.get(kind, [])
+
+    def _materialise(self, kind: str, group: dict, n: int) -> tuple:
+        """Factor ``n`` of a batched group as the ``(residual, blocks)`` its callback returns."""
+        jac = self._terms_have_jacobians
+        if kind == "stereo_reprojection":
+            return stereo_select(group["uv"], group["full"], group["setups"][n], n)
+        if kind == "pose_prior":
+            return group["r"][n], ([group["mixture"].jacobian(group["best"][n])] if jac else None)
+        if kind == "temporal_prior":
+            return group["r"][n], ([blk[n] for blk in group["blocks"]] if jac else None)
+        raise KeyError(kind)
+
+    def _add_batch(self, kind: str, group: dict) -> None:
+        self._batches.setdefault(kind, []).append(group)
+        for n, keys in enumerate(group["keys"]):
+            self._where[(kind, keys)] = (group, n)
+
     def _evaluate_terms(self, keys: list[FrameKeys], states: list[FrameState], jac, keypoints,
                         kinds=None) -> None:
         """Every registered term (of ``kinds``; all when None) at the prefetched states; ``jac`` (keypoint
@@ -100,6 +129,8 @@ class BatchedBodyModel:
         specs = self._specs if kinds is None else {k: v for k, v in self._specs.items() if k in kinds}
         jacobians = jac is not None
         self._terms.clear()
+        self._where.clear()
+        self._batches.clear()
         self._terms_have_jacobians = jacobians
         frame_of = {k.root: i for i, k in enumerate(keys)}
         stereo = specs.get("stereo_reprojection", {})
@@ -109,9 +140,9 @@ class BatchedBodyModel:
             sub = None if jac is None else _FrameJacobians(jac.points[idx], jac.d_root[idx], jac.d_body_pose[idx],
                                                            jac.d_trans[idx], jac.d_betas[idx])
             points = keypoints[idx] if jac is None else sub.points
-            results = stereo_reprojection_batch(points, [stereo[fk].setup for fk in fkeys], sub)
-            for fk, res in zip(fkeys, results):
-                self._terms[("stereo_reprojection", fk)] = res
+            setups = [stereo[fk].setup for fk in fkeys]
+            uv, full = stereo_project(points, setups, sub)
+            self._add_batch("stereo_reprojection", {"keys": fkeys, "uv": uv, "full": full, "setups": setups})
         chamfer = [(fk, spec) for fk, spec in specs.get("lidar_chamfer", {}).items() if fk[0] in frame_of]
         if chamfer:
             fstates = [states[frame_of[fk[0]]] for fk, _ in chamfer]
@@ -135,8 +166,7 @@ class BatchedBodyModel:
         for mixture in {id(m): m for m in prior.values()}.values():
             fkeys = [fk for fk, m in prior.items() if m is mixture and fk[0] in pose_index]
             res, best = mixture.residual_batch(np.stack([states[pose_index[fk[0]]].body_pose for fk in fkeys]))
-            for fk, r, k in zip(fkeys, res, best):
-                self._terms[("pose_prior", fk)] = (r, [mixture.jacobian(k)] if jacobians else None)
+            self._add_batch("pose_prior", {"keys": fkeys, "r": res, "best": best, "mixture": mixture})
         temporal = specs.get("temporal_prior", {})
         groups: dict[int, list] = {}
         for fk, (mixture, gap) in temporal.items():
@@ -151,9 +181,7 @@ class BatchedBodyModel:
                 np.stack([s.body_pose for s in a]), np.stack([s.world_R_body for s in b]),
                 np.stack([s.trans for s in b]), np.stack([s.body_pose for s in b]), items[0][1],
                 np.array([gap for _, _, gap in items]), jacobians)
-            for n, (fk, _, _) in enumerate(items):
-                self._terms[("temporal_prior", fk)] = (
-                    res[n], None if blocks is None else [np.ascontiguousarray(blk[n]) for blk in blocks])
+            self._add_batch("temporal_prior", {"keys": [fk for fk, _, _ in items], "r": res, "blocks": blocks})
 
     # -- prefetch ------------------------------------------------------------------------------------
     def prefetch(self, values: gtsam.Values, keys: list[FrameKeys], jacobians: bool,
@@ -176,6 +204,8 @@ class BatchedBodyModel:
         self._keypoints.clear()
         self._subset_vertices.clear()
         self._terms.clear()
+        self._where.clear()
+        self._batches.clear()
         self._key_bytes.clear()
         self._root_keys = {k.root for k in keys}
         for k, st in zip(keys, states):

@@ -202,11 +202,13 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
     nb = model.num_betas
     pelvis_rest = model.rest_joints(np.zeros(nb))[0]
     out = np.empty((n, cands.shape[1]))
+    num_c = len(cands)
+    roots = log_so3(np.asarray(world_R_body, dtype=float))                       # (T, 3)
+    pose = np.concatenate([np.repeat(roots, num_c, axis=0), np.tile(cands, (n, 1))], axis=1)
+    trans = np.repeat(np.asarray(world_p_centre, dtype=float) - pelvis_rest, num_c, axis=0)
+    all_kps = model.keypoints(pose, np.zeros((n * num_c, nb)), trans).reshape(n, num_c, -1, 3)
     for i, fr in enumerate(track.frames):
-        root = log_so3(world_R_body[i])
-        pose = np.concatenate([np.tile(root, (len(cands), 1)), cands], axis=1)
-        kps = model.keypoints(pose, np.zeros((len(cands), nb)), np.tile(world_p_centre[i] - pelvis_rest,
-                                                                         (len(cands), 1)))
+        kps = all_kps[i]
         calib = track.calibrations[fr.pair]
         left_uv, right_uv = calib.project(kps)
         cost = np.zeros(len(cands))

@@ -22,6 +22,7 @@ import gtsam
 import numpy as np
 
 from factors.common import row_loss_and_weight
+from factors.stereo_reprojection import stereo_dense_rows
 from pedx_graph.solvers.chain import ChainLayout, ChainSystem
 
 #: Factor kinds served from the batched cache.
@@ -46,34 +47,75 @@ class BatchedLinearizer:
             else:
                 self.rest.add(factor)
         self._gram: dict[int, np.ndarray] = {}
+        self._dense: dict[tuple, tuple] = {}
 
-    def _terms(self, values: gtsam.Values, jacobians: bool) -> dict:
+    def _prefetch(self, values: gtsam.Values, jacobians: bool) -> None:
         self.problem.prefetch(values, jacobians)
-        return self.body._terms
+
+    def _groups(self, kind: str) -> list[dict] | None:
+        """The cache's batched groups of ``kind`` when they hold exactly the factors this graph serves."""
+        groups = self.body.batch(kind)
+        held = {keys for g in groups for keys in g["keys"]}
+        return groups if held == set(self.served[kind]) else None
+
+    def _factor(self, kind: str, keys) -> tuple:
+        """One served factor's ``(residual, blocks)`` (materialised from the cache)."""
+        name = (kind, keys)
+        hit = self.body._terms.get(name)
+        if hit is None:
+            hit = self.body._terms[name] = self.body._materialise(kind, *self.body._where[name])
+        return hit
+
+    def _stereo_rows(self, group: dict) -> tuple[np.ndarray, np.ndarray, list[tuple[str, float]]]:
+        """Dense measurements and inverse sigmas (G, 2, 18, 2) of a stereo group, and its kernels (cached)."""
+        tag = tuple(group["keys"])
+        hit = self._dense.get(tag)
+        if hit is None:
+            specs = self.body._specs["stereo_reprojection"]
+            rows = [stereo_dense_rows(specs[keys].setup) for keys in group["keys"]]
+            kernels = [(specs[keys].robust, specs[keys].robust_scale) for keys in group["keys"]]
+            hit = self._dense[tag] = (np.stack([m for m, _ in rows]), np.stack([i for _, i in rows]), kernels)
+        return hit
+
+    def _stereo_white(self, group: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Whitened residual rows ``e`` (G, 72), per-row losses and IRLS weights, and inverse sigmas."""
+        meas, inv_sigma, kernels = self._stereo_rows(group)
+        num = len(kernels)
+        white = ((group["uv"] - meas) * inv_sigma).reshape(num, -1)
+        inv = inv_sigma.reshape(num, -1)
+        if len(set(kernels)) == 1:
+            loss, weight = row_loss_and_weight(white, *kernels[0])
+        else:
+            pairs = [row_loss_and_weight(white[n], *kernels[n]) for n in range(num)]
+            loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
+        return white, loss * (inv > 0), weight, inv
 
     # -- error -----------------------------------------------------------------------------------------
     def error(self, values: gtsam.Values, jacobians: bool = False) -> float:
         """``graph.error(values)``; ``jacobians`` also prefetches the derivatives (for a linearisation at the
         same values next)."""
-        terms = self._terms(values, jacobians)
+        self._prefetch(values, jacobians)
         total = self.rest.error(values) if self.rest.size() else 0.0
         for kind, keys_list in self.served.items():
             if not keys_list:
                 continue
-            specs = self.body._specs[kind]
-            for keys in keys_list:
-                r = terms[(kind, keys)][0]
-                if kind == "stereo_reprojection":
-                    spec = specs[keys]
-                    loss, _ = row_loss_and_weight(r / spec.setup.sigmas, spec.robust, spec.robust_scale)
-                    total += float(loss.sum())
-                elif kind == "lidar_chamfer" and not specs[keys].robust_per_point:
-                    spec = specs[keys]
-                    loss, _ = row_loss_and_weight(r / spec.sigma_m, spec.robust, spec.robust_scale)
-                    total += float(loss.sum())
-                else:
-                    total += 0.5 * float(r @ r)
+            groups = self._groups(kind)
+            if kind == "stereo_reprojection" and groups is not None:
+                total += sum(float(self._stereo_white(g)[1].sum()) for g in groups)
+            elif kind in ("pose_prior", "temporal_prior") and groups is not None:
+                total += sum(0.5 * float(np.sum(g["r"] ** 2)) for g in groups)
+            else:
+                total += sum(self._factor_error(kind, keys) for keys in keys_list)
         return total
+
+    def _factor_error(self, kind: str, keys) -> float:
+        r = self._factor(kind, keys)[0]
+        spec = self.body._specs[kind][keys]
+        if kind == "stereo_reprojection":
+            return float(row_loss_and_weight(r / spec.setup.sigmas, spec.robust, spec.robust_scale)[0].sum())
+        if kind == "lidar_chamfer" and not spec.robust_per_point:
+            return float(row_loss_and_weight(r / spec.sigma_m, spec.robust, spec.robust_scale)[0].sum())
+        return 0.5 * float(r @ r)
 
     # -- linear system ---------------------------------------------------------------------------------
     def system(self, values: gtsam.Values) -> ChainSystem:
@@ -85,77 +127,91 @@ class BatchedLinearizer:
             t, d, nb = layout.num_frames, 75, layout.num_betas
             system = ChainSystem(np.zeros((t, d, d)), np.zeros((max(t - 1, 0), d, d)), np.zeros((t, d, nb)),
                                  np.zeros((nb, nb)), np.zeros((t, d)), np.zeros(nb))
-        terms = self._terms(values, True)
+        self._prefetch(values, True)
         for kind, keys_list in self.served.items():
-            if keys_list:
-                getattr(self, "_add_" + kind)(system, terms, keys_list)
+            if not keys_list:
+                continue
+            groups = self._groups(kind)
+            if groups is not None and kind != "lidar_chamfer":
+                for group in groups:
+                    getattr(self, "_add_" + kind)(system, group)
+            else:
+                self._add_factors(system, kind, keys_list)
         return system
 
     def _firsts(self, keys_list) -> np.ndarray:
         return np.array([self.layout.segments(keys)[0][2] for keys in keys_list])
 
-    def _add_rows(self, system: ChainSystem, keys_list, a_rows: list[np.ndarray], b_rows: list[np.ndarray]):
-        """Add factors given by whitened rows (A_i (m_i, c), b_i (m_i,)) that share one key pattern."""
+    def _scatter(self, system: ChainSystem, keys_list, hess: np.ndarray, grad: np.ndarray) -> None:
         pattern = self.layout.segments(keys_list[0])
         rel = tuple((c, w, f - pattern[0][2] if f >= 0 else -1, o) for c, w, f, o in pattern)
-        rows = {a.shape[0] for a in a_rows}
-        if len(rows) == 1:
-            a_all = np.stack(a_rows)
-            b_all = np.stack(b_rows)
-            a_t = np.swapaxes(a_all, 1, 2)
-            hess = a_t @ a_all
-            grad = (a_t @ b_all[:, :, None])[:, :, 0]
-        else:
-            hess = np.stack([a.T @ a for a in a_rows])
-            grad = np.stack([a.T @ b for a, b in zip(a_rows, b_rows)])
         self.layout._scatter(system, rel, self._firsts(keys_list), hess, grad)
 
-    def _add_stereo_reprojection(self, system, terms, keys_list) -> None:
-        specs = self.body._specs["stereo_reprojection"]
-        a_rows, b_rows = [], []
-        width = max(specs[k].setup.rows for k in keys_list)
+    def _add_factors(self, system: ChainSystem, kind: str, keys_list) -> None:
+        """Factor by factor (chamfer: rows differ per frame): whitened ``A``, ``b`` of each, then one scatter."""
+        hess, grad = [], []
         for keys in keys_list:
-            spec = specs[keys]
-            r, blocks = terms[("stereo_reprojection", keys)]
-            white = r / spec.setup.sigmas
-            _, weight = row_loss_and_weight(white, spec.robust, spec.robust_scale)
-            scale = np.sqrt(weight)
-            a = np.zeros((width, 75 + blocks[3].shape[1]))    # zero rows pad to a common height
-            b = np.zeros(width)
-            m = len(r)
-            a[:m] = np.concatenate(blocks, axis=1) * (scale / spec.setup.sigmas)[:, None]
-            b[:m] = -scale * white
-            a_rows.append(a)
-            b_rows.append(b)
-        self._add_rows(system, keys_list, a_rows, b_rows)
-
-    def _add_lidar_chamfer(self, system, terms, keys_list) -> None:
-        specs = self.body._specs["lidar_chamfer"]
-        a_rows, b_rows = [], []
-        for keys in keys_list:
-            spec = specs[keys]
-            r, blocks = terms[("lidar_chamfer", keys)]
+            r, blocks = self._factor(kind, keys)
+            spec = self.body._specs[kind][keys]
             a = np.concatenate(blocks, axis=1)
-            if spec.robust_per_point:                 # whitened and robustified inside the factor
-                a_rows.append(a)
-                b_rows.append(-r)
-            else:
+            if kind == "stereo_reprojection":
+                white = r / spec.setup.sigmas
+                scale = np.sqrt(row_loss_and_weight(white, spec.robust, spec.robust_scale)[1])
+                a, b = a * (scale / spec.setup.sigmas)[:, None], -scale * white
+            elif kind == "lidar_chamfer" and not spec.robust_per_point:
                 white = r / spec.sigma_m
-                _, weight = row_loss_and_weight(white, spec.robust, spec.robust_scale)
-                scale = np.sqrt(weight)
-                a_rows.append(a * (scale / spec.sigma_m)[:, None])
-                b_rows.append(-scale * white)
-        self._add_rows(system, keys_list, a_rows, b_rows)
+                scale = np.sqrt(row_loss_and_weight(white, spec.robust, spec.robust_scale)[1])
+                a, b = a * (scale / spec.sigma_m)[:, None], -scale * white
+            else:                                       # unit noise: whitened inside the factor
+                b = -r
+            hess.append(a.T @ a)
+            grad.append(a.T @ b)
+        self._scatter(system, keys_list, np.stack(hess), np.stack(grad))
 
-    def _add_pose_prior(self, system, terms, keys_list) -> None:
-        a_rows = [terms[("pose_prior", keys)][1][0] for keys in keys_list]
-        b_rows = [-terms[("pose_prior", keys)][0] for keys in keys_list]
-        self._add_rows(system, keys_list, a_rows, b_rows)
+    def _add_stereo_reprojection(self, system: ChainSystem, group: dict) -> None:
+        white, _, weight, inv = self._stereo_white(group)
+        num = len(group["keys"])
+        scale = np.sqrt(weight)
+        a = np.concatenate([blk.reshape(num, white.shape[1], -1) for blk in group["full"]], axis=2)
+        a = a * (scale * inv)[:, :, None]                  # unused rows have inverse sigma 0
+        a_t = np.swapaxes(a, 1, 2)
+        self._scatter(system, group["keys"], a_t @ a, (a_t @ (-scale * white)[:, :, None])[:, :, 0])
 
-    def _add_temporal_prior(self, system, terms, keys_list) -> None:
-        a_rows, b_rows = [], []
-        for keys in keys_list:
-            r, blocks = terms[("temporal_prior", keys)]
-            a_rows.append(np.concatenate(blocks, axis=1))
-            b_rows.append(-r)
-        self._add_rows(system, keys_list, a_rows, b_rows)
+    def _add_pose_prior(self, system: ChainSystem, group: dict) -> None:
+        mixture = group["mixture"]
+        gram = self._gram.get(id(mixture))
+        if gram is None:
+            jac = np.stack([mixture.jacobian(k) for k in range(mixture.num_components)])
+            gram = self._gram[id(mixture)] = np.swapaxes(jac, 1, 2) @ jac
+        jac = np.stack([mixture.jacobian(k) for k in group["best"]])           # (F, D + 1, D)
+        grad = -np.einsum("fri,fr->fi", jac, group["r"])
+        self._scatter(system, group["keys"], gram[group["best"]], grad)
+
+    def _add_temporal_prior(self, system: ChainSystem, group: dict) -> None:
+        """Temporal factors, using the structure of their Jacobian ``A = [U_i, -L, U_j, L]`` (U: the root and
+        translation columns of frames i and j, 76 x 6 each; L: the pose columns, the same up to sign for
+        both frames), so ``A^T A`` costs ``L^T L`` once instead of a full 150-column product."""
+        blocks = group["blocks"]                                          # six (P, 76, k)
+        b = -group["r"]                                                   # (P, 76)
+        u = np.concatenate([blocks[0], blocks[1], blocks[3], blocks[4]], axis=2)   # (P, 76, 12)
+        lp = blocks[5]                                                    # (P, 76, 69); blocks[2] = -lp
+        u_t = np.swapaxes(u, 1, 2)
+        l_t = np.swapaxes(lp, 1, 2)
+        utu = u_t @ u
+        utl = u_t @ lp
+        ltl = l_t @ lp
+        ub = (u_t @ b[:, :, None])[:, :, 0]
+        lb = (l_t @ b[:, :, None])[:, :, 0]
+        num = len(group["keys"])
+        si, pi, sj, pj = slice(0, 6), slice(6, 75), slice(75, 81), slice(81, 150)
+        hess = np.empty((num, 150, 150))
+        hess[:, si, si], hess[:, si, sj] = utu[:, :6, :6], utu[:, :6, 6:]
+        hess[:, sj, si], hess[:, sj, sj] = utu[:, 6:, :6], utu[:, 6:, 6:]
+        hess[:, si, pi], hess[:, si, pj] = -utl[:, :6], utl[:, :6]
+        hess[:, sj, pi], hess[:, sj, pj] = -utl[:, 6:], utl[:, 6:]
+        hess[:, pi, si], hess[:, pj, si] = np.swapaxes(hess[:, si, pi], 1, 2), np.swapaxes(hess[:, si, pj], 1, 2)
+        hess[:, pi, sj], hess[:, pj, sj] = np.swapaxes(hess[:, sj, pi], 1, 2), np.swapaxes(hess[:, sj, pj], 1, 2)
+        hess[:, pi, pi], hess[:, pj, pj] = ltl, ltl
+        hess[:, pi, pj], hess[:, pj, pi] = -ltl, -ltl
+        grad = np.concatenate([ub[:, :6], -lb, ub[:, 6:], lb], axis=1)
+        self._scatter(system, group["keys"], hess, grad)

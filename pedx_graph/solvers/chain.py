@@ -195,16 +195,19 @@ def solve_chain(system: ChainSystem, damping: float = 0.0) -> tuple[np.ndarray, 
     rhs = np.concatenate([system.grad_frame[:, :, None], system.frame_shape], axis=2)    # (T, D, 1 + B)
     lowers, couplings, ys = [], [], []
     block, right = system.frame[0] + eye, rhs[0]
+    width = rhs.shape[2]
     for i in range(t):
         low = _potrf(block)
-        y = _trsm(low, right)
-        lowers.append(low)
-        ys.append(y)
         if i + 1 < t:
-            w = _trsm(low, system.next[i])
+            yw = _trsm(low, np.concatenate([right, system.next[i]], axis=1))   # one solve for both
+            y, w = yw[:, :width], yw[:, width:]
             couplings.append(w)
             block = system.frame[i + 1] + eye - w.T @ w
             right = rhs[i + 1] - w.T @ y
+        else:
+            y = _trsm(low, right)
+        lowers.append(low)
+        ys.append(y)
     sol = np.empty_like(rhs)
     sol[t - 1] = _trsm(lowers[t - 1], ys[t - 1], transpose=True)
     for i in range(t - 2, -1, -1):
