@@ -77,7 +77,15 @@ class SolverConfig:
     """Levenberg-Marquardt settings."""
 
     backend: str = "python"
-    """``python``: LM driven from Python over ``graph.linearize`` (measured faster); ``gtsam``: gtsam's LM."""
+    """``python``: LM driven from Python (measured faster, benchmarks/results/bench_fit.md); ``gtsam``:
+    gtsam's ``LevenbergMarquardtOptimizer``."""
+    linearization: str = "batched"
+    """Python LM only.  ``batched``: the graph's error and Gauss-Newton system from batched evaluations of
+    all frames (``pedx_graph.solvers.batched``, equal to ``graph.linearize`` to round-off; needs
+    ``linear_solver: chain``); ``graph``: ``graph.linearize`` with one Python callback per factor."""
+    linear_solver: str = "chain"
+    """Python LM only.  ``chain``: block Cholesky sweep over the track's chain of frames + shared shape
+    (``pedx_graph.solvers.chain``); ``gtsam``: ``GaussianFactorGraph.optimize`` (sparse QR)."""
     max_iterations: int = 25
     """Maximum LM iterations."""
     relative_error_tol: float = 1e-3

@@ -125,26 +125,37 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     import dataclasses
 
     from pedx_graph.graph.build import build_track_graph
-    from pedx_graph.solvers.batched import BatchedLinearizer
     from pedx_graph.solvers.lm import solve
 
     if not config.terms.lidar_chamfer:
         problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
-        values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch, problem.layout,
-                               BatchedLinearizer(problem))
+        values, report = solve(problem.graph, problem.initial, config.solver, *_solver_parts(problem, config))
         return problem, values, report
     problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
     coarse = problem.without({"lidar_chamfer"})          # the same factors, the chamfer left out
     coarse_solver = dataclasses.replace(config.solver, max_iterations=config.solver.coarse_max_iterations,
                                         relative_error_tol=config.solver.coarse_relative_error_tol)
-    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver, coarse.prefetch,
-                                         coarse.layout, BatchedLinearizer(coarse))
+    coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver,
+                                         *_solver_parts(coarse, config))
     problem.initial = coarse_values
-    values, report = solve(problem.graph, problem.initial, config.solver, problem.prefetch, problem.layout,
-                               BatchedLinearizer(problem))
+    values, report = solve(problem.graph, problem.initial, config.solver, *_solver_parts(problem, config))
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
     return problem, values, report
+
+
+def _solver_parts(problem, config: FitConfig) -> tuple:
+    """``(prefetch, layout, linearizer)`` for :func:`pedx_graph.solvers.lm.solve` as ``config.solver`` asks."""
+    from pedx_graph.solvers.batched import BatchedLinearizer
+
+    solver = config.solver
+    if solver.linear_solver not in ("chain", "gtsam"):
+        raise ValueError(f"solver.linear_solver must be 'chain' or 'gtsam', got {solver.linear_solver!r}")
+    if solver.linearization not in ("batched", "graph"):
+        raise ValueError(f"solver.linearization must be 'batched' or 'graph', got {solver.linearization!r}")
+    layout = problem.layout if solver.linear_solver == "chain" else None
+    linearizer = BatchedLinearizer(problem) if solver.linearization == "batched" and layout is not None else None
+    return problem.prefetch, layout, linearizer
 
 
 def _single_frame_search(track: Track, ctx, config: FitConfig, n_headings: int = 8):
