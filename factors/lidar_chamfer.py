@@ -33,8 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list, make_noise, read_frame_state, robustify_groups, set_jacobians,
-                            stack_point_jacobians)
+                            frame_key_list, make_noise, read_frame_state, robustify_groups, set_jacobians)
 
 
 def posed_vertices(model: BodyModelLike, state: FrameState, candidate_vertex_ids: np.ndarray | None) -> np.ndarray:
@@ -75,8 +74,9 @@ def lidar_chamfer_error(model: BodyModelLike, state: FrameState, world_points: n
     jac = vertex_jacobians if vertex_jacobians is not None else \
         model.point_jacobians(state.full_pose, state.betas, state.trans, vertex_ids=unique)
     r = (np.asarray(jac.points)[inverse] - world_points).reshape(-1)
-    eye = np.broadcast_to(np.eye(3), (len(ids), 3, 3))
-    return r, stack_point_jacobians(eye, jac, inverse)
+    # d r_i / d x = d vertex_n(i) / d x: the matched vertices' Jacobian rows, gathered (no linear map).
+    return r, [as_f64(np.asarray(getattr(jac, name), dtype=np.float64)[inverse].reshape(3 * len(ids), -1))
+               for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
 
 
 @dataclass(frozen=True)
