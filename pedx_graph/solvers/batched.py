@@ -194,7 +194,8 @@ class BatchedLinearizer:
         blocks = group["blocks"]                                          # six (P, 76, k)
         b = -group["r"]                                                   # (P, 76)
         u = np.concatenate([blocks[0], blocks[1], blocks[3], blocks[4]], axis=2)   # (P, 76, 12)
-        lp = blocks[5]                                                    # (P, 76, 69); blocks[2] = -lp
+        lp = np.ascontiguousarray(blocks[5])                              # (P, 76, 69); blocks[2] = -lp
+        # (contiguous: a strided view would make numpy's batched matmul skip BLAS)
         u_t = np.swapaxes(u, 1, 2)
         l_t = np.swapaxes(lp, 1, 2)
         utu = u_t @ u
@@ -203,6 +204,29 @@ class BatchedLinearizer:
         ub = (u_t @ b[:, :, None])[:, :, 0]
         lb = (l_t @ b[:, :, None])[:, :, 0]
         num = len(group["keys"])
+        firsts = self._firsts(group["keys"])
+        if np.array_equal(firsts, np.arange(firsts[0], firsts[0] + num)):
+            # consecutive pairs (the usual case): add the blocks in place, no (P, 150, 150) temporary
+            fi, fj = slice(firsts[0], firsts[0] + num), slice(firsts[0] + 1, firsts[0] + 1 + num)
+            frame, nxt, grad = system.frame, system.next, system.grad_frame
+            utl_i, utl_j = utl[:, :6], utl[:, 6:]
+            frame[fi, :6, :6] += utu[:, :6, :6]
+            frame[fi, :6, 6:] -= utl_i
+            frame[fi, 6:, :6] -= np.swapaxes(utl_i, 1, 2)
+            frame[fi, 6:, 6:] += ltl
+            frame[fj, :6, :6] += utu[:, 6:, 6:]
+            frame[fj, :6, 6:] += utl_j
+            frame[fj, 6:, :6] += np.swapaxes(utl_j, 1, 2)
+            frame[fj, 6:, 6:] += ltl
+            nxt[fi, :6, :6] += utu[:, :6, 6:]
+            nxt[fi, :6, 6:] += utl_i
+            nxt[fi, 6:, :6] -= np.swapaxes(utl_j, 1, 2)
+            nxt[fi, 6:, 6:] -= ltl
+            grad[fi, :6] += ub[:, :6]
+            grad[fi, 6:] -= lb
+            grad[fj, :6] += ub[:, 6:]
+            grad[fj, 6:] += lb
+            return
         si, pi, sj, pj = slice(0, 6), slice(6, 75), slice(75, 81), slice(81, 150)
         hess = np.empty((num, 150, 150))
         hess[:, si, si], hess[:, si, sj] = utu[:, :6, :6], utu[:, :6, 6:]
