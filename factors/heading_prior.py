@@ -26,6 +26,8 @@ and no factor is created below ``min_speed`` (:func:`make_heading_prior_factor` 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 
@@ -89,30 +91,47 @@ def trajectory_headings(timestamps: np.ndarray, world_p_track: np.ndarray,
     return headings, speeds
 
 
-def heading_prior_error(world_R_body: np.ndarray, world_heading: np.ndarray,
-                        want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-    """Signed angle (1,) from the unit heading (2,) to the body's ground-plane forward; Jacobian (1, 3)."""
-    rot = as_f64(world_R_body)
-    hx, hy = float(world_heading[0]), float(world_heading[1])
-    fx, fy = rot[0, 2], rot[1, 2]                     # world_R_body @ e_z, first two rows
+def heading_prior_batch(world_R_body: np.ndarray, world_heading: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Signed angles (F,) from unit headings (F, 2) to the ground-plane forward of F rotations (F, 3, 3), and
+    the Jacobians (F, 3) w.r.t. the root's right perturbation (zero where the forward axis is vertical)."""
+    rot = as_f64(world_R_body).reshape(-1, 3, 3)
+    h = as_f64(world_heading).reshape(-1, 2)
+    hx, hy = h[:, 0], h[:, 1]
+    fx, fy = rot[:, 0, 2], rot[:, 1, 2]               # world_R_body @ e_z, first two rows
     c = hx * fy - hy * fx
     d = hx * fx + hy * fy
     n2 = fx * fx + fy * fy
-    if n2 < MIN_FORWARD_NORM ** 2:
-        return np.zeros(1), (np.zeros((1, ROOT_DIM)) if want_jacobian else None)
-    r = np.array([np.arctan2(c, d)])
-    jac = None
-    if want_jacobian:
-        dr_df = np.array([d * -hy - c * hx, d * hx - c * hy]) / n2          # (2,)
-        # d(R e_z)/d delta = -R hat(e_z); hat(e_z) = [[0,-1,0],[1,0,0],[0,0,0]]
-        df_ddelta = -np.stack([rot[:2, 1], -rot[:2, 0], np.zeros(2)], axis=1)  # (2, 3)
-        jac = (dr_df @ df_ddelta)[None, :]
-    return r, jac
+    ok = n2 >= MIN_FORWARD_NORM ** 2
+    r = np.where(ok, np.arctan2(c, d), 0.0)
+    inv = np.where(ok, 1.0 / np.where(ok, n2, 1.0), 0.0)
+    dr_df = np.stack([d * -hy - c * hx, d * hx - c * hy], axis=1) * inv[:, None]          # (F, 2)
+    # d(R e_z)/d delta = -R hat(e_z); hat(e_z) = [[0,-1,0],[1,0,0],[0,0,0]]
+    df_ddelta = -np.stack([rot[:, :2, 1], -rot[:, :2, 0], np.zeros((len(rot), 2))], axis=2)   # (F, 2, 3)
+    return r, np.einsum("fa,fab->fb", dr_df, df_ddelta)
+
+
+def heading_prior_error(world_R_body: np.ndarray, world_heading: np.ndarray,
+                        want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """Signed angle (1,) from the unit heading (2,) to the body's ground-plane forward; Jacobian (1, 3)."""
+    r, jac = heading_prior_batch(world_R_body, world_heading)
+    return r, (jac if want_jacobian else None)
+
+
+@dataclass(frozen=True)
+class HeadingSpec:
+    """A heading factor's measured unit heading (2,) and noise (sigma in radians, per-row robust kernel)."""
+
+    world_heading: np.ndarray
+    sigma_rad: float
+    robust: str
+    robust_scale: float
 
 
 def make_heading_prior_factor(key_root: int, world_heading: float | np.ndarray, speed: float,
                               sigma0_rad: float = 0.3, v0: float = 0.5, min_speed: float = 0.2,
-                              robust: str = "none", robust_scale: float = 2.0) -> gtsam.CustomFactor | None:
+                              robust: str = "none", robust_scale: float = 2.0,
+                              cache=None) -> gtsam.CustomFactor | None:
     """Heading prior on ``key_root`` (Rot3), or ``None`` when ``speed < min_speed`` (m/s).
 
     ``sigma0_rad`` is the noise at speeds >= ``v0`` m/s; it grows as ``v0 / speed`` below (see the module
@@ -124,7 +143,10 @@ def make_heading_prior_factor(key_root: int, world_heading: float | np.ndarray, 
     if speed < min_speed:
         return None
     h = heading_vector(world_heading)
-    noise = make_noise(heading_sigma(speed, sigma0_rad, v0), dim=1, robust=robust, robust_scale=robust_scale)
+    sigma = heading_sigma(speed, sigma0_rad, v0)
+    noise = make_noise(sigma, dim=1, robust=robust, robust_scale=robust_scale)
+    if cache is not None:
+        cache.register("heading_prior", [key_root], HeadingSpec(h, sigma, robust, float(robust_scale)))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         r, jac = heading_prior_error(values.atRot3(this.keys()[0]).matrix(), h, H is not None)

@@ -47,31 +47,51 @@ DEFAULT_JOINT_LIMITS: tuple[JointLimit, ...] = (
 )
 
 
-def joint_limit_error(body_pose: np.ndarray, limits: tuple[JointLimit, ...] = DEFAULT_JOINT_LIMITS,
-                      want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-    """Unwhitened hinge residual (L,) in radians and its Jacobian (L, 69) w.r.t. the body pose."""
+def joint_limit_batch(body_pose: np.ndarray, limits: tuple[JointLimit, ...] = DEFAULT_JOINT_LIMITS
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hinge residuals (F, L) radians of F body poses (F, 69), the limited components ``index`` (L,) and
+    the mask (F, L) of the active (violated) limits: row l of the Jacobian is ``mask * e_index[l]``."""
     body_pose = as_f64(body_pose)
     idx = np.array([lim.index for lim in limits], dtype=np.int64)
     lo = np.array([lim.lower for lim in limits])
     hi = np.array([lim.upper for lim in limits])
-    x = body_pose[idx]
+    x = body_pose[:, idx]
     r = x - np.clip(x, lo, hi)
+    return r, idx, r != 0.0
+
+
+def joint_limit_error(body_pose: np.ndarray, limits: tuple[JointLimit, ...] = DEFAULT_JOINT_LIMITS,
+                      want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """Unwhitened hinge residual (L,) in radians and its Jacobian (L, 69) w.r.t. the body pose."""
+    body_pose = as_f64(body_pose)
+    r, idx, active = joint_limit_batch(body_pose[None], limits)
     jac = None
     if want_jacobian:
         jac = np.zeros((idx.size, body_pose.size))
-        jac[np.arange(idx.size), idx] = (r != 0.0).astype(np.float64)
-    return r, jac
+        jac[np.arange(idx.size), idx] = active[0].astype(np.float64)
+    return r[0], jac
+
+
+@dataclass(frozen=True)
+class JointLimitSpec:
+    """A joint-limit factor's limits and noise (``sigma_rad``, isotropic)."""
+
+    limits: tuple[JointLimit, ...]
+    sigma_rad: float
 
 
 def make_joint_limit_factor(key_body_pose: int, sigma_rad: float = 0.05,
-                            limits: tuple[JointLimit, ...] = DEFAULT_JOINT_LIMITS) -> gtsam.CustomFactor:
-    """Hinge joint-limit factor on ``key_body_pose`` (vector, 69); ``sigma_rad`` in radians."""
+                            limits: tuple[JointLimit, ...] = DEFAULT_JOINT_LIMITS, cache=None) -> gtsam.CustomFactor:
+    """Hinge joint-limit factor on ``key_body_pose`` (vector, 69); ``sigma_rad`` in radians.  ``cache``: a
+    batched evaluator the factor registers with (``pedx_graph.graph.batch.BatchedBodyModel``)."""
     if not limits:
         raise ValueError("joint limits: empty limit list")
     for lim in limits:
         if not (0 <= lim.index < BODY_POSE_DIM and lim.lower <= lim.upper):
             raise ValueError(f"joint limit {lim.name}: bad index or bounds {lim}")
     rows = len(limits)
+    if cache is not None:
+        cache.register("joint_limits", [key_body_pose], JointLimitSpec(tuple(limits), float(sigma_rad)))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         r, jac = joint_limit_error(values.atVector(this.keys()[0]), limits, H is not None)

@@ -20,6 +20,8 @@ Jacobians: ``dr/dtrans = Q^T``, ``dr/dbetas = Q^T D``.  If the points are (horiz
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gtsam
 import numpy as np
 
@@ -43,16 +45,44 @@ def pelvis_shape_basis(model: BodyModelLike, num_betas: int) -> tuple[np.ndarray
     return as_f64(rest0), as_f64(basis)
 
 
+def translation_prior_batch(trans: np.ndarray, betas: np.ndarray, pelvis_rest: np.ndarray,
+                            pelvis_shapedirs: np.ndarray, world_p_mean: np.ndarray, world_R_ray: np.ndarray,
+                            offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """F frames at once: residuals (F, 3) metres in each frame's ray frame and the Jacobians
+    ``dr/dtrans = Q^T`` (F, 3, 3), ``dr/dbetas = Q^T D`` (F, 3, B); inputs stacked per frame (trans (F, 3),
+    betas (F, B), means (F, 3), ray frames (F, 3, 3), offsets (F, 3))."""
+    pelvis = pelvis_rest + as_f64(betas).reshape(len(world_R_ray), -1) @ pelvis_shapedirs.T \
+        + as_f64(trans).reshape(-1, 3)
+    q_t = np.swapaxes(as_f64(world_R_ray), 1, 2)
+    r = np.einsum("fab,fb->fa", q_t, pelvis - world_p_mean) - offsets
+    return r, q_t, q_t @ pelvis_shapedirs
+
+
 def translation_prior_error(trans: np.ndarray, betas: np.ndarray, pelvis_rest: np.ndarray,
                             pelvis_shapedirs: np.ndarray, world_p_mean: np.ndarray, world_R_ray: np.ndarray,
                             offsets: np.ndarray, want_jacobians: bool = False
                             ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Residual (3,) metres in the ray frame; Jacobians ``[dr/dtrans (3, 3), dr/dbetas (3, B)]`` when asked."""
-    pelvis = pelvis_rest + pelvis_shapedirs @ as_f64(betas) + as_f64(trans)
-    r = world_R_ray.T @ (pelvis - world_p_mean) - offsets
+    r, d_trans, d_betas = translation_prior_batch(trans, betas, pelvis_rest, pelvis_shapedirs,
+                                                  as_f64(world_p_mean)[None], as_f64(world_R_ray)[None],
+                                                  as_f64(offsets)[None])
     if not want_jacobians:
-        return r, None
-    return r, [as_f64(world_R_ray.T), as_f64(world_R_ray.T @ pelvis_shapedirs)]
+        return r[0], None
+    return r[0], [as_f64(d_trans[0]), as_f64(d_betas[0])]
+
+
+@dataclass(frozen=True)
+class TranslationSpec:
+    """A translation factor's measurement (points' mean, ray frame, offsets), pelvis model and noise."""
+
+    world_p_mean: np.ndarray
+    world_R_ray: np.ndarray
+    offsets: np.ndarray
+    pelvis_rest: np.ndarray
+    pelvis_shapedirs: np.ndarray
+    sigmas: np.ndarray
+    robust: str
+    robust_scale: float
 
 
 def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyModelLike, world_points: np.ndarray,
@@ -60,7 +90,7 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
                                   depth_offset_m: float = 0.10, height_offset_m: float = 0.0,
                                   sigma_ray_m: float = 0.15, sigma_lateral_m: float = 0.10,
                                   sigma_vertical_m: float = 0.25, robust: str = "none",
-                                  robust_scale: float = 3.0) -> gtsam.CustomFactor | None:
+                                  robust_scale: float = 3.0, cache=None) -> gtsam.CustomFactor | None:
     """Pelvis-to-LiDAR-mean prior on ``(trans, betas)``; ``None`` when there are no points.
 
     ``world_points`` (M, 3) metres; offsets and sigmas in metres (see the module docstring).  ``robust``
@@ -76,8 +106,12 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
     world_R_ray = sensor_ray_frame(mean, world_p_sensor)
     offsets = np.array([depth_offset_m, 0.0, height_offset_m], dtype=np.float64)
     pelvis_rest, pelvis_dirs = pelvis_shape_basis(model, num_betas)
-    noise = make_noise(np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m]), robust=robust,
-                       robust_scale=robust_scale)
+    sigmas = np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m], dtype=np.float64)
+    noise = make_noise(sigmas, robust=robust, robust_scale=robust_scale)
+    if cache is not None:
+        cache.register("translation_prior", [key_trans, key_betas],
+                       TranslationSpec(mean, world_R_ray, offsets, pelvis_rest, pelvis_dirs, sigmas, robust,
+                                       float(robust_scale)))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         k = this.keys()

@@ -66,6 +66,8 @@ class BatchedBodyModel:
         self._root_keys: set[int] = set()
         self._last_signature: tuple | None = None
         self._last_jacobians = False
+        self.frame_states: tuple[list[FrameKeys], list[FrameState]] = ([], [])
+        """The frame keys and states of the last prefetch."""
 
     def __getattr__(self, name):          # faces, num_betas, rest_joints, ... come from the model
         if name.startswith("_"):
@@ -207,6 +209,7 @@ class BatchedBodyModel:
         self._where.clear()
         self._batches.clear()
         self._key_bytes.clear()
+        self.frame_states = (list(keys), states)
         self._root_keys = {k.root for k in keys}
         for k, st in zip(keys, states):
             self._key_bytes[k.root] = np.ascontiguousarray(st.world_R_body).tobytes()

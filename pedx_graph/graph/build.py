@@ -262,15 +262,18 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                                           sigma_lateral_m=noise.translation_sigma_m,
                                           sigma_vertical_m=noise.translation_vertical_sigma_m,
                                           robust=_robust(noise.translation_loss),
-                                          robust_scale=noise.translation_loss_scale), "translation_prior")
+                                          robust_scale=noise.translation_loss_scale,
+                                          cache=getattr(model, "term_cache", None)), "translation_prior")
     if terms.heading_prior and np.isfinite(heading_yaw):
         add(make_heading_prior_factor(k.root, heading_yaw, speed_mps, sigma0_rad=noise.heading_sigma_rad,
                                       v0=noise.heading_min_speed_mps * 2,
-                                      min_speed=noise.heading_min_speed_mps), "heading_prior")
+                                      min_speed=noise.heading_min_speed_mps,
+                                      cache=getattr(model, "term_cache", None)), "heading_prior")
     if terms.pose_prior:
         add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture, cache=getattr(model, "term_cache", None)),
             "pose_prior")
-        add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad), "joint_limits")
+        add(make_joint_limit_factor(k.body_pose, sigma_rad=noise.joint_limit_sigma_rad,
+                                    cache=getattr(model, "term_cache", None)), "joint_limits")
     if terms.temporal_prior and previous is not None:
         kp, previous_time = previous
         gap = max(1, int(round((fr.timestamp - previous_time) / ctx.temporal_dt)))

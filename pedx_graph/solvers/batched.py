@@ -10,8 +10,10 @@ solve) costs more than the numerics.  :class:`BatchedLinearizer` builds the same
   model does (per-row sigmas; per-row robust kernels with their IRLS weights, see
   :func:`factors.common.row_loss_and_weight`; unit noise for the terms that whiten inside the callback) and
   adds ``A^T A`` / ``A^T b`` into the chain system in batched products;
-* every other factor (translation and heading priors, joint limits, shape prior) stays in a small GTSAM
-  subgraph that is linearised and assembled as usual.
+* the small factors (translation and heading priors, joint limits) are evaluated here for all frames at
+  once from the specs they registered and the prefetched states (``*_batch`` functions of their modules,
+  whitened as their noise models);
+* any other factor (the shape prior) stays in a small GTSAM subgraph, linearised and assembled as usual.
 
 The result is the system ``ChainLayout.assemble(graph.linearize(values))`` and the error
 ``graph.error(values)`` of the whole graph (tested to round-off), so the LM iterates are the same.
@@ -21,12 +23,17 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import row_loss_and_weight
+from factors.common import BODY_POSE_DIM, row_loss_and_weight
+from factors.heading_prior import heading_prior_batch
+from factors.joint_limits import joint_limit_batch
+from factors.translation_prior import translation_prior_batch
 from factors.stereo_reprojection import stereo_dense_rows
 from pedx_graph.solvers.chain import ChainLayout, ChainSystem
 
 #: Factor kinds served from the batched cache.
 BATCHED_KINDS = ("stereo_reprojection", "lidar_chamfer", "pose_prior", "temporal_prior")
+#: Small factor kinds evaluated here in batch from their registered specs and the prefetched states.
+DIRECT_KINDS = ("translation_prior", "heading_prior", "joint_limits")
 
 
 class BatchedLinearizer:
@@ -38,7 +45,7 @@ class BatchedLinearizer:
         self.layout = layout or problem.layout
         specs = getattr(self.body, "_specs", {})
         self.rest = gtsam.NonlinearFactorGraph()
-        self.served: dict[str, list[tuple[int, ...]]] = {kind: [] for kind in BATCHED_KINDS}
+        self.served: dict[str, list[tuple[int, ...]]] = {kind: [] for kind in BATCHED_KINDS + DIRECT_KINDS}
         for j, kind in enumerate(problem.factor_kinds):
             factor = problem.graph.at(j)
             keys = tuple(int(k) for k in factor.keys())
@@ -99,6 +106,9 @@ class BatchedLinearizer:
         for kind, keys_list in self.served.items():
             if not keys_list:
                 continue
+            if kind in DIRECT_KINDS:
+                total += float(self._direct(kind, keys_list, False)[0])
+                continue
             groups = self._groups(kind)
             if kind == "stereo_reprojection" and groups is not None:
                 total += sum(float(self._stereo_white(g)[1].sum()) for g in groups)
@@ -131,6 +141,9 @@ class BatchedLinearizer:
         for kind, keys_list in self.served.items():
             if not keys_list:
                 continue
+            if kind in DIRECT_KINDS:
+                self._direct(kind, keys_list, True, system)
+                continue
             groups = self._groups(kind)
             if groups is not None and kind != "lidar_chamfer":
                 for group in groups:
@@ -138,6 +151,60 @@ class BatchedLinearizer:
             else:
                 self._add_factors(system, kind, keys_list)
         return system
+
+    def _direct(self, kind: str, keys_list, linearize: bool, system: ChainSystem | None = None) -> tuple:
+        """Error of the small factors of ``kind`` (and, when ``linearize``, their rows added to ``system``),
+        from their specs and the prefetched frame states, whitened as their GTSAM noise models."""
+        fkeys, states = self.body.frame_states
+        specs = self.body._specs[kind]
+        index = {}
+        for i, k in enumerate(fkeys):
+            index[int(k.root)] = index[int(k.trans)] = index[int(k.body_pose)] = i
+        frames = [index[keys[0]] for keys in keys_list]
+        sp = [specs[keys] for keys in keys_list]
+        if kind == "joint_limits":
+            groups: dict[tuple, list[int]] = {}
+            for n, spec in enumerate(sp):
+                groups.setdefault((spec.limits, spec.sigma_rad), []).append(n)
+            total = 0.0
+            for (limits, sigma), members in groups.items():
+                pose = np.stack([states[frames[n]].body_pose for n in members])
+                r, idx, active = joint_limit_batch(pose, limits)
+                total += 0.5 * float(np.sum((r / sigma) ** 2))
+                if linearize:
+                    a = np.zeros((len(members), len(idx), BODY_POSE_DIM))
+                    a[:, np.arange(len(idx)), idx] = active / sigma
+                    self._add_dense(system, [keys_list[n] for n in members], a, -r / sigma)
+            return (total,)
+        if kind == "heading_prior":
+            r, jac = heading_prior_batch(np.stack([states[f].world_R_body for f in frames]),
+                                         np.stack([spec.world_heading for spec in sp]))
+            jac = jac[:, None, :]
+            r = r[:, None]
+            sig = np.array([spec.sigma_rad for spec in sp])[:, None]
+        else:                                                            # translation_prior
+            r, d_trans, d_betas = translation_prior_batch(
+                np.stack([states[f].trans for f in frames]), np.stack([states[f].betas for f in frames]),
+                sp[0].pelvis_rest, sp[0].pelvis_shapedirs, np.stack([spec.world_p_mean for spec in sp]),
+                np.stack([spec.world_R_ray for spec in sp]), np.stack([spec.offsets for spec in sp]))
+            jac = np.concatenate([d_trans, d_betas], axis=2)
+            sig = np.stack([spec.sigmas for spec in sp])
+        white = r / sig
+        kernels = {(spec.robust, spec.robust_scale) for spec in sp}
+        if len(kernels) == 1:
+            loss, weight = row_loss_and_weight(white, *kernels.pop())
+        else:
+            pairs = [row_loss_and_weight(white[n], spec.robust, spec.robust_scale) for n, spec in enumerate(sp)]
+            loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
+        if linearize:
+            scale = np.sqrt(weight)
+            self._add_dense(system, keys_list, jac * (scale / sig)[:, :, None], -scale * white)
+        return (float(loss.sum()),)
+
+    def _add_dense(self, system: ChainSystem, keys_list, a: np.ndarray, b: np.ndarray) -> None:
+        """Add factors of one key pattern given as stacked whitened rows ``a`` (G, m, c) and ``b`` (G, m)."""
+        a_t = np.swapaxes(a, 1, 2)
+        self._scatter(system, keys_list, a_t @ a, (a_t @ b[:, :, None])[:, :, 0])
 
     def _firsts(self, keys_list) -> np.ndarray:
         return np.array([self.layout.segments(keys)[0][2] for keys in keys_list])
