@@ -80,7 +80,7 @@ def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
         prefetch(at, jacobians)
         return graph.error(at)
 
-    err = evaluate(values, False)
+    err = evaluate(values, True)          # with derivatives: the first linearisation is at these values
     initial = err
     lam = config.lambda_initial
     errors: list[float] = []
