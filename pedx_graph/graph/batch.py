@@ -11,13 +11,16 @@ all frames are evaluated in one batched call and cached by the exact bytes of ea
 (gtsam's own optimisers, iSAM2, Marginals, a changed estimate) falls through to the model, so results never
 depend on the cache — only speed does.
 
-It is also the factors' *term cache* (``term_cache``): the stereo, chamfer, pose-prior and temporal factors
-of a track register what they measure when they are built (:meth:`register`); :meth:`prefetch` then
-evaluates each of these terms for all frames in one batched call (``stereo_reprojection_batch``,
-``MaxMixture.residual_batch``, ``temporal_prior_batch``; the chamfer's k-d trees and matched-vertex
-Jacobians per frame) and a factor's callback takes its residual and Jacobians from :meth:`lookup` — after
-checking that the values it is called with are exactly the prefetched ones (otherwise it computes them
-itself).  One GTSAM callback then costs a look-up instead of the term's numpy work.
+It is also the factors' *term cache* (``term_cache``): the factors of a track register what they measure
+when they are built (:meth:`register`).  :meth:`prefetch` evaluates the stereo, chamfer, pose-prior and
+temporal terms for all frames in batched calls (``stereo_project``, the chamfer's matched-vertex
+Jacobians of every frame in one pass after its per-frame k-d trees, ``MaxMixture.residual_batch``,
+``temporal_prior_batch``) and keeps the batched arrays (:meth:`batch`, used by
+:class:`pedx_graph.solvers.batched.BatchedLinearizer`).  A factor's callback takes its residual and
+Jacobians from :meth:`lookup` — after checking that the values it is called with are exactly the
+prefetched ones (otherwise it computes them itself) — so one GTSAM callback costs a look-up instead of the
+term's numpy work.  The translation, heading and joint-limit factors only register their specs (the
+linearizer evaluates them in batch from :attr:`frame_states`).
 """
 from __future__ import annotations
 
