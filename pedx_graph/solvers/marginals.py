@@ -202,13 +202,24 @@ def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int,
     return info
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals of a mesh (vertices (V, 3), faces (F, 3))."""
+def face_incidence(faces: np.ndarray, num_vertices: int):
+    """(V, F) sparse vertex-face incidence (ones), to sum face quantities onto their vertices."""
+    from scipy.sparse import csr_matrix
+
+    faces = np.asarray(faces, dtype=np.int64)
+    rows = faces.reshape(-1)
+    cols = np.repeat(np.arange(len(faces)), 3)
+    return csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, len(faces)))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, incidence=None) -> np.ndarray:
+    """(V, 3) unit area-weighted vertex normals of a mesh (vertices (V, 3), faces (F, 3)); ``incidence``:
+    :func:`face_incidence` of ``faces`` when already built."""
+    faces = np.asarray(faces, dtype=np.int64)
     v0, v1, v2 = (vertices[faces[:, c]] for c in range(3))
     face_n = np.cross(v1 - v0, v2 - v0)
-    normals = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(normals, faces[:, c], face_n)
+    incidence = face_incidence(faces, len(vertices)) if incidence is None else incidence
+    normals = np.asarray(incidence @ face_n)
     return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
 
 
@@ -258,8 +269,8 @@ def chamfer_plane_rows(linear: gtsam.GaussianFactorGraph, values: gtsam.Values, 
         return {}
     betas = np.asarray(values.atVector(int(keys[0].betas)), float)
     pelvis_rest = np.asarray(model.rest_joints(betas))[0]
-    faces = np.asarray(model.faces)
-    out, meshes = {}, {}
+    faces = np.asarray(model.faces, dtype=np.int64)
+    out, meshes, incidence = {}, {}, None
     for j in chamfer:
         factor = linear.at(j)
         if factor is None:
@@ -282,7 +293,9 @@ def chamfer_plane_rows(linear: gtsam.GaussianFactorGraph, values: gtsam.Values, 
         if i not in meshes:
             pose = np.concatenate([gtsam.Rot3.Logmap(values.atRot3(k.root)), values.atVector(k.body_pose)])
             verts = np.asarray(model.forward(pose, betas, trans).vertices, float)
-            meshes[i] = (verts, vertex_normals(verts, faces), cKDTree(verts))
+            if incidence is None:
+                incidence = face_incidence(faces, len(verts))
+            meshes[i] = (verts, vertex_normals(verts, faces, incidence), cKDTree(verts))
         verts, normals, tree = meshes[i]
         rows = point_to_plane_rows(factor.jacobian()[0], cols[int(k.root)], cols[int(k.trans)], rot,
                                    pelvis_rest + trans, verts, normals, tol_m, tree)
