@@ -213,9 +213,13 @@ class IncrementalTrack:
         return stats
 
     def add_frame(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph,
-                  new_values: gtsam.Values) -> UpdateStats:
+                  new_values: gtsam.Values, presolve_factors: gtsam.NonlinearFactorGraph | None = None
+                  ) -> UpdateStats:
         """Add one frame: its factors (own terms, temporal prior to the previous frame, and on the first
-        frame the shape prior) and the initial values of the variables not yet in the system."""
+        frame the shape prior) and the initial values of the variables not yet in the system.
+
+        ``presolve_factors``: the factors the presolve uses (default: all of ``factors``), e.g. without the
+        costly LiDAR chamfer term (:attr:`StreamConfig.presolve_exclude`)."""
         if self.finalized:
             raise RuntimeError("cannot add frames to a finalised track")
         n = len(self.updates) + 1
@@ -223,7 +227,7 @@ class IncrementalTrack:
         hold = every > 0 and n % every != 0
         t0 = time.perf_counter()
         if self.config.presolve_iterations > 0:
-            new_values = self._presolve(factors, new_values)
+            new_values = self._presolve(factors if presolve_factors is None else presolve_factors, new_values)
         stats = self._update(factors, new_values, hold_shape=hold)
         stats.seconds = time.perf_counter() - t0
         self.frame_keys.append(frame_keys)

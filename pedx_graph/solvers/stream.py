@@ -16,9 +16,11 @@ Causality: a frame's factors use only that frame and earlier ones.  They are the
 on the points' core; ``StreamingEstimator._frame_factors`` mirrors ``build_track_graph`` and must follow
 its changes: ``test_stream_factors_match_batch_graph`` checks it) except the heading prior,
 whose trajectory heading is estimated from the frames up to now (a one-sided window of ``half_window_s``)
-instead of a centred one.  New variables start from the previous frame's estimate (root, body pose) and
-the frame's LiDAR / stereo centre (translation), then a damped Gauss-Newton step on the new frame alone
-(``IsamConfig.presolve_iterations`` / ``presolve_method``) before the iSAM2 update.
+instead of a centred one.  New variables start from the previous frame's estimate (root; the body pose
+extrapolated at constant joint-angle velocity, ``StreamConfig.predict_body_pose``) and the frame's LiDAR /
+stereo centre (translation), then a damped Gauss-Newton step on the new frame alone
+(``IsamConfig.presolve_iterations`` / ``presolve_method``; without the chamfer term,
+``StreamConfig.presolve_exclude``) before the iSAM2 update.
 """
 from __future__ import annotations
 
@@ -59,6 +61,13 @@ class StreamConfig:
     """Marginal covariances of each finalised track."""
     diagnostics: bool = True
     """Residual / information diagnostics of each finalised track."""
+    predict_body_pose: bool = True
+    """Start a new frame's body pose at constant joint-angle velocity from the two previous estimates (scaled
+    by the time steps, at most one previous step ahead) instead of at the previous estimate."""
+    presolve_exclude: tuple = ("lidar_chamfer",)
+    """Factor kinds left out of the presolve (they still enter the iSAM2 update): the chamfer term is half
+    the cost of linearising a frame, and its nearest-vertex correspondences are poor before the frame is
+    placed by the other terms."""
     final_restart: bool = True
     """When a track ends, also solve it from scratch with the batch fit (staged LM, centred headings) and
     keep whichever estimate has the lower error on the track's streamed graph: the incremental path can
@@ -115,6 +124,9 @@ class _ActiveTrack:
     factor_frames: list[int] = field(default_factory=list)
     last_seen: float = -np.inf
     previous: tuple | None = None
+    """Estimate ``(world_R_body, trans, body_pose, betas)`` of the newest frame right after its update."""
+    before_previous: tuple | None = None
+    """The same for the frame before (constant-velocity prediction of the body pose)."""
     last_pelvis: np.ndarray | None = None
     """Pelvis of the frame before ``previous`` (constant-velocity prediction of unplaceable frames)."""
 
@@ -154,6 +166,17 @@ class StreamingEstimator:
             add(make_shape_prior_factor(k.betas, num_betas=model.num_betas, sigma=noise.shape_sigma),
                 "shape_prior")
         return graph, init
+
+    def _presolve_factors(self, graph: gtsam.NonlinearFactorGraph, kinds: list[str]):
+        """The new frame's factors without the kinds in ``StreamConfig.presolve_exclude`` (None: all)."""
+        exclude = set(self.stream_config.presolve_exclude or ())
+        if not exclude.intersection(kinds):
+            return None
+        out = gtsam.NonlinearFactorGraph()
+        for j, kind in enumerate(kinds):
+            if kind not in exclude:
+                out.add(graph.at(j))
+        return out
 
     def _causal_init(self, state: _ActiveTrack, window: Track) -> _FrameInit:
         """Centre, orientation, heading and speed of the newest frame from the recent frames only.
@@ -195,10 +218,23 @@ class StreamingEstimator:
         else:
             rot, _, body_pose, betas = state.previous
             values.insert(k.root, gtsam.Rot3(rot))
-            values.insert(k.body_pose, np.asarray(body_pose))
+            values.insert(k.body_pose, self._predicted_body_pose(state, i))
         pelvis_rest = self.ctx.model.rest_joints(betas)[0]
         values.insert(k.trans, np.asarray(init.world_p_centre - pelvis_rest, dtype=float))
         return values
+
+    def _predicted_body_pose(self, state: _ActiveTrack, i: int) -> np.ndarray:
+        """Body pose of frame ``i`` from the previous estimates: constant joint-angle velocity
+        (``StreamConfig.predict_body_pose``) when the two frames before have estimates, else the previous
+        estimate."""
+        body_pose = np.asarray(state.previous[2], float)
+        if not self.stream_config.predict_body_pose or state.before_previous is None or i < 2:
+            return body_pose.copy()
+        t0, t1, t2 = (state.frames[j].timestamp for j in (i - 2, i - 1, i))
+        if not t1 > t0:
+            return body_pose.copy()
+        ratio = min(max((t2 - t1) / (t1 - t0), 0.0), 1.0)
+        return body_pose + ratio * (body_pose - np.asarray(state.before_previous[2], float))
 
     def _best_facing(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: FrameKeys) -> gtsam.Values:
         """First frame without a trajectory heading: the torso-based facing can be reversed (front/back), so
@@ -252,7 +288,8 @@ class StreamingEstimator:
             values = self._initial_values(state, i, init)
             if i == 0 and not np.isfinite(init.heading_yaw):
                 values = self._best_facing(graph, values, state.keys[0])
-            state.smoother.add_frame(state.keys[i], graph, values)
+            state.smoother.add_frame(state.keys[i], graph, values,
+                                     self._presolve_factors(graph, state.kinds[n_kinds:]))
         except Exception:
             state.frames.pop()
             state.keys.pop()
@@ -263,6 +300,7 @@ class StreamingEstimator:
         state.last_seen = timestamp
         if state.previous is not None:
             state.last_pelvis = self.ctx.model.rest_joints(state.previous[3])[0] + state.previous[1]
+        state.before_previous = state.previous
         state.previous = state.smoother.frame_estimate(state.keys[i])
         seconds = time.perf_counter() - t0
         rot, trans, body_pose, betas = state.previous
