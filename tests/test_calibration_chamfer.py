@@ -85,3 +85,20 @@ def test_unknown_chamfer_information_is_rejected(ctx, solved):
     with pytest.raises(ValueError):
         compute_marginals(problem.graph, values, problem.keys, MarginalsConfig(chamfer_information="nope"),
                           factor_kinds=problem.factor_kinds, model=ctx.model)
+
+
+@pytest.mark.parametrize("information", ["point_to_plane", "point_to_point"])
+def test_batched_marginals_equal_the_linearised_graph_path(ctx, solved, information):
+    """From the batched linearizer (matched vertices from the term cache, no callbacks) the covariances equal
+    those of the GTSAM linearisation (matched vertices decoded from the Jacobian)."""
+    from pedx_graph.solvers.marginals import problem_linearizer
+
+    _, _, problem, values = solved
+    config = MarginalsConfig(chamfer_information=information)
+    kwargs = dict(factor_kinds=problem.factor_kinds, model=ctx.model)
+    linearizer = problem_linearizer(problem)
+    assert linearizer is not None and linearizer.served["lidar_chamfer"]
+    fast = compute_marginals(problem.graph, values, problem.keys, config, linearizer=linearizer, **kwargs)
+    slow = compute_marginals(problem.graph, values, problem.keys, config, **kwargs)
+    scale = np.abs(slow.frame_covariances).max()
+    np.testing.assert_allclose(fast.frame_covariances, slow.frame_covariances, rtol=0, atol=1e-7 * scale)

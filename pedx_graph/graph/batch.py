@@ -71,6 +71,8 @@ class BatchedBodyModel:
         self._last_jacobians = False
         self.frame_states: tuple[list[FrameKeys], list[FrameState]] = ([], [])
         """The frame keys and states of the last prefetch."""
+        self.chamfer_matches: dict[tuple[int, ...], np.ndarray] = {}
+        """Chamfer factor keys -> the matched vertex id (M,) of each of its points at the last prefetch."""
 
     def __getattr__(self, name):          # faces, num_betas, rest_joints, ... come from the model
         if name.startswith("_"):
@@ -136,6 +138,7 @@ class BatchedBodyModel:
         self._terms.clear()
         self._where.clear()
         self._batches.clear()
+        self.chamfer_matches.clear()
         self._terms_have_jacobians = jacobians
         frame_of = {k.root: i for i, k in enumerate(keys)}
         stereo = specs.get("stereo_reprojection", {})
@@ -166,6 +169,7 @@ class BatchedBodyModel:
                                              vjac.d_betas[n, :len(u)]) for n, u in enumerate(unique)]
             for (fk, spec), st, match, vj in zip(chamfer, fstates, matches, per_frame):
                 self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
+                self.chamfer_matches[fk] = match[0]
         prior = specs.get("pose_prior", {})
         pose_index = {k.body_pose: i for i, k in enumerate(keys)}
         for mixture in {id(m): m for m in prior.values()}.values():

@@ -128,8 +128,9 @@ class BatchedLinearizer:
         return 0.5 * float(r @ r)
 
     # -- linear system ---------------------------------------------------------------------------------
-    def system(self, values: gtsam.Values) -> ChainSystem:
-        """The whitened Gauss-Newton system of the whole graph at ``values`` in chain form."""
+    def system(self, values: gtsam.Values, skip=()) -> ChainSystem:
+        """The whitened Gauss-Newton system of the whole graph at ``values`` in chain form (without the
+        served factors of the kinds in ``skip``)."""
         layout = self.layout
         if self.rest.size():
             system = layout.assemble(self.rest.linearize(values))
@@ -139,7 +140,7 @@ class BatchedLinearizer:
                                  np.zeros((nb, nb)), np.zeros((t, d)), np.zeros(nb))
         self._prefetch(values, True)
         for kind, keys_list in self.served.items():
-            if not keys_list:
+            if not keys_list or kind in skip:
                 continue
             if kind in DIRECT_KINDS:
                 self._direct(kind, keys_list, True, system)

@@ -257,6 +257,67 @@ def point_to_plane_rows(a_mat: np.ndarray, root_cols: slice, trans_cols: slice, 
     return w[:, None] * np.einsum("mi,min->mn", n, jac_v)
 
 
+_INCIDENCE: list = [None, None]          # [model, its incidence]: the model is held, so never confused
+
+
+def _incidence_of(model, faces: np.ndarray):
+    """:func:`face_incidence` of a model's faces, built once per model (CSR rows = vertices)."""
+    if _INCIDENCE[0] is not model:
+        _INCIDENCE[:] = [model, face_incidence(faces, int(model.num_vertices)).tocsr()]
+    return _INCIDENCE[1]
+
+
+def add_chamfer_plane_information(system, linearizer, model) -> bool:
+    """Add the point-to-plane information of every chamfer factor served by ``linearizer`` (a
+    :class:`~pedx_graph.solvers.batched.BatchedLinearizer` whose body cache was just evaluated at the
+    estimate) into ``system`` — the same rows as :func:`point_to_plane_rows`, but with the matched vertices
+    taken from the cache instead of decoded from the Jacobian.  False (nothing added) when a factor is not
+    robustified per point (its rows are then not per-point blocks)."""
+    keys_list = linearizer.served.get("lidar_chamfer", [])
+    if not keys_list:
+        return True
+    body = linearizer.body
+    specs = body._specs["lidar_chamfer"]
+    if not all(specs[keys].robust_per_point and keys in body.chamfer_matches for keys in keys_list):
+        return False
+    fkeys, states = body.frame_states
+    index = {int(k.root): i for i, k in enumerate(fkeys)}
+    frames = [index[keys[0]] for keys in keys_list]
+    pose = np.stack([states[f].full_pose for f in frames])
+    betas = np.stack([states[f].betas for f in frames])
+    trans = np.stack([states[f].trans for f in frames])
+    # Normals of the matched vertices only: their incident faces, posed through the corners they need.
+    faces = np.asarray(model.faces, dtype=np.int64)
+    incidence = _incidence_of(model, faces)
+    matched = np.unique(np.concatenate([body.chamfer_matches[keys] for keys in keys_list]))
+    sub = incidence[matched]                                       # (U, Fc) sparse
+    face_ids = np.unique(sub.indices)
+    corners, corner_index = np.unique(faces[face_ids], return_inverse=True)
+    posed = np.asarray(model.vertices_subset(pose, betas, trans, corners), float)    # (F, C, 3)
+    tri = posed[:, corner_index.reshape(-1, 3)]                                       # (F, Fs, 3, 3)
+    face_n = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])      # (F, Fs, 3)
+    sub = sub[:, face_ids]
+    num = len(frames)
+    normals = np.asarray(sub @ face_n.transpose(1, 0, 2).reshape(len(face_ids), 3 * num))
+    normals = normals.reshape(len(matched), num, 3).transpose(1, 0, 2)
+    normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-300)
+    row_of = {int(v): i for i, v in enumerate(matched)}
+    hess = []
+    for n, keys in enumerate(keys_list):
+        _, blocks = linearizer._factor("lidar_chamfer", keys)
+        a = np.concatenate(blocks, axis=1)
+        m = a.shape[0] // 3
+        a = a.reshape(m, 3, -1)
+        weight = a[:, :, 3:6]                              # M_i: d v / d trans = I
+        nrm = normals[n][[row_of[int(v)] for v in body.chamfer_matches[keys]]]
+        x = np.linalg.solve(np.swapaxes(weight, 1, 2), nrm[:, :, None])[:, :, 0]      # M_i^-T n
+        w = np.linalg.norm(np.einsum("mij,mj->mi", weight, nrm), axis=1)
+        rows = w[:, None] * np.einsum("mi,min->mn", x, a)                            # |M n| n^T M^-1 A
+        hess.append(rows.T @ rows)
+    linearizer._scatter(system, keys_list, np.stack(hess), np.zeros((len(keys_list), hess[0].shape[0])))
+    return True
+
+
 def chamfer_plane_rows(linear: gtsam.GaussianFactorGraph, values: gtsam.Values, keys, factor_kinds,
                        model, tol_m: float = 1e-6) -> dict:
     """Factor index -> point-to-plane rows for every LiDAR chamfer factor of ``linear`` (kind
@@ -386,17 +447,36 @@ def gtsam_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, key
                           seconds=time.perf_counter() - t0, method="gtsam")
 
 
+def _batched_information(linearizer, values: gtsam.Values, config: MarginalsConfig, model):
+    """Chain information from a :class:`~pedx_graph.solvers.batched.BatchedLinearizer` (no GTSAM callbacks),
+    with the point-to-plane chamfer information when configured; None when that cannot be formed here."""
+    plane = config.chamfer_information == "point_to_plane"
+    if config.chamfer_information not in ("point_to_plane", "point_to_point"):
+        raise ValueError(f"chamfer_information must be 'point_to_plane' or 'point_to_point', "
+                         f"got {config.chamfer_information!r}")
+    if plane and model is None:
+        return None
+    system = linearizer.system(values, skip=("lidar_chamfer",) if plane else ())
+    if plane and not add_chamfer_plane_information(system, linearizer, model):
+        return None
+    return ChainInformation(frame=system.frame, next=system.next, frame_shape=system.frame_shape,
+                            shape=system.shape)
+
+
 def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
                       config: MarginalsConfig | None = None,
                       linear: gtsam.GaussianFactorGraph | None = None, prefetch=None,
-                      factor_kinds=None, model=None) -> TrackMarginals:
+                      factor_kinds=None, model=None, linearizer=None) -> TrackMarginals:
     """Joint marginals of every frame with the shape (``config.method``; chain falls back to gtsam).
 
     ``linear``: the graph already linearised at ``values`` (e.g. by the solver's last iteration), which
     saves the factor callbacks (most of the cost); ``prefetch(values, jacobians)``: called before linearising
     (``TrackProblem.prefetch`` batch-evaluates the body model for all frames).  ``factor_kinds`` (the
     problem's kind of each factor) and ``model`` (the body model): needed for the point-to-plane chamfer
-    information (``config.chamfer_information``; the gtsam method always uses the linearisation as is)."""
+    information (``config.chamfer_information``; the gtsam method always uses the linearisation as is).
+    ``linearizer``: the track's :class:`~pedx_graph.solvers.batched.BatchedLinearizer`; the chain method then
+    takes the information from its batched evaluation (equal to the linearisation, no callbacks) and the
+    chamfer's matched vertices from the cache."""
     config = config or MarginalsConfig()
     num_betas = _dims_of(values, int(keys[0].betas))
     if config.method == "gtsam":
@@ -404,6 +484,14 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     if config.method != "chain":
         raise ValueError(f"marginals method must be 'chain' or 'gtsam', got {config.method!r}")
     t0 = time.perf_counter()
+    if linearizer is not None and linear is None:
+        info = _batched_information(linearizer, values, config, model)
+        if info is not None:
+            t_lin = time.perf_counter() - t0
+            out = chain_marginals(info, config.diffuse_information)
+            out.seconds = time.perf_counter() - t0
+            out.linearize_seconds = t_lin
+            return out
     if linear is None:
         if prefetch is not None:
             prefetch(values, True)
@@ -493,6 +581,18 @@ def marginals_to_fields(marginals: TrackMarginals, estimate, model,
     return per_frame, track
 
 
+def problem_linearizer(problem):
+    """A :class:`~pedx_graph.solvers.batched.BatchedLinearizer` of ``problem`` when its factors use the batched
+    term cache (tracks built by ``build_track_graph``), else None."""
+    if getattr(getattr(problem, "body", None), "term_cache", None) is None or not hasattr(problem, "layout"):
+        return None
+    from pedx_graph.solvers.batched import BatchedLinearizer
+    try:
+        return BatchedLinearizer(problem)
+    except NotAChainError:
+        return None
+
+
 def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig | None = None
                     ) -> tuple[list[dict], dict]:
     """Per-frame and per-track covariance fields of ``values`` (the solved estimate of ``problem``).
@@ -506,7 +606,8 @@ def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig 
     try:
         marginals = compute_marginals(problem.graph, values, problem.keys, config,
                                       prefetch=getattr(problem, "prefetch", None),
-                                      factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model)
+                                      factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model,
+                                      linearizer=problem_linearizer(problem))
     except (RuntimeError, LinAlgError, ValueError) as exc:
         log.warning("marginals failed: %s", exc)
         return ([{"covariance_status": "failed"} for _ in problem.keys],
