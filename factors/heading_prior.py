@@ -22,7 +22,9 @@ speed drops,
 
     sigma = sigma0 * max(1, v0 / max(speed, 1e-3))            (radians)
 
-and no factor is created below ``min_speed`` (:func:`make_heading_prior_factor` returns ``None``).
+and no factor is created below ``min_speed`` (:func:`make_heading_prior_factor` returns ``None``).  The
+measured heading's own uncertainty ``sigma_traj`` (e.g. a far pedestrian's trajectory taken from noisy
+stereo depth: ``pedx_graph.graph.init``) adds in quadrature: ``sqrt(sigma^2 + sigma_traj^2)``.
 """
 from __future__ import annotations
 
@@ -131,11 +133,12 @@ class HeadingSpec:
 def make_heading_prior_factor(key_root: int, world_heading: float | np.ndarray, speed: float,
                               sigma0_rad: float = 0.3, v0: float = 0.5, min_speed: float = 0.2,
                               robust: str = "none", robust_scale: float = 2.0,
-                              cache=None) -> gtsam.CustomFactor | None:
+                              cache=None, trajectory_sigma_rad: float = 0.0) -> gtsam.CustomFactor | None:
     """Heading prior on ``key_root`` (Rot3), or ``None`` when ``speed < min_speed`` (m/s).
 
     ``sigma0_rad`` is the noise at speeds >= ``v0`` m/s; it grows as ``v0 / speed`` below (see the module
-    docstring).  ``robust`` / ``robust_scale`` as :func:`factors.common.make_noise` (e.g. for pedestrians
+    docstring).  ``trajectory_sigma_rad``: the measured heading's own uncertainty (e.g. from the depth
+    noise of the trajectory it was taken from), added in quadrature.  ``robust`` / ``robust_scale`` as :func:`factors.common.make_noise` (e.g. for pedestrians
     walking backwards or a flipped trajectory heading).
     """
     if not np.isfinite(speed) or speed < 0:
@@ -143,7 +146,9 @@ def make_heading_prior_factor(key_root: int, world_heading: float | np.ndarray, 
     if speed < min_speed:
         return None
     h = heading_vector(world_heading)
-    sigma = heading_sigma(speed, sigma0_rad, v0)
+    if not (np.isfinite(trajectory_sigma_rad) and trajectory_sigma_rad >= 0):
+        raise ValueError(f"heading prior: trajectory_sigma_rad must be finite and >= 0, got {trajectory_sigma_rad}")
+    sigma = float(np.hypot(heading_sigma(speed, sigma0_rad, v0), trajectory_sigma_rad))
     noise = make_noise(sigma, dim=1, robust=robust, robust_scale=robust_scale)
     if cache is not None:
         cache.register("heading_prior", [key_root], HeadingSpec(h, sigma, robust, float(robust_scale)))

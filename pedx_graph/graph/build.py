@@ -225,13 +225,14 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
 def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                   previous: tuple[FrameKeys, float] | None, heading_yaw: float, speed_mps: float,
                   model, ctx: EstimatorContext, config: FitConfig,
-                  rng: np.random.Generator) -> list[tuple[gtsam.NonlinearFactor, str]]:
+                  rng: np.random.Generator, heading_sigma_rad: float = 0.0) -> list[tuple[gtsam.NonlinearFactor, str]]:
     """The factors of one frame (every term but the track's shape prior), as ``(factor, kind)`` pairs.
 
     ``k``: the frame's keys; ``previous``: (keys, timestamp) of the track's previous observed frame for the
     temporal prior, or None; ``heading_yaw``/``speed_mps``: the trajectory heading (NaN: unknown) and
     speed; ``model``: the body model the factors evaluate (a :class:`BatchedBodyModel` in batch fits);
-    ``rng``: draws the LiDAR subsample.  Shared by the batch builder and the streaming estimator so the
+    ``rng``: draws the LiDAR subsample; ``heading_sigma_rad``: the trajectory heading's own uncertainty
+    (``TrackInit.heading_sigma_rad``; inf: no heading factor).  Shared by the batch builder and the streaming estimator so the
     two graphs stay identical.
     """
     noise, terms = config.noise, config.terms
@@ -264,11 +265,12 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                                           robust=_robust(noise.translation_loss),
                                           robust_scale=noise.translation_loss_scale,
                                           cache=getattr(model, "term_cache", None)), "translation_prior")
-    if terms.heading_prior and np.isfinite(heading_yaw):
+    if terms.heading_prior and np.isfinite(heading_yaw) and np.isfinite(heading_sigma_rad):
         add(make_heading_prior_factor(k.root, heading_yaw, speed_mps, sigma0_rad=noise.heading_sigma_rad,
                                       v0=noise.heading_min_speed_mps * 2,
                                       min_speed=noise.heading_min_speed_mps,
-                                      cache=getattr(model, "term_cache", None)), "heading_prior")
+                                      cache=getattr(model, "term_cache", None),
+                                      trajectory_sigma_rad=float(heading_sigma_rad)), "heading_prior")
     if terms.pose_prior:
         add(make_pose_prior_factor(k.body_pose, mixture=ctx.pose_mixture, cache=getattr(model, "term_cache", None)),
             "pose_prior")
@@ -281,6 +283,11 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                                        mixture=ctx.temporal_mixture, frame_gap=gap,
                                        cache=getattr(model, "term_cache", None)), "temporal_prior")
     return out
+
+
+def _heading_sigma(init: TrackInit, i: int) -> float:
+    """The trajectory heading's uncertainty of frame ``i`` (0 when the initialisation did not estimate it)."""
+    return 0.0 if init.heading_sigma_rad is None else float(init.heading_sigma_rad[i])
 
 
 def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
@@ -326,7 +333,7 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
         previous = (keys[i - 1], track.frames[i - 1].timestamp) if i > 0 else None
         for factor, kind in frame_factors(k, fr, track.calibrations[fr.pair], previous,
                                           float(init.heading_yaw[i]), float(init.speed_mps[i]),
-                                          model, ctx, config, rng):
+                                          model, ctx, config, rng, _heading_sigma(init, i)):
             add(factor, kind, i)
     add(make_shape_prior_factor(keys[0].betas, num_betas=nb, sigma=noise.shape_sigma), "shape_prior", -1)
     if initial is not None:

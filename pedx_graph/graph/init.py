@@ -85,6 +85,9 @@ class TrackInit:
     """(T, 3) median of the instance LiDAR points, NaN where a frame has none."""
     times: np.ndarray
     """(T,) seconds."""
+    heading_sigma_rad: np.ndarray | None = None
+    """(T,) standard deviation of ``heading_yaw`` from the uncertainty of the trajectory's depth trend
+    (LiDAR or stereo depth), radians (inf where unknown); None: not estimated."""
 
 
 def _lidar_centroids(track: Track) -> np.ndarray:
@@ -151,11 +154,15 @@ def _median_filter_nan(x: np.ndarray, half_window: int) -> np.ndarray:
     return out
 
 
-def _local_linear(times: np.ndarray, obs: np.ndarray, sigma: np.ndarray, half_window_s: float) -> np.ndarray:
+def _local_linear(times: np.ndarray, obs: np.ndarray, sigma: np.ndarray, half_window_s: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted local-linear fit (weights 1/sigma^2) of ``obs`` over +-half_window_s around every time;
-    NaN observations are skipped; a window with one observation gives that value (or the nearest one)."""
+    NaN observations are skipped; a window with one observation gives that value (or the nearest one).
+    Returns the fitted values (T,) and the standard deviation of the fitted slope (T,; inf when the window
+    does not determine a slope), from the fit's covariance ``(A^T W A)^-1``."""
     ok = np.isfinite(obs) & np.isfinite(sigma)
     out = np.empty(len(times))
+    slope_sigma = np.full(len(times), np.inf)
     for i, t in enumerate(times):
         sel = ok & (np.abs(times - t) <= half_window_s)
         if sel.sum() == 0:
@@ -170,7 +177,8 @@ def _local_linear(times: np.ndarray, obs: np.ndarray, sigma: np.ndarray, half_wi
         a = np.stack([np.ones_like(dt), dt], axis=1) * np.sqrt(w)[:, None]
         coef, *_ = np.linalg.lstsq(a, obs[sel] * np.sqrt(w), rcond=None)
         out[i] = float(coef[0])
-    return out
+        slope_sigma[i] = float(np.sqrt(np.linalg.inv(a.T @ a)[1, 1]))
+    return out, slope_sigma
 
 
 def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
@@ -218,7 +226,7 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
     if not good.any():
         raise ValueError(f"track {track.sequence}/{track.tracking_id}: no LiDAR points and no stereo "
                          "keypoints to place the pedestrian")
-    depth = _local_linear(times, depth_obs, depth_sigma, depth_window_s)
+    depth, depth_rate_sigma = _local_linear(times, depth_obs, depth_sigma, depth_window_s)
 
     centre = np.full((n, 3), np.nan)
     for i, fr in enumerate(track.frames):
@@ -238,6 +246,19 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
     vel = _smoothed_velocity(times, centre, half_window_s)
     speed = np.linalg.norm(np.nan_to_num(vel), axis=1)
     heading = np.where(np.isfinite(vel[:, 0]), np.arctan2(vel[:, 1], vel[:, 0]), np.nan)
+    # Uncertainty of that heading: the trajectory's depth trend is uncertain by depth_rate_sigma (m/s)
+    # along the horizontal viewing ray (the image pins the lateral position); its component across the
+    # direction of motion turns the heading by ~ sigma_across / speed.
+    heading_sigma = np.full(n, np.inf)
+    for i, fr in enumerate(track.frames):
+        if not (np.isfinite(heading[i]) and speed[i] > 0):
+            continue
+        rect_T_world = track.calibrations[fr.pair].rect_T_world
+        camera = -rect_T_world[:3, :3].T @ rect_T_world[:3, 3]
+        ray = centre[i, :2] - camera[:2]
+        ray = ray / max(float(np.hypot(*ray)), 1e-9)
+        sin_across = abs(ray[0] * np.sin(heading[i]) - ray[1] * np.cos(heading[i]))
+        heading_sigma[i] = float(np.arctan2(depth_rate_sigma[i] * sin_across, speed[i]))
 
     # Torso direction (body left = +X) from the triangulated shoulders/hips: forward = left x up.
     with np.errstate(invalid="ignore"):
@@ -255,4 +276,4 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
         for i in np.flatnonzero(~np.isfinite(yaw)):
             yaw[i] = yaw[known[np.argmin(np.abs(known - i))]]
     return TrackInit(world_R_body=world_R_body_from_yaw(yaw), world_p_centre=centre, heading_yaw=heading,
-                     speed_mps=speed, lidar_centroid=centroids, times=times)
+                     speed_mps=speed, lidar_centroid=centroids, times=times, heading_sigma_rad=heading_sigma)
