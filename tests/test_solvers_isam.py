@@ -92,6 +92,10 @@ def test_gauss_newton_step_is_first_local_lm_iteration():
     np.testing.assert_allclose(gtsam.Rot3.Logmap(gn.atRot3(3)), gtsam.Rot3.Logmap(lm.atRot3(3)), atol=1e-9)
     np.testing.assert_allclose(gn.atVector(1), [0.0, 0.0])
     np.testing.assert_allclose(gn.atVector(4), [1.0, 1.0])
+    values.insert(5, np.ones(3))                    # a free key no factor of the graph sees stays put
+    gn = gauss_newton_step(graph, values, [2, 3, 5])
+    np.testing.assert_allclose(gn.atVector(2), lm.atVector(2), atol=1e-9)
+    np.testing.assert_allclose(gn.atVector(5), np.ones(3))
 
 
 def test_presolve_methods_agree(ctx, smooth_case):

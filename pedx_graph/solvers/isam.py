@@ -147,29 +147,34 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, f
     iteration (the same damping) without its error evaluations, i.e. the step is not checked.
     Returns the updated ``values`` (a copy).
     """
-    free = [int(k) for k in free_keys]
+    in_graph = {int(k) for k in graph.keyVector()}
+    free = [int(k) for k in free_keys if int(k) in in_graph]      # a key no factor sees does not move
     free_set = set(free)
-    held = [int(k) for k in values.keys() if int(k) not in free_set]
+    held = [k for k in in_graph if k not in free_set]
+    zero = values.zeroVectors()
+    step = gtsam.VectorValues()
+    for key in values.keys():
+        if int(key) not in free_set:
+            step.insert(key, np.zeros(int(zero.at(key).shape[0])))
+    if not free:
+        return values.retract(step)
     linear = graph.linearize(values)
     ordering = gtsam.Ordering()
     for key in free + held:
         ordering.push_back(key)
     hessian, eta = linear.hessian(ordering)
-    zero = values.zeroVectors()
     dims = [int(zero.at(k).shape[0]) for k in free]
     n = int(sum(dims))
     h_ff = hessian[:n, :n] + damping * np.eye(n)
+    rhs = np.asarray(eta, float).reshape(-1)[:n]
     try:
-        delta = np.linalg.solve(h_ff, np.asarray(eta, float).reshape(-1)[:n])
+        delta = np.linalg.solve(h_ff, rhs)
     except np.linalg.LinAlgError:
-        delta = np.linalg.lstsq(h_ff, np.asarray(eta, float).reshape(-1)[:n], rcond=None)[0]
-    step = gtsam.VectorValues()
+        delta = np.linalg.lstsq(h_ff, rhs, rcond=None)[0]
     offset = 0
     for key, d in zip(free, dims):
         step.insert(key, delta[offset:offset + d])
         offset += d
-    for key in held:
-        step.insert(key, np.zeros(int(zero.at(key).shape[0])))
     return values.retract(step)
 
 
