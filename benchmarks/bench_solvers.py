@@ -189,6 +189,7 @@ def main(argv=None) -> int:
             "speedup": admm_row["ms_per_frame"] / lm_sub["ms_per_frame"] if admm_row else None,
             "lm_global_mm": lm_sub["global_mm"], "admm_global_mm": admm_row["global_mm"] if admm_row else None},
         "isam_update_median_ms_le_10": {"median_ms": lat.get("median"), "cpu_median_ms": lat.get("cpu_median"),
+                                        "cpu_p90_ms": lat.get("cpu_p90"),
                                         "p90_ms": lat.get("p90"), "isam_only_median_ms": lat.get("isam_update_median"),
                                         "isam_only_p90_ms": lat.get("isam_update_p90")},
         "streamed_final_within_5pct_of_batch": {
@@ -255,9 +256,11 @@ def to_markdown(result: dict) -> str:
               f"| graph >= 10x faster than ADMM at equal or lower MPJPE | speed-up "
               f"{_fmt(g['graph_10x_faster_than_admm']['speedup'])}x; MPJPE LM {_fmt(g['graph_10x_faster_than_admm']['lm_global_mm'])} "
               f"vs ADMM {_fmt(g['graph_10x_faster_than_admm']['admm_global_mm'])} mm | {g['graph_10x_faster_than_admm']['met']} |",
-              f"| iSAM2 update <= 10 ms median per pedestrian-frame | whole per-frame update (factors + presolve + iSAM2): "
+              f"| iSAM2 update <= 10 ms median per pedestrian-frame | whole per-frame update (causal initialisation, "
+              f"factors, presolve, iSAM2, estimate and keypoints): "
               f"median {_fmt(g['isam_update_median_ms_le_10']['median_ms'])} ms "
-              f"(CPU {_fmt(g['isam_update_median_ms_le_10']['cpu_median_ms'])} ms), p90 {_fmt(g['isam_update_median_ms_le_10']['p90_ms'])} ms; "
+              f"(CPU {_fmt(g['isam_update_median_ms_le_10']['cpu_median_ms'])} ms), p90 {_fmt(g['isam_update_median_ms_le_10']['p90_ms'])} ms "
+              f"(CPU {_fmt(g['isam_update_median_ms_le_10'].get('cpu_p90_ms'))} ms); "
               f"`ISAM2.update` alone: median {_fmt(g['isam_update_median_ms_le_10']['isam_only_median_ms'])} ms, "
               f"p90 {_fmt(g['isam_update_median_ms_le_10']['isam_only_p90_ms'])} ms "
               f"| {g['isam_update_median_ms_le_10']['met']} |",
