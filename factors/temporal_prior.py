@@ -102,16 +102,19 @@ def _chain(jac_x: np.ndarray, step: np.ndarray, rot_i_t: np.ndarray, rel: np.nda
 
 def temporal_prior_batch(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
                          world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray,
-                         mixture: MaxMixture, frame_gap: np.ndarray, want_jacobian: bool = False
-                         ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+                         mixture: MaxMixture, frame_gap: np.ndarray, want_jacobian: bool = False,
+                         components: list | None = None) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """:func:`temporal_prior_error` for P pairs at once: residuals (P, 76) and six (P, 76, k) blocks.
 
     Inputs stacked over pairs: rotations (P, 3, 3), translations (P, 3), body poses (P, 69), gaps (P,).
+    ``components``: a list that receives the selected mixture component of every pair (P,).
     """
     gap = np.asarray(frame_gap, dtype=np.float64).reshape(-1)
     d, step, rot_i_t, rel, jr_inv = _difference_parts(world_R_body_i, trans_i, body_pose_i,
                                                       world_R_body_j, trans_j, body_pose_j)
     r, best = mixture.residual_batch(d / gap[:, None])
+    if components is not None:
+        components.append(best)
     if not want_jacobian:
         return r, None
     jac_x = np.stack([mixture.jacobian(k) for k in best]) / gap[:, None, None]

@@ -71,6 +71,9 @@ class BatchedBodyModel:
         self._last_jacobians = False
         self.frame_states: tuple[list[FrameKeys], list[FrameState]] = ([], [])
         """The frame keys and states of the last prefetch."""
+        self.frame_arrays: dict[str, np.ndarray] = {}
+        """The states of the last prefetch stacked over frames: ``pose`` (T, 72), ``betas`` (T, B), ``trans``
+        (T, 3), ``world_R_body`` (T, 3, 3)."""
         self.chamfer_matches: dict[tuple[int, ...], np.ndarray] = {}
         """Chamfer factor keys -> the matched vertex id (M,) of each of its points at the last prefetch."""
 
@@ -185,12 +188,15 @@ class BatchedBodyModel:
         for items in groups.values():
             a = [states[frame_of[fk[0]]] for fk, _, _ in items]
             b = [states[frame_of[fk[3]]] for fk, _, _ in items]
+            gaps = np.array([gap for _, _, gap in items], dtype=np.float64)
+            best: list = []
             res, blocks = temporal_prior_batch(
                 np.stack([s.world_R_body for s in a]), np.stack([s.trans for s in a]),
                 np.stack([s.body_pose for s in a]), np.stack([s.world_R_body for s in b]),
                 np.stack([s.trans for s in b]), np.stack([s.body_pose for s in b]), items[0][1],
-                np.array([gap for _, _, gap in items]), jacobians)
-            self._add_batch("temporal_prior", {"keys": [fk for fk, _, _ in items], "r": res, "blocks": blocks})
+                gaps, jacobians, components=best)
+            self._add_batch("temporal_prior", {"keys": [fk for fk, _, _ in items], "r": res, "blocks": blocks,
+                                               "mixture": items[0][1], "best": best[0], "gap": gaps})
 
     # -- prefetch ------------------------------------------------------------------------------------
     def prefetch(self, values: gtsam.Values, keys: list[FrameKeys], jacobians: bool,
@@ -217,6 +223,8 @@ class BatchedBodyModel:
         self._batches.clear()
         self._key_bytes.clear()
         self.frame_states = (list(keys), states)
+        self.frame_arrays = {"pose": pose, "betas": betas, "trans": trans,
+                             "world_R_body": np.stack([st.world_R_body for st in states])}
         self._root_keys = {k.root for k in keys}
         for k, st in zip(keys, states):
             self._key_bytes[k.root] = np.ascontiguousarray(st.world_R_body).tobytes()

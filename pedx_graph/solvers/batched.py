@@ -53,8 +53,9 @@ class BatchedLinearizer:
                 self.served[kind].append(keys)
             else:
                 self.rest.add(factor)
-        self._gram: dict[int, np.ndarray] = {}
+        self._gram: dict[int, tuple] = {}
         self._dense: dict[tuple, tuple] = {}
+        self._setups: dict[str, dict] = {}
 
     def _prefetch(self, values: gtsam.Values, jacobians: bool) -> None:
         self.problem.prefetch(values, jacobians)
@@ -153,24 +154,43 @@ class BatchedLinearizer:
                 self._add_factors(system, kind, keys_list)
         return system
 
-    def _direct(self, kind: str, keys_list, linearize: bool, system: ChainSystem | None = None) -> tuple:
-        """Error of the small factors of ``kind`` (and, when ``linearize``, their rows added to ``system``),
-        from their specs and the prefetched frame states, whitened as their GTSAM noise models."""
-        fkeys, states = self.body.frame_states
-        specs = self.body._specs[kind]
+    def _direct_setup(self, kind: str, keys_list) -> dict:
+        """Per kind, once: the frame index of every served factor and its specs stacked into arrays."""
+        setup = self._setups.get(kind)
+        if setup is not None:
+            return setup
+        fkeys, _ = self.body.frame_states
         index = {}
         for i, k in enumerate(fkeys):
             index[int(k.root)] = index[int(k.trans)] = index[int(k.body_pose)] = i
-        frames = [index[keys[0]] for keys in keys_list]
-        sp = [specs[keys] for keys in keys_list]
+        specs = [self.body._specs[kind][keys] for keys in keys_list]
+        setup = {"frames": np.array([index[keys[0]] for keys in keys_list], dtype=np.int64), "specs": specs,
+                 "kernels": sorted({(sp.robust, sp.robust_scale) for sp in specs}) if kind != "joint_limits"
+                 else None}
         if kind == "joint_limits":
             groups: dict[tuple, list[int]] = {}
-            for n, spec in enumerate(sp):
+            for n, spec in enumerate(specs):
                 groups.setdefault((spec.limits, spec.sigma_rad), []).append(n)
+            setup["groups"] = [(limits, sigma, np.array(members)) for (limits, sigma), members in groups.items()]
+        elif kind == "heading_prior":
+            setup["heading"] = np.stack([sp.world_heading for sp in specs])
+            setup["sigma"] = np.array([sp.sigma_rad for sp in specs])[:, None]
+        else:
+            for name in ("world_p_mean", "world_R_ray", "offsets", "sigmas"):
+                setup[name] = np.stack([getattr(sp, name) for sp in specs])
+        self._setups[kind] = setup
+        return setup
+
+    def _direct(self, kind: str, keys_list, linearize: bool, system: ChainSystem | None = None) -> tuple:
+        """Error of the small factors of ``kind`` (and, when ``linearize``, their rows added to ``system``),
+        from their specs and the prefetched frame states, whitened as their GTSAM noise models."""
+        setup = self._direct_setup(kind, keys_list)
+        frames = setup["frames"]
+        arrays = self.body.frame_arrays
+        if kind == "joint_limits":
             total = 0.0
-            for (limits, sigma), members in groups.items():
-                pose = np.stack([states[frames[n]].body_pose for n in members])
-                r, idx, active = joint_limit_batch(pose, limits)
+            for limits, sigma, members in setup["groups"]:
+                r, idx, active = joint_limit_batch(arrays["pose"][frames[members], 3:], limits)
                 total += 0.5 * float(np.sum((r / sigma) ** 2))
                 if linearize:
                     a = np.zeros((len(members), len(idx), BODY_POSE_DIM))
@@ -178,24 +198,23 @@ class BatchedLinearizer:
                     self._add_dense(system, [keys_list[n] for n in members], a, -r / sigma)
             return (total,)
         if kind == "heading_prior":
-            r, jac = heading_prior_batch(np.stack([states[f].world_R_body for f in frames]),
-                                         np.stack([spec.world_heading for spec in sp]))
+            r, jac = heading_prior_batch(arrays["world_R_body"][frames], setup["heading"])
             jac = jac[:, None, :]
             r = r[:, None]
-            sig = np.array([spec.sigma_rad for spec in sp])[:, None]
+            sig = setup["sigma"]
         else:                                                            # translation_prior
+            sp = setup["specs"][0]
             r, d_trans, d_betas = translation_prior_batch(
-                np.stack([states[f].trans for f in frames]), np.stack([states[f].betas for f in frames]),
-                sp[0].pelvis_rest, sp[0].pelvis_shapedirs, np.stack([spec.world_p_mean for spec in sp]),
-                np.stack([spec.world_R_ray for spec in sp]), np.stack([spec.offsets for spec in sp]))
+                arrays["trans"][frames], arrays["betas"][frames], sp.pelvis_rest, sp.pelvis_shapedirs,
+                setup["world_p_mean"], setup["world_R_ray"], setup["offsets"])
             jac = np.concatenate([d_trans, d_betas], axis=2)
-            sig = np.stack([spec.sigmas for spec in sp])
+            sig = setup["sigmas"]
         white = r / sig
-        kernels = {(spec.robust, spec.robust_scale) for spec in sp}
-        if len(kernels) == 1:
-            loss, weight = row_loss_and_weight(white, *kernels.pop())
+        if len(setup["kernels"]) == 1:
+            loss, weight = row_loss_and_weight(white, *setup["kernels"][0])
         else:
-            pairs = [row_loss_and_weight(white[n], spec.robust, spec.robust_scale) for n, spec in enumerate(sp)]
+            pairs = [row_loss_and_weight(white[n], spec.robust, spec.robust_scale)
+                     for n, spec in enumerate(setup["specs"])]
             loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
         if linearize:
             scale = np.sqrt(weight)
@@ -245,15 +264,20 @@ class BatchedLinearizer:
         a_t = np.swapaxes(a, 1, 2)
         self._scatter(system, group["keys"], a_t @ a, (a_t @ (-scale * white)[:, :, None])[:, :, 0])
 
+    def _gram_of(self, mixture) -> np.ndarray:
+        """``J_k^T J_k`` (K, D, D) of every component's residual Jacobian (cached per mixture)."""
+        gram = self._gram.get(id(mixture))
+        if gram is None or gram[0] is not mixture:
+            jac = np.stack([mixture.jacobian(k) for k in range(mixture.num_components)])
+            gram = self._gram[id(mixture)] = (mixture, np.swapaxes(jac, 1, 2) @ jac)
+        return gram[1]
+
     def _add_pose_prior(self, system: ChainSystem, group: dict) -> None:
         mixture = group["mixture"]
-        gram = self._gram.get(id(mixture))
-        if gram is None:
-            jac = np.stack([mixture.jacobian(k) for k in range(mixture.num_components)])
-            gram = self._gram[id(mixture)] = np.swapaxes(jac, 1, 2) @ jac
-        jac = np.stack([mixture.jacobian(k) for k in group["best"]])           # (F, D + 1, D)
-        grad = -np.einsum("fri,fr->fi", jac, group["r"])
-        self._scatter(system, group["keys"], gram[group["best"]], grad)
+        best, dim = group["best"], mixture.dim
+        # residual Jacobian of component k: [L_k^T; 0] = [mixture.lt[k]; 0]
+        grad = -np.einsum("fri,fr->fi", mixture.lt[best], group["r"][:, :dim])
+        self._scatter(system, group["keys"], self._gram_of(mixture)[group["best"]], grad)
 
     def _add_temporal_prior(self, system: ChainSystem, group: dict) -> None:
         """Temporal factors, using the structure of their Jacobian ``A = [U_i, -L, U_j, L]`` (U: the root and
@@ -268,7 +292,8 @@ class BatchedLinearizer:
         l_t = np.swapaxes(lp, 1, 2)
         utu = u_t @ u
         utl = u_t @ lp
-        ltl = l_t @ lp
+        # L = J_k[:, 6:] / gap of the selected component k: L^T L from the component's Gram matrix
+        ltl = self._gram_of(group["mixture"])[group["best"], 6:, 6:] / (group["gap"] ** 2)[:, None, None]
         ub = (u_t @ b[:, :, None])[:, :, 0]
         lb = (l_t @ b[:, :, None])[:, :, 0]
         num = len(group["keys"])
