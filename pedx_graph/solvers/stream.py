@@ -112,6 +112,8 @@ class _FrameInit:
     """Trajectory heading (rad), NaN when unknown."""
     speed_mps: float
     """Trajectory speed, m/s."""
+    heading_sigma_rad: float = 0.0
+    """Uncertainty of the trajectory heading (``TrackInit.heading_sigma_rad``), radians."""
 
 
 @dataclass
@@ -165,7 +167,8 @@ class StreamingEstimator:
         init = self._causal_init(state, window)
         previous = (state.keys[i - 1], state.frames[i - 1].timestamp) if i > 0 else None
         for factor, kind in frame_factors(k, fr, state.calibrations[fr.pair], previous, init.heading_yaw,
-                                          init.speed_mps, model, ctx, self.config, state.rng):
+                                          init.speed_mps, model, ctx, self.config, state.rng,
+                                          init.heading_sigma_rad):
             add(factor, kind)
         if i == 0:
             add(make_shape_prior_factor(k.betas, num_betas=model.num_betas, sigma=noise.shape_sigma),
@@ -186,18 +189,24 @@ class StreamingEstimator:
     def _causal_init(self, state: _ActiveTrack, window: Track) -> _FrameInit:
         """Centre, orientation, heading and speed of the newest frame from the recent frames only.
 
-        A frame with neither LiDAR points nor a stereo-labelled torso (so nothing to place it) takes its
-        centre from the previous estimates (constant velocity) when the track has any; a track's first
-        frame must be placeable (``ValueError``)."""
+        A frame with nothing to place it (neither LiDAR points nor a stereo-labelled torso, or a window the
+        initialisation cannot place) takes its centre from the previous estimates (constant velocity) when
+        the track has any; a track's first frame must be placeable (``ValueError``)."""
         newest = window.frames[-1]
         lidar = np.asarray(newest.world_lidar_points, float).reshape(-1, 3)
         placeable = len(lidar) >= 3 or bool(np.isfinite(triangulate_frame(window, newest)[_TORSO]).any())
         if placeable or state.previous is None:
-            init = initialise_track(window, surface_offset_m=self.config.noise.translation_depth_offset_m,
-                                    min_speed_mps=self.config.noise.heading_min_speed_mps,
-                                    half_window_s=self.stream_config.heading_half_window_s)
-            return _FrameInit(init.world_p_centre[-1], init.world_R_body[-1], float(init.heading_yaw[-1]),
-                              float(init.speed_mps[-1]))
+            try:
+                init = initialise_track(window, surface_offset_m=self.config.noise.translation_depth_offset_m,
+                                        min_speed_mps=self.config.noise.heading_min_speed_mps,
+                                        half_window_s=self.stream_config.heading_half_window_s)
+            except ValueError:
+                if state.previous is None:
+                    raise
+            else:
+                sigma = 0.0 if init.heading_sigma_rad is None else float(init.heading_sigma_rad[-1])
+                return _FrameInit(init.world_p_centre[-1], init.world_R_body[-1], float(init.heading_yaw[-1]),
+                                  float(init.speed_mps[-1]), sigma)
         rot, trans, _, betas = state.previous
         pelvis = self.ctx.model.rest_joints(betas)[0] + trans
         step = pelvis - state.last_pelvis if state.last_pelvis is not None else np.zeros(3)
@@ -205,10 +214,8 @@ class StreamingEstimator:
 
     def _starting_pose(self, state: _ActiveTrack, init: _FrameInit) -> np.ndarray:
         """A new track's first body pose: the candidate (pose prior means) reprojecting best onto its labels."""
-        try:
-            from pedx_graph.graph.build import select_template_poses
-        except ImportError:                       # older graph builder: the single template
-            return self.ctx.template_body_pose.copy()
+        from pedx_graph.graph.build import select_template_poses
+
         track = Track(self.sequence, state.tracking_id, state.frames[-1:], state.calibrations)
         return select_template_poses(track, self.ctx, init.world_R_body[None], init.world_p_centre[None])[0].copy()
 
