@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.common import FrameKeys, FrameState, read_frame_state
+from factors.common import FrameKeys, FrameState, read_frame_state, robustify_groups
 from factors.lidar_chamfer import chamfer_residual, nearest_vertices
 from factors.stereo_reprojection import stereo_project, stereo_select
 from factors.temporal_prior import temporal_prior_batch
@@ -125,7 +125,41 @@ class BatchedBodyModel:
             return group["r"][n], ([group["mixture"].jacobian(group["best"][n])] if jac else None)
         if kind == "temporal_prior":
             return group["r"][n], ([blk[n] for blk in group["blocks"]] if jac else None)
+        if kind == "lidar_chamfer":
+            lo, hi = group["offsets"][n], group["offsets"][n + 1]
+            r = group["s"][lo:hi].reshape(-1)
+            if not jac:
+                return r, None
+            rows = group["a"][lo:hi].reshape(3 * (hi - lo), -1)
+            bounds = np.cumsum([0, 3, 3, 69])
+            return r, [np.ascontiguousarray(rows[:, bounds[i]:bounds[i + 1]]) for i in range(3)] + \
+                [np.ascontiguousarray(rows[:, bounds[3]:])]
         raise KeyError(kind)
+
+    def _chamfer_batch(self, chamfer: list, matches: list, vjac, unique) -> None:
+        """The chamfer factors of all frames as one group: every point's whitened, per-point robustified
+        residual ``s`` (N, 3) and (with ``vjac``, the padded per-frame vertex Jacobians) its Jacobian rows
+        ``a`` (N, 3, 75 + B) — one :func:`factors.common.robustify_groups` call for all points."""
+        spec = chamfer[0][1]
+        counts = np.array([len(m[0]) for m in matches])
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        points = np.concatenate([sp.world_points for _, sp in chamfer])
+        verts = np.concatenate([m[1] for m in matches])
+        inv = 1.0 / spec.sigma_m
+        white = (verts - points) * inv
+        a = None
+        if vjac is not None:
+            frame_idx = np.repeat(np.arange(len(matches)), counts)
+            local = np.concatenate([np.searchsorted(u, m[0]) for u, m in zip(unique, matches)])
+            a = np.concatenate([vjac.d_root[frame_idx, local], vjac.d_trans[frame_idx, local],
+                                vjac.d_body_pose[frame_idx, local], vjac.d_betas[frame_idx, local]], axis=2)
+            s_flat, (a_flat,) = robustify_groups(white, spec.robust, spec.robust_scale,
+                                                 [a.reshape(-1, a.shape[2]) * inv])
+            a = a_flat.reshape(a.shape)
+        else:
+            s_flat, _ = robustify_groups(white, spec.robust, spec.robust_scale)
+        self._add_batch("lidar_chamfer", {"keys": [fk for fk, _ in chamfer], "offsets": offsets,
+                                          "s": s_flat.reshape(-1, 3), "a": a})
 
     def _add_batch(self, kind: str, group: dict) -> None:
         self._batches.setdefault(kind, []).append(group)
@@ -170,9 +204,15 @@ class BatchedBodyModel:
                 per_frame = [_FrameJacobians(vjac.points[n, :len(u)], vjac.d_root[n, :len(u)],
                                              vjac.d_body_pose[n, :len(u)], vjac.d_trans[n, :len(u)],
                                              vjac.d_betas[n, :len(u)]) for n, u in enumerate(unique)]
-            for (fk, spec), st, match, vj in zip(chamfer, fstates, matches, per_frame):
-                self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
+            for (fk, _), match in zip(chamfer, matches):
                 self.chamfer_matches[fk] = match[0]
+            kernels = {(spec.sigma_m, spec.robust, spec.robust_scale, spec.robust_per_point) for _, spec in chamfer}
+            if len(kernels) == 1 and chamfer[0][1].robust_per_point:
+                self._chamfer_batch(chamfer, matches, vjac if jacobians else None,
+                                    unique if jacobians else None)
+            else:                     # mixed noise settings: factor by factor
+                for (fk, spec), st, match, vj in zip(chamfer, fstates, matches, per_frame):
+                    self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
         prior = specs.get("pose_prior", {})
         pose_index = {k.body_pose: i for i, k in enumerate(keys)}
         for mixture in {id(m): m for m in prior.values()}.values():

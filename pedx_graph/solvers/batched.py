@@ -113,6 +113,8 @@ class BatchedLinearizer:
             groups = self._groups(kind)
             if kind == "stereo_reprojection" and groups is not None:
                 total += sum(float(self._stereo_white(g)[1].sum()) for g in groups)
+            elif kind == "lidar_chamfer" and groups is not None:
+                total += sum(0.5 * float(np.sum(g["s"] ** 2)) for g in groups)
             elif kind in ("pose_prior", "temporal_prior") and groups is not None:
                 total += sum(0.5 * float(np.sum(g["r"] ** 2)) for g in groups)
             else:
@@ -147,7 +149,7 @@ class BatchedLinearizer:
                 self._direct(kind, keys_list, True, system)
                 continue
             groups = self._groups(kind)
-            if groups is not None and kind != "lidar_chamfer":
+            if groups is not None:
                 for group in groups:
                     getattr(self, "_add_" + kind)(system, group)
             else:
@@ -254,6 +256,16 @@ class BatchedLinearizer:
             hess.append(a.T @ a)
             grad.append(a.T @ b)
         self._scatter(system, keys_list, np.stack(hess), np.stack(grad))
+
+    def _add_lidar_chamfer(self, system: ChainSystem, group: dict) -> None:
+        """Chamfer factors from the cache's all-frames group (rows already whitened and robustified)."""
+        offsets, a, s = group["offsets"], group["a"], group["s"]
+        hess, grad = [], []
+        for n in range(len(group["keys"])):
+            rows = a[offsets[n]:offsets[n + 1]].reshape(-1, a.shape[2])
+            hess.append(rows.T @ rows)
+            grad.append(-(rows.T @ s[offsets[n]:offsets[n + 1]].reshape(-1)))
+        self._scatter(system, group["keys"], np.stack(hess), np.stack(grad))
 
     def _add_stereo_reprojection(self, system: ChainSystem, group: dict) -> None:
         white, _, weight, inv = self._stereo_white(group)
