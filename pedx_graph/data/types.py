@@ -18,6 +18,7 @@ the LiDAR frame (the file's ``R``/``T`` or ``Tr``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -61,12 +62,14 @@ class StereoCalibration:
         """Stereo baseline in metres, ``-P_rect_01[0, 3] / P_rect_01[0, 0]`` (relative to the left)."""
         return float(-(self.right_P_rect[0, 3] - self.left_P_rect[0, 3]) / self.right_P_rect[0, 0])
 
-    @property
+    @cached_property
     def rect_T_world(self) -> np.ndarray:
-        """(4, 4) transform: LiDAR (world) frame -> rectified left camera frame."""
+        """(4, 4) transform: LiDAR (world) frame -> rectified left camera frame (computed once, read-only)."""
         rect_T_cam = np.eye(4)
         rect_T_cam[:3, :3] = self.rect_R_cam
-        return rect_T_cam @ np.linalg.inv(self.world_T_cam)
+        out = rect_T_cam @ np.linalg.inv(self.world_T_cam)
+        out.setflags(write=False)
+        return out
 
     def world_to_rect(self, world_p: np.ndarray) -> np.ndarray:
         """Map (..., 3) world points into the rectified left camera frame."""
