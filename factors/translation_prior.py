@@ -20,6 +20,7 @@ Jacobians: ``dr/dtrans = Q^T``, ``dr/dbetas = Q^T D``.  If the points are (horiz
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import gtsam
@@ -38,21 +39,21 @@ def sensor_ray_frame(world_p_mean: np.ndarray, world_p_sensor: np.ndarray | None
     return np.stack([u, np.cross(up, u), up], axis=1)
 
 
-_BASIS: list = [None, 0, None]       # [model, num_betas, (rest, basis)] of the last call (the model is held)
+_BASIS: list = [None, 0, None]       # [weakref to the model, num_betas, (rest, basis)] of the last call
 
 
 def pelvis_shape_basis(model: BodyModelLike, num_betas: int) -> tuple[np.ndarray, np.ndarray]:
     """Rest pelvis ``J_0(0)`` (3,) and ``D = dJ_0/dbetas`` (3, B) from ``model.rest_joints`` (linear in betas).
 
     Remembered for the last model (every frame of a track asks for the same one); read-only arrays."""
-    if _BASIS[0] is model and _BASIS[1] == num_betas:
+    if _BASIS[0] is not None and _BASIS[0]() is model and _BASIS[1] == num_betas:
         return _BASIS[2]
     rest0 = np.asarray(model.rest_joints(np.zeros(num_betas)))[0]
     basis = np.stack([np.asarray(model.rest_joints(e))[0] - rest0 for e in np.eye(num_betas)], axis=1)
     out = (as_f64(rest0), as_f64(basis))
     for arr in out:
         arr.setflags(write=False)
-    _BASIS[:] = [model, num_betas, out]
+    _BASIS[:] = [weakref.ref(model), num_betas, out]
     return out
 
 
