@@ -148,24 +148,6 @@ def set_jacobians(H: list, blocks: Sequence[np.ndarray], rows: int, dims: Sequen
         H[i] = block
 
 
-def stack_point_jacobians(lin_map: np.ndarray, jac: Any, index: np.ndarray | None = None) -> list[np.ndarray]:
-    """Chain a per-point linear map with the body-model point Jacobians and stack the rows.
-
-    ``lin_map`` (N, m, 3) maps a point's world-position perturbation to its m residual rows (e.g. the
-    projection derivative, or the identity); ``jac`` carries ``d_root, d_trans, d_body_pose, d_betas`` of
-    shape (P, 3, k), of which the points ``index`` (N,) are used (all when None).  Returns
-    ``[J_root, J_trans, J_body_pose, J_betas]``, each (N*m, k), rows ordered point by point.
-    """
-    out = []
-    for name in ("d_root", "d_trans", "d_body_pose", "d_betas"):
-        d = np.asarray(getattr(jac, name), dtype=np.float64)
-        if index is not None:
-            d = d[index]
-        block = np.matmul(lin_map, d)                    # (N, m, k)
-        out.append(as_f64(block.reshape(-1, d.shape[-1])))
-    return out
-
-
 def make_noise(sigmas: np.ndarray | float, dim: int | None = None, robust: str = "none",
                robust_scale: float = 1.0) -> gtsam.noiseModel.Base:
     """Diagonal noise model with per-row ``sigmas`` (physical units), optionally robust per row.

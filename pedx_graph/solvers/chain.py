@@ -95,8 +95,11 @@ class ChainLayout:
         self._plans[factor_keys] = plan
         return plan
 
-    def assemble(self, linear: gtsam.GaussianFactorGraph) -> ChainSystem:
+    def assemble(self, linear: gtsam.GaussianFactorGraph, replace_rows: dict | None = None) -> ChainSystem:
         """Scatter ``A^T A`` and ``A^T b`` of every (whitened) factor of ``linear`` into a :class:`ChainSystem`.
+
+        ``replace_rows``: factor index -> whitened Jacobian (same columns, any number of rows) used instead
+        of that factor's own ``A`` for the information; such a factor adds nothing to ``A^T b``.
 
         Factors with the same key pattern (e.g. every frame's stereo factor) are grouped and their
         ``A^T A`` / ``A^T b`` added into the blocks of their frames with one indexed add per block.
@@ -111,7 +114,11 @@ class ChainLayout:
             factor = linear.at(j)
             if factor is None:
                 continue
-            a_mat, b_vec = factor.jacobian()
+            if replace_rows and j in replace_rows:
+                a_mat = np.asarray(replace_rows[j], dtype=float)
+                b_vec = np.zeros(a_mat.shape[0])
+            else:
+                a_mat, b_vec = factor.jacobian()
             plan = self.segments(tuple(int(k) for k in factor.keys()))
             first = min((seg[2] for seg in plan if seg[2] >= 0), default=0)
             pattern = tuple((c, w, f - first if f >= 0 else -1, o) for c, w, f, o in plan)

@@ -177,7 +177,7 @@ def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
                       config: DiagnosticsConfig | None = None, fit_config=None) -> tuple[list[dict], dict]:
     """``(extra_per_frame, extra_track)``: residual tables and, when covariances are available (``marginals``
     given, or ``ctx`` given so they can be computed), the weakest directions of every frame."""
-    from pedx_graph.solvers.marginals import compute_marginals, problem_linearizer
+    from pedx_graph.solvers.marginals import problem_marginals
 
     config = config or DiagnosticsConfig()
     per_frame_tables, track_table = residual_tables(problem, values, config, fit_config)
@@ -187,10 +187,7 @@ def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
         f["fit_consistent"] = not f["inconsistent_terms"]
     if marginals is None and ctx is not None:
         try:
-            marginals = compute_marginals(problem.graph, values, problem.keys,
-                                          prefetch=getattr(problem, "prefetch", None),
-                                          factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model,
-                                          linearizer=problem_linearizer(problem))
+            marginals = problem_marginals(problem, values, ctx)
         except Exception as exc:  # diagnostics never fail a track
             marginals = None
             track_table = dict(track_table)
@@ -240,17 +237,14 @@ def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, dia
     from scipy.linalg import LinAlgError
 
     from pedx_graph.graph.build import extract_estimate
-    from pedx_graph.solvers.marginals import compute_marginals, marginals_to_fields, problem_linearizer
+    from pedx_graph.solvers.marginals import marginals_to_fields, problem_marginals
 
     per_frame: list[dict] = [{} for _ in problem.keys]
     track: dict = {}
     computed = None
     if marginals or diagnostics:
         try:
-            computed = compute_marginals(problem.graph, values, problem.keys, marginals_config,
-                                         prefetch=getattr(problem, "prefetch", None),
-                                         factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model,
-                                         linearizer=problem_linearizer(problem))
+            computed = problem_marginals(problem, values, ctx, marginals_config)
         except (RuntimeError, LinAlgError, ValueError) as exc:
             logging.getLogger(__name__).warning("marginals failed: %s", exc)
             track["marginals_error"] = f"{type(exc).__name__}: {exc}"

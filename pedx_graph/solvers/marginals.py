@@ -64,14 +64,13 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, LinAlgError
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM
+from pedx_graph.solvers.chain import FRAME_DIM, ChainLayout, ChainSystem, NotAChainError
 
 log = logging.getLogger(__name__)
 
-#: Dimension of one frame's variables (root, trans, body pose).
-FRAME_DIM = ROOT_DIM + TRANS_DIM + BODY_POSE_DIM          # 75
 ROOT_SLICE = slice(0, 3)
 TRANS_SLICE = slice(3, 6)
-POSE_SLICE = slice(6, 75)
+POSE_SLICE = slice(6, FRAME_DIM)
 
 
 @dataclass
@@ -98,22 +97,9 @@ class MarginalsConfig:
     """A chamfer point's decoded vertex position must lie this close (m) to a posed mesh vertex."""
 
 
-class NotAChainError(ValueError):
-    """A factor links frames that are not consecutive (the chain method does not apply)."""
-
-
-@dataclass
-class ChainInformation:
-    """Linearised information of a track in chain + arrow block form (75-d frames, one B-d shape)."""
-
-    frame: np.ndarray
-    """(T, 75, 75) information of each frame's variables."""
-    next: np.ndarray
-    """(T - 1, 75, 75) cross information between frame i and i + 1 (rows: frame i)."""
-    frame_shape: np.ndarray
-    """(T, 75, B) cross information between frame i and the shape."""
-    shape: np.ndarray
-    """(B, B) information of the shape."""
+#: The information of a track in chain + arrow block form (75-d frames, one B-d shape): the ``frame``,
+#: ``next``, ``frame_shape`` and ``shape`` blocks of a :class:`~pedx_graph.solvers.chain.ChainSystem`.
+ChainInformation = ChainSystem
 
 
 @dataclass
@@ -155,51 +141,14 @@ def _dims_of(values: gtsam.Values, key: int) -> int:
 
 def chain_information(linear: gtsam.GaussianFactorGraph, keys, num_betas: int,
                       replace_rows: dict | None = None) -> ChainInformation:
-    """Scatter the Hessians ``A^T A`` of the (whitened) linear factors into :class:`ChainInformation`.
+    """The Hessians ``A^T A`` of the (whitened) linear factors in chain form
+    (:meth:`pedx_graph.solvers.chain.ChainLayout.assemble`).
 
     ``keys`` are the track's :class:`FrameKeys` (frame order); ``replace_rows``: factor index -> whitened
     Jacobian to use instead of the factor's own (same columns).  Raises :class:`NotAChainError` when a
     factor links frames more than one apart.
     """
-    replace_rows = replace_rows or {}
-    layout, shape_key = _key_layout(keys)
-    t, d, b = len(keys), FRAME_DIM, num_betas
-    info = ChainInformation(frame=np.zeros((t, d, d)), next=np.zeros((max(t - 1, 0), d, d)),
-                            frame_shape=np.zeros((t, d, b)), shape=np.zeros((b, b)))
-    for j in range(linear.size()):
-        factor = linear.at(j)
-        if factor is None:
-            continue
-        a_mat = replace_rows[j] if j in replace_rows else factor.jacobian()[0]
-        fkeys = [int(k) for k in factor.keys()]
-        # column ranges of each key in A
-        spans, col = [], 0
-        for k in fkeys:
-            dim = b if k == shape_key else (layout[k][1].stop - layout[k][1].start)
-            spans.append((k, slice(col, col + dim)))
-            col += dim
-        hess = a_mat.T @ a_mat
-        frames = sorted({layout[k][0] for k in fkeys if k != shape_key})
-        if len(frames) == 2 and frames[1] - frames[0] != 1 or len(frames) > 2:
-            raise NotAChainError(f"factor {j} links frames {frames}")
-        for ka, sa in spans:
-            for kb, sb in spans:
-                block = hess[sa, sb]
-                if ka == shape_key and kb == shape_key:
-                    info.shape += block
-                elif ka == shape_key:
-                    continue                          # filled from the transposed pair
-                elif kb == shape_key:
-                    fa, ra = layout[ka]
-                    info.frame_shape[fa][ra, :] += block
-                else:
-                    fa, ra = layout[ka]
-                    fb, rb = layout[kb]
-                    if fa == fb:
-                        info.frame[fa][ra, rb] += block
-                    elif fb == fa + 1:
-                        info.next[fa][ra, rb] += block
-    return info
+    return ChainLayout(keys, num_betas).assemble(linear, replace_rows)
 
 
 def face_incidence(faces: np.ndarray, num_vertices: int):
@@ -459,8 +408,7 @@ def _batched_information(linearizer, values: gtsam.Values, config: MarginalsConf
     system = linearizer.system(values, skip=("lidar_chamfer",) if plane else ())
     if plane and not add_chamfer_plane_information(system, linearizer, model):
         return None
-    return ChainInformation(frame=system.frame, next=system.next, frame_shape=system.frame_shape,
-                            shape=system.shape)
+    return system
 
 
 def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys,
@@ -593,6 +541,15 @@ def problem_linearizer(problem):
         return None
 
 
+def problem_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig | None = None) -> TrackMarginals:
+    """:func:`compute_marginals` of a solved track's problem (a ``TrackProblem``) with everything it offers:
+    its prefetch, factor kinds and batched linearizer, and the body model of ``ctx``."""
+    return compute_marginals(problem.graph, values, problem.keys, config,
+                             prefetch=getattr(problem, "prefetch", None),
+                             factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model,
+                             linearizer=problem_linearizer(problem))
+
+
 def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig | None = None
                     ) -> tuple[list[dict], dict]:
     """Per-frame and per-track covariance fields of ``values`` (the solved estimate of ``problem``).
@@ -604,10 +561,7 @@ def track_marginals(problem, values: gtsam.Values, ctx, config: MarginalsConfig 
 
     config = config or MarginalsConfig()
     try:
-        marginals = compute_marginals(problem.graph, values, problem.keys, config,
-                                      prefetch=getattr(problem, "prefetch", None),
-                                      factor_kinds=getattr(problem, "factor_kinds", None), model=ctx.model,
-                                      linearizer=problem_linearizer(problem))
+        marginals = problem_marginals(problem, values, ctx, config)
     except (RuntimeError, LinAlgError, ValueError) as exc:
         log.warning("marginals failed: %s", exc)
         return ([{"covariance_status": "failed"} for _ in problem.keys],
