@@ -193,7 +193,7 @@ class BatchedBodyModel:
             fstates = [states[frame_of[fk[0]]] for fk, _ in chamfer]
             matches = [nearest_vertices(self, st, spec.world_points, spec.candidate_vertex_ids)
                        for st, (_, spec) in zip(fstates, chamfer)]
-            per_frame = [None] * len(chamfer)
+            vjac = unique = None
             if jacobians:             # the matched vertices' Jacobians of every frame in one batched pass
                 unique = [np.unique(ids) for ids, _ in matches]
                 width = max(len(u) for u in unique)
@@ -201,17 +201,16 @@ class BatchedBodyModel:
                 vjac = self.model.vertex_jacobians_per_frame(np.stack([st.full_pose for st in fstates]),
                                                              np.stack([st.betas for st in fstates]),
                                                              np.stack([st.trans for st in fstates]), padded)
-                per_frame = [_FrameJacobians(vjac.points[n, :len(u)], vjac.d_root[n, :len(u)],
-                                             vjac.d_body_pose[n, :len(u)], vjac.d_trans[n, :len(u)],
-                                             vjac.d_betas[n, :len(u)]) for n, u in enumerate(unique)]
             for (fk, _), match in zip(chamfer, matches):
                 self.chamfer_matches[fk] = match[0]
             kernels = {(spec.sigma_m, spec.robust, spec.robust_scale, spec.robust_per_point) for _, spec in chamfer}
             if len(kernels) == 1 and chamfer[0][1].robust_per_point:
-                self._chamfer_batch(chamfer, matches, vjac if jacobians else None,
-                                    unique if jacobians else None)
+                self._chamfer_batch(chamfer, matches, vjac, unique)
             else:                     # mixed noise settings: factor by factor
-                for (fk, spec), st, match, vj in zip(chamfer, fstates, matches, per_frame):
+                for n, ((fk, spec), st, match) in enumerate(zip(chamfer, fstates, matches)):
+                    vj = None if vjac is None else _FrameJacobians(
+                        *(getattr(vjac, f)[n, :len(unique[n])]
+                          for f in ("points", "d_root", "d_body_pose", "d_trans", "d_betas")))
                     self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
         prior = specs.get("pose_prior", {})
         pose_index = {k.body_pose: i for i, k in enumerate(keys)}
