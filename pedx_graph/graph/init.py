@@ -51,10 +51,14 @@ def triangulate_frame(track: Track, frame: TrackFrame) -> np.ndarray:
     not positive.  Rectified geometry: ``Z = f * b / (u_l - u_r)``, ``X = (u_l - c_x) Z / f``,
     ``Y = (v_l - c_y) Z / f`` in the rectified left frame.
     """
+    return _triangulate(track.calibrations[frame.pair], frame)
+
+
+def _triangulate(calib, frame: TrackFrame) -> np.ndarray:
+    """:func:`triangulate_frame` with the frame's calibration."""
     out = np.full((len(PEDX_KEYPOINTS), 3), np.nan)
     if frame.left is None or frame.right is None:
         return out
-    calib = track.calibrations[frame.pair]
     f = calib.focal_px
     cx, cy = calib.left_P_rect[0, 2], calib.left_P_rect[1, 2]
     uv_l, uv_r = frame.left.keypoints, frame.right.keypoints
@@ -90,14 +94,11 @@ class TrackInit:
     (LiDAR or stereo depth), radians (inf where unknown); None: not estimated."""
 
 
-def _lidar_centroids(track: Track) -> np.ndarray:
-    out = np.full((len(track.frames), 3), np.nan)
-    for i, fr in enumerate(track.frames):
-        pts = np.asarray(fr.world_lidar_points, dtype=float).reshape(-1, 3)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        if len(pts) >= 3:
-            out[i] = np.median(pts, axis=0)
-    return out
+def _lidar_centroid(frame: TrackFrame) -> np.ndarray:
+    """Median of the frame's finite instance LiDAR points (3,), NaN when it has fewer than 3."""
+    pts = np.asarray(frame.world_lidar_points, dtype=float).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    return np.median(pts, axis=0) if len(pts) >= 3 else np.full(3, np.nan)
 
 
 def _smoothed_velocity(times: np.ndarray, points: np.ndarray, half_window_s: float) -> np.ndarray:
@@ -134,9 +135,8 @@ def _centre_pixel(frame: TrackFrame) -> tuple[np.ndarray, str] | None:
     return None
 
 
-def _back_project(track: Track, frame: TrackFrame, uv: np.ndarray, side: str, depth: float) -> np.ndarray:
+def _back_project(calib, uv: np.ndarray, side: str, depth: float) -> np.ndarray:
     """World point at rectified depth ``depth`` on the ray of pixel ``uv`` of the left/right image."""
-    calib = track.calibrations[frame.pair]
     f = calib.focal_px
     cx, cy = calib.left_P_rect[0, 2], calib.left_P_rect[1, 2]
     shift = calib.baseline_m if side == "right" else 0.0     # right camera centre at +b along rect x
@@ -181,6 +181,58 @@ def _local_linear(times: np.ndarray, obs: np.ndarray, sigma: np.ndarray, half_wi
     return out, slope_sigma
 
 
+@dataclass
+class FrameMeasurements:
+    """What the initialisation measures in one frame on its own (:func:`measure_frame`); the streaming
+    estimator keeps them per frame instead of re-measuring its window of recent frames every frame."""
+
+    time: float
+    """Seconds."""
+    calibration: object
+    """The frame's :class:`~pedx_graph.data.types.StereoCalibration`."""
+    lidar_centroid: np.ndarray
+    """(3,) median of the instance LiDAR points, NaN when the frame has fewer than 3."""
+    lidar_depth: float
+    """Rectified depth of ``lidar_centroid`` plus the surface offset, metres; NaN without points."""
+    stereo_depth: float
+    """Median rectified depth of the joints triangulated from both images, metres; NaN when none."""
+    stereo_sigma: float
+    """Standard deviation of ``stereo_depth`` (disparity noise), metres; NaN when none."""
+    centre_pixel: tuple | None
+    """``(uv, "left"|"right")`` of the body centre in the image (:func:`_centre_pixel`), or None."""
+    torso_yaw: float
+    """Facing (radians) from the triangulated shoulders / hips (forward = left x up); NaN when unknown."""
+    placeable: bool
+    """The frame can place the pedestrian on its own (>= 3 LiDAR points or a triangulated torso joint)."""
+
+
+def measure_frame(calib, frame: TrackFrame, surface_offset_m: float = 0.10, stereo_px: float = 3.0
+                  ) -> FrameMeasurements:
+    """The per-frame measurements of :func:`initialise_track` (see its docstring for the parameters)."""
+    centroid = _lidar_centroid(frame)
+    lidar_depth = float(calib.world_to_rect(centroid)[2] + surface_offset_m) if np.all(np.isfinite(centroid)) \
+        else float("nan")
+    tri = _triangulate(calib, frame)
+    ok = np.all(np.isfinite(tri), axis=1)
+    if frame.left is not None and frame.right is not None:
+        ok &= frame.left.visible & frame.right.visible
+    stereo_depth = stereo_sigma = float("nan")
+    if ok.any():
+        z = float(np.median(calib.world_to_rect(tri[ok])[:, 2]))
+        stereo_depth = z
+        stereo_sigma = max(0.2, z * z / (calib.focal_px * calib.baseline_m) * stereo_px / np.sqrt(ok.sum()))
+    with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN rows: no torso this frame
+            left = np.nanmean(tri[list(_TORSO_LEFT)], axis=0) - np.nanmean(tri[list(_TORSO_RIGHT)], axis=0)
+    torso_yaw = float(np.arctan2(-left[0], left[1]))       # forward = (l_y, -l_x) for left = (l_x, l_y)
+    torso = tri[list(_TORSO_LEFT + _TORSO_RIGHT)]
+    placeable = bool(np.all(np.isfinite(centroid)) or np.isfinite(torso).any())
+    return FrameMeasurements(time=float(frame.timestamp), calibration=calib, lidar_centroid=centroid,
+                             lidar_depth=lidar_depth, stereo_depth=stereo_depth, stereo_sigma=stereo_sigma,
+                             centre_pixel=_centre_pixel(frame), torso_yaw=torso_yaw, placeable=placeable)
+
+
 def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
                      min_speed_mps: float = 0.3, lidar_sigma_m: float = 0.15, stereo_px: float = 3.0,
                      depth_window_s: float = 1.0) -> TrackInit:
@@ -194,50 +246,46 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
     pixels of independent click noise are metres at 30 m), so LiDAR dominates where it exists, but frames
     without points follow the stereo trend instead of a flat extrapolation (which, through the heading
     taken from the same trajectory, used to lock walking-towards-the-camera tracks at a wrong depth).
+
+    The per-frame part is :func:`measure_frame`, the rest :func:`initialise_from_measurements`.
     """
-    n = len(track.frames)
-    times = np.array([fr.timestamp for fr in track.frames], dtype=float)
-    centroids = _lidar_centroids(track)
-    tri = np.stack([triangulate_frame(track, fr) for fr in track.frames]) if n else np.zeros((0, 18, 3))
+    measurements = [measure_frame(track.calibrations[fr.pair], fr, surface_offset_m, stereo_px)
+                    for fr in track.frames]
+    return initialise_from_measurements(measurements, f"{track.sequence}/{track.tracking_id}",
+                                        half_window_s=half_window_s, min_speed_mps=min_speed_mps,
+                                        lidar_sigma_m=lidar_sigma_m, depth_window_s=depth_window_s)
+
+
+def initialise_from_measurements(measurements: list[FrameMeasurements], name: str = "", *,
+                                 half_window_s: float = 0.35, min_speed_mps: float = 0.3,
+                                 lidar_sigma_m: float = 0.15, depth_window_s: float = 1.0) -> TrackInit:
+    """:func:`initialise_track` from the frames' :class:`FrameMeasurements` (``name``: for the errors)."""
+    n = len(measurements)
+    times = np.array([m.time for m in measurements], dtype=float)
+    centroids = np.array([m.lidar_centroid for m in measurements], dtype=float).reshape(n, 3)
 
     # Per-frame depth measurements with their standard deviations: LiDAR (running median against stray
     # clusters) where the frame has points, else the median stereo depth of the joints visible in both
     # images (sigma from the disparity noise: Z^2 / (f b) * sigma_px / sqrt(n)).
-    lidar_depth = np.full(n, np.nan)
-    for i, fr in enumerate(track.frames):
-        if np.all(np.isfinite(centroids[i])):
-            lidar_depth[i] = track.calibrations[fr.pair].world_to_rect(centroids[i])[2] + surface_offset_m
-    lidar_depth = _median_filter_nan(lidar_depth, half_window=2)
-    stereo_depth = np.full(n, np.nan)
-    stereo_sigma = np.full(n, np.nan)
-    for i, fr in enumerate(track.frames):
-        ok = np.all(np.isfinite(tri[i]), axis=1)
-        if fr.left is not None and fr.right is not None:
-            ok &= fr.left.visible & fr.right.visible
-        if ok.any():
-            calib = track.calibrations[fr.pair]
-            z = float(np.median(calib.world_to_rect(tri[i, ok])[:, 2]))
-            stereo_depth[i] = z
-            stereo_sigma[i] = max(0.2, z * z / (calib.focal_px * calib.baseline_m) * stereo_px
-                                  / np.sqrt(ok.sum()))
+    lidar_depth = _median_filter_nan(np.array([m.lidar_depth for m in measurements], dtype=float), half_window=2)
+    stereo_depth = np.array([m.stereo_depth for m in measurements], dtype=float)
+    stereo_sigma = np.array([m.stereo_sigma for m in measurements], dtype=float)
     depth_obs = np.where(np.isfinite(lidar_depth), lidar_depth, stereo_depth)
     depth_sigma = np.where(np.isfinite(lidar_depth), lidar_sigma_m, stereo_sigma)
     good = np.isfinite(depth_obs)
     if not good.any():
-        raise ValueError(f"track {track.sequence}/{track.tracking_id}: no LiDAR points and no stereo "
-                         "keypoints to place the pedestrian")
+        raise ValueError(f"track {name}: no LiDAR points and no stereo keypoints to place the pedestrian")
     depth, depth_rate_sigma = _local_linear(times, depth_obs, depth_sigma, depth_window_s)
 
     centre = np.full((n, 3), np.nan)
-    for i, fr in enumerate(track.frames):
-        pix = _centre_pixel(fr)
-        if pix is not None:
-            centre[i] = _back_project(track, fr, pix[0], pix[1], depth[i])
+    for i, m in enumerate(measurements):
+        if m.centre_pixel is not None:
+            centre[i] = _back_project(m.calibration, m.centre_pixel[0], m.centre_pixel[1], depth[i])
         elif np.all(np.isfinite(centroids[i])):
             centre[i] = centroids[i]
     missing = ~np.all(np.isfinite(centre), axis=1)
     if missing.all():
-        raise ValueError(f"track {track.sequence}/{track.tracking_id}: nothing places the pedestrian")
+        raise ValueError(f"track {name}: nothing places the pedestrian")
     if missing.any():          # interpolate over frames with neither labels nor points
         known = np.flatnonzero(~missing)
         for axis in range(3):
@@ -250,22 +298,18 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
     # along the horizontal viewing ray (the image pins the lateral position); its component across the
     # direction of motion turns the heading by ~ sigma_across / speed.
     heading_sigma = np.full(n, np.inf)
-    for i, fr in enumerate(track.frames):
+    for i, m in enumerate(measurements):
         if not (np.isfinite(heading[i]) and speed[i] > 0):
             continue
-        rect_T_world = track.calibrations[fr.pair].rect_T_world
+        rect_T_world = m.calibration.rect_T_world
         camera = -rect_T_world[:3, :3].T @ rect_T_world[:3, 3]
         ray = centre[i, :2] - camera[:2]
         ray = ray / max(float(np.hypot(*ray)), 1e-9)
         sin_across = abs(ray[0] * np.sin(heading[i]) - ray[1] * np.cos(heading[i]))
         heading_sigma[i] = float(np.arctan2(depth_rate_sigma[i] * sin_across, speed[i]))
 
-    # Torso direction (body left = +X) from the triangulated shoulders/hips: forward = left x up.
-    with np.errstate(invalid="ignore"):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN rows: no torso this frame
-            left = np.nanmean(tri[:, list(_TORSO_LEFT)], axis=1) - np.nanmean(tri[:, list(_TORSO_RIGHT)], axis=1)
-    torso_yaw = np.arctan2(-left[:, 0], left[:, 1])        # forward = (l_y, -l_x) for left = (l_x, l_y)
+    # Torso direction (body left = +X) from the triangulated shoulders/hips (measure_frame).
+    torso_yaw = np.array([m.torso_yaw for m in measurements], dtype=float)
     yaw = np.where(speed >= min_speed_mps, heading, np.nan)
     use_torso = ~np.isfinite(yaw) & np.isfinite(torso_yaw)
     yaw[use_torso] = torso_yaw[use_torso]

@@ -36,13 +36,10 @@ from factors.shape_prior import make_shape_prior_factor
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.graph.init import initialise_track, triangulate_frame
-from pedx_graph.keypoints import PEDX_KEYPOINTS
+from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements, measure_frame
 from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig
 
 log = logging.getLogger(__name__)
-
-_TORSO = [PEDX_KEYPOINTS.index(name) for name in ("lsho", "rsho", "lhip", "rhip")]
 
 
 @dataclass
@@ -124,6 +121,8 @@ class _ActiveTrack:
     smoother: IncrementalTrack
     rng: np.random.Generator
     frames: list[TrackFrame] = field(default_factory=list)
+    measurements: list[FrameMeasurements] = field(default_factory=list)
+    """Each frame's initialisation measurements (:func:`~pedx_graph.graph.init.measure_frame`), taken once."""
     keys: list[FrameKeys] = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)
     factor_frames: list[int] = field(default_factory=list)
@@ -153,7 +152,7 @@ class StreamingEstimator:
         self._pelvis_rest0 = ctx.model.rest_joints(np.zeros(ctx.model.num_betas))[0]
 
     # --- factors of one new frame (pedx_graph.graph.build.frame_factors, as the batch graph) -------------
-    def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: Track):
+    def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: list[FrameMeasurements]):
         noise, ctx, model = self.config.noise, self.ctx, self.ctx.model
         k = state.keys[i]
         graph = gtsam.NonlinearFactorGraph()
@@ -186,20 +185,18 @@ class StreamingEstimator:
                 out.add(graph.at(j))
         return out
 
-    def _causal_init(self, state: _ActiveTrack, window: Track) -> _FrameInit:
-        """Centre, orientation, heading and speed of the newest frame from the recent frames only.
+    def _causal_init(self, state: _ActiveTrack, window: list[FrameMeasurements]) -> _FrameInit:
+        """Centre, orientation, heading and speed of the newest frame from the recent frames only (the batch
+        fit's initialisation on their cached measurements, ``window``).
 
         A frame with nothing to place it (neither LiDAR points nor a stereo-labelled torso, or a window the
         initialisation cannot place) takes its centre from the previous estimates (constant velocity) when
         the track has any; a track's first frame must be placeable (``ValueError``)."""
-        newest = window.frames[-1]
-        lidar = np.asarray(newest.world_lidar_points, float).reshape(-1, 3)
-        placeable = len(lidar) >= 3 or bool(np.isfinite(triangulate_frame(window, newest)[_TORSO]).any())
-        if placeable or state.previous is None:
+        if window[-1].placeable or state.previous is None:
             try:
-                init = initialise_track(window, surface_offset_m=self.config.noise.translation_depth_offset_m,
-                                        min_speed_mps=self.config.noise.heading_min_speed_mps,
-                                        half_window_s=self.stream_config.heading_half_window_s)
+                init = initialise_from_measurements(window, f"{state.sequence}/{state.tracking_id}",
+                                                    min_speed_mps=self.config.noise.heading_min_speed_mps,
+                                                    half_window_s=self.stream_config.heading_half_window_s)
             except ValueError:
                 if state.previous is None:
                     raise
@@ -294,15 +291,18 @@ class StreamingEstimator:
         n_kinds = len(state.kinds)
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            window = [f for f in state.frames[-16:]
-                      if fr.timestamp - f.timestamp <= self.stream_config.heading_half_window_s + 1e-9]
-            graph, init = self._frame_factors(state, i, fr, Track(self.sequence, tid, window, state.calibrations))
+            state.measurements.append(measure_frame(state.calibrations[fr.pair], fr,
+                                                    self.config.noise.translation_depth_offset_m))
+            window = [m for m in state.measurements[-16:]
+                      if fr.timestamp - m.time <= self.stream_config.heading_half_window_s + 1e-9]
+            graph, init = self._frame_factors(state, i, fr, window)
             values = self._initial_values(state, i, init)
             if i == 0 and not np.isfinite(init.heading_yaw):
                 values = self._best_facing(graph, values, state.keys[0])
             state.smoother.add_frame(state.keys[i], graph, values,
                                      self._presolve_factors(graph, state.kinds[n_kinds:]))
         except Exception:
+            del state.measurements[i:]
             state.frames.pop()
             state.keys.pop()
             del state.kinds[n_kinds:], state.factor_frames[n_kinds:]
