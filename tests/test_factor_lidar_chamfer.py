@@ -4,7 +4,10 @@ import numpy as np
 import pytest
 
 from factors.common import FrameKeys, FrameState
-from factors.lidar_chamfer import lidar_chamfer_error, make_lidar_chamfer_factor, nearest_vertices
+from scipy.spatial import cKDTree
+
+from factors.lidar_chamfer import (DIRECT_SEARCH_MAX_POINTS, lidar_chamfer_error, make_lidar_chamfer_factor,
+                                   nearest_indices, nearest_vertices)
 from factors.testing import (ToyBodyModel, assert_factor_jacobians, frame_values, standing_rotation,
                              synthetic_body_model)
 
@@ -45,6 +48,15 @@ def test_correspondences_follow_the_estimate():
     r, _ = lidar_chamfer_error(model, moved, pts)
     dist = np.linalg.norm(r.reshape(-1, 3), axis=1)
     assert np.all(dist < 5.0 + 1e-9) and np.all(dist > 3.0)
+
+
+@pytest.mark.parametrize("num_points", [1, DIRECT_SEARCH_MAX_POINTS, DIRECT_SEARCH_MAX_POINTS + 1, 300])
+def test_nearest_indices_equal_the_tree(num_points):
+    """Both search paths (direct distances for few points, k-d tree for many) give the tree's nearest vertex."""
+    rng = np.random.default_rng(num_points)
+    verts = rng.normal(size=(700, 3)) * [0.2, 0.15, 0.8] + [6.0, -2.0, 0.9]
+    pts = verts[rng.choice(len(verts), num_points)] + rng.normal(scale=0.05, size=(num_points, 3))
+    np.testing.assert_array_equal(nearest_indices(verts, pts), cKDTree(verts).query(pts)[1])
 
 
 def test_candidates_and_outliers():
