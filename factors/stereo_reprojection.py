@@ -132,11 +132,10 @@ def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
     return model.forward(state.full_pose, state.betas, state.trans).keypoints
 
 
-def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
-                   ) -> tuple[np.ndarray, list[np.ndarray] | None]:
-    """Pixels of all 18 keypoints of T frames in both images, ``uv`` (T, 2, 18, 2), and (when ``jac``, the
-    keypoints' ``PointJacobians`` with leading dimension T, is given) ``[d uv / d root, trans, body_pose,
-    betas]``, each (T, 2, 18, 2, k) — every frame with its own setup's projections, in batched products."""
+def stereo_pixels(points: np.ndarray, setups: Sequence[StereoSetup], derivatives: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Pixels of all 18 keypoints of T frames (T, 18, 3) in both images, ``uv`` (T, 2, 18, 2), every frame
+    with its own setup's projections, and (when ``derivatives``) ``d uv / d point`` (T, 2, 18, 2, 3)."""
     points = as_f64(points)
     proj_m = np.stack([[img.proj_m for img in su.images] for su in setups])          # (T, 2, 3, 3)
     proj_c = np.stack([[img.proj_c for img in su.images] for su in setups])          # (T, 2, 3)
@@ -146,13 +145,28 @@ def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
     clamped = depth < min_depth
     w = np.where(clamped, min_depth, depth)
     uv = hom[..., :2] / w[..., None]                                                 # (T, 2, 18, 2)
-    if jac is None:
+    if not derivatives:
         return uv, None
     keep = np.where(clamped, 0.0, 1.0)[..., None, None]
     d_uv = (proj_m[:, :, None, :2, :] - keep * uv[..., :, None] * proj_m[:, :, None, 2:3, :]) \
         / w[..., None, None]                                                         # (T, 2, 18, 2, 3)
-    return uv, [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]
-                for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
+    return uv, d_uv
+
+
+def stereo_blocks(d_uv: np.ndarray, jac) -> list[np.ndarray]:
+    """``[d uv / d root, trans, body_pose, betas]``, each (T, 2, 18, 2, k), from :func:`stereo_pixels`'
+    ``d_uv`` and the keypoints' ``PointJacobians`` with leading dimension T."""
+    return [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]
+            for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
+
+
+def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
+                   ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Pixels of all 18 keypoints of T frames in both images, ``uv`` (T, 2, 18, 2), and (when ``jac``, the
+    keypoints' ``PointJacobians`` with leading dimension T, is given) ``[d uv / d root, trans, body_pose,
+    betas]``, each (T, 2, 18, 2, k) — every frame with its own setup's projections, in batched products."""
+    uv, d_uv = stereo_pixels(points, setups, jac is not None)
+    return uv, None if jac is None else stereo_blocks(d_uv, jac)
 
 
 def stereo_select(uv: np.ndarray, full: list[np.ndarray] | None, setup: StereoSetup, frame: int

@@ -13,7 +13,7 @@ depend on the cache — only speed does.
 
 It is also the factors' *term cache* (``term_cache``): the factors of a track register what they measure
 when they are built (:meth:`register`).  :meth:`prefetch` evaluates the stereo, chamfer, pose-prior and
-temporal terms for all frames in batched calls (``stereo_project``, the chamfer's matched-vertex
+temporal terms for all frames in batched calls (``stereo_pixels``, the chamfer's matched-vertex
 Jacobians of every frame in one pass after its per-frame k-d trees, ``MaxMixture.residual_batch``,
 ``temporal_prior_batch``) and keeps the batched arrays (:meth:`batch`, used by
 :class:`pedx_graph.solvers.batched.BatchedLinearizer`).  A factor's callback takes its residual and
@@ -31,7 +31,7 @@ import numpy as np
 
 from factors.common import FrameKeys, FrameState, read_frame_state, robustify_groups
 from factors.lidar_chamfer import chamfer_residual, nearest_vertices
-from factors.stereo_reprojection import stereo_project, stereo_select
+from factors.stereo_reprojection import stereo_blocks, stereo_pixels, stereo_select
 from factors.temporal_prior import temporal_prior_batch
 from pedx_graph.body import BodyModel
 
@@ -120,7 +120,9 @@ class BatchedBodyModel:
         """Factor ``n`` of a batched group as the ``(residual, blocks)`` its callback returns."""
         jac = self._terms_have_jacobians
         if kind == "stereo_reprojection":
-            return stereo_select(group["uv"], group["full"], group["setups"][n], n)
+            if jac and "full" not in group:
+                group["full"] = stereo_blocks(group["d_uv"], group["jac"])
+            return stereo_select(group["uv"], group.get("full"), group["setups"][n], n)
         if kind == "pose_prior":
             return group["r"][n], ([group["mixture"].jacobian(group["best"][n])] if jac else None)
         if kind == "temporal_prior":
@@ -186,8 +188,9 @@ class BatchedBodyModel:
                                                            jac.d_trans[idx], jac.d_betas[idx])
             points = keypoints[idx] if jac is None else sub.points
             setups = [stereo[fk].setup for fk in fkeys]
-            uv, full = stereo_project(points, setups, sub)
-            self._add_batch("stereo_reprojection", {"keys": fkeys, "uv": uv, "full": full, "setups": setups})
+            uv, d_uv = stereo_pixels(points, setups, jacobians)
+            self._add_batch("stereo_reprojection", {"keys": fkeys, "uv": uv, "d_uv": d_uv, "jac": sub,
+                                                    "setups": setups})
         chamfer = [(fk, spec) for fk, spec in specs.get("lidar_chamfer", {}).items() if fk[0] in frame_of]
         if chamfer:
             fstates = [states[frame_of[fk[0]]] for fk, _ in chamfer]
@@ -243,16 +246,17 @@ class BatchedBodyModel:
         """Evaluate every frame of ``keys`` at ``values`` in one batch (keypoints, with Jacobians when
         ``jacobians``; the subset vertices when ``vertices`` and a subset is set; the registered terms of
         ``kinds``, all when None); forget older entries."""
-        states = [read_frame_state(values, k.as_list()) for k in keys]
-        if not states:
+        if not keys:
             return
+        signature = (tuple(k.root for k in keys), vertices, kinds)
+        if signature == self._last_signature and (self._last_jacobians or not jacobians) \
+                and self._holds(values, keys):
+            return                     # already evaluated at these values (with at least these derivatives)
+        states = [read_frame_state(values, k.as_list()) for k in keys]
         pose = np.stack([s.full_pose for s in states])
         betas = np.stack([s.betas for s in states])
         trans = np.stack([s.trans for s in states])
         tags = [_tag(s.full_pose, s.betas, s.trans) for s in states]
-        signature = (tuple(k.root for k in keys), tuple(tags), vertices, kinds)
-        if signature == self._last_signature and (self._last_jacobians or not jacobians):
-            return                     # already evaluated at these values (with at least these derivatives)
         self._last_signature, self._last_jacobians = signature, jacobians
         self._keypoint_jacobians.clear()
         self._keypoints.clear()
@@ -286,6 +290,21 @@ class BatchedBodyModel:
                 self._subset_vertices[tag] = verts[i]
         if self._specs:
             self._evaluate_terms(keys, states, jac, kps, kinds)
+
+    def _holds(self, values: gtsam.Values, keys: list[FrameKeys]) -> bool:
+        """Whether ``values`` has exactly the prefetched value of every variable of ``keys`` (raw bytes of
+        each rotation matrix and vector: cheaper than reading the frame states)."""
+        cached = self._key_bytes
+        shape_key = keys[0].betas
+        if values.atVector(shape_key).tobytes() != cached.get(shape_key):
+            return False
+        for k in keys:
+            if (values.atVector(k.body_pose).tobytes() != cached.get(k.body_pose)
+                    or values.atVector(k.trans).tobytes() != cached.get(k.trans)
+                    or values.atRot3(k.root).matrix().tobytes() != cached.get(k.root)
+                    or k.betas != shape_key and values.atVector(k.betas).tobytes() != cached.get(k.betas)):
+                return False
+        return True
 
     # -- the BodyModel interface used by the factors -----------------------------------------------------
     def point_jacobians(self, pose, betas, trans=None, vertex_ids=None):

@@ -260,21 +260,36 @@ class BatchedLinearizer:
     def _add_lidar_chamfer(self, system: ChainSystem, group: dict) -> None:
         """Chamfer factors from the cache's all-frames group (rows already whitened and robustified)."""
         offsets, a, s = group["offsets"], group["a"], group["s"]
-        hess, grad = [], []
-        for n in range(len(group["keys"])):
-            rows = a[offsets[n]:offsets[n + 1]].reshape(-1, a.shape[2])
-            hess.append(rows.T @ rows)
-            grad.append(-(rows.T @ s[offsets[n]:offsets[n + 1]].reshape(-1)))
-        self._scatter(system, group["keys"], np.stack(hess), np.stack(grad))
+        counts = np.diff(offsets)
+        num, width = len(counts), int(counts.max())
+        # every factor's points padded with zero rows to the largest count: one batched product for all
+        frame = np.repeat(np.arange(num), counts)
+        slot = np.arange(len(a)) - offsets[frame]
+        rows = np.zeros((num, width, 3, a.shape[2]))
+        rhs = np.zeros((num, width, 3))
+        rows[frame, slot] = a
+        rhs[frame, slot] = s
+        rows = rows.reshape(num, 3 * width, a.shape[2])
+        rows_t = np.swapaxes(rows, 1, 2)
+        self._scatter(system, group["keys"], rows_t @ rows, -(rows_t @ rhs.reshape(num, 3 * width, 1))[:, :, 0])
 
     def _add_stereo_reprojection(self, system: ChainSystem, group: dict) -> None:
+        """Stereo factors through their keypoints: the rows of keypoint k in both images are ``D_k J_k`` (D_k:
+        the whitened, IRLS-weighted pixel derivatives (4, 3), J_k: the keypoint's Jacobian (3, 75 + B)), so
+        ``A^T A = sum_k J_k^T (D_k^T D_k) J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` (54 keypoint rows per
+        frame instead of 72 pixel rows)."""
         white, _, weight, inv = self._stereo_white(group)
         num = len(group["keys"])
-        scale = np.sqrt(weight)
-        a = np.concatenate([blk.reshape(num, white.shape[1], -1) for blk in group["full"]], axis=2)
-        a = a * (scale * inv)[:, :, None]                  # unused rows have inverse sigma 0
-        a_t = np.swapaxes(a, 1, 2)
-        self._scatter(system, group["keys"], a_t @ a, (a_t @ (-scale * white)[:, :, None])[:, :, 0])
+        d_uv, jac = group["d_uv"], group["jac"]
+        row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                 # (G, 2, 18, 2); unused rows: 0
+        info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)        # D_k^T D_k, (G, 18, 3, 3)
+        pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)   # (G, 18, 3)
+        jk = np.concatenate([jac.d_root, np.broadcast_to(jac.d_trans, jac.d_root.shape), jac.d_body_pose,
+                             jac.d_betas], axis=3)                           # (G, 18, 3, 75 + B)
+        rows = jk.reshape(num, -1, jk.shape[3])
+        rows_t = np.swapaxes(rows, 1, 2)
+        self._scatter(system, group["keys"], rows_t @ (info @ jk).reshape(rows.shape),
+                      (rows_t @ pull.reshape(num, -1, 1))[:, :, 0])
 
     def _gram_of(self, mixture) -> np.ndarray:
         """``J_k^T J_k`` (K, D, D) of every component's residual Jacobian (cached per mixture)."""
