@@ -98,6 +98,13 @@ class SolverConfig:
     """Iterations of the first stage (without the LiDAR chamfer term), a warm start for the full graph."""
     coarse_relative_error_tol: float = 1e-2
     """Relative-decrease tolerance of the first stage."""
+    coarse_reprojection_loss: str = "none"
+    """Robust loss of the stereo reprojection term in the first stage (a step of graduated non-convexity;
+    ``noise.reprojection_loss`` in the second).  ``none`` (Gaussian): every 2D label pulls while the body is
+    still far from it; with a saturating loss from the start, labels more than a few sigma from the
+    template pose (e.g. a swinging arm) are treated as outliers and the fit stays in that local minimum
+    (measured: benchmarks/results/bench_calibration.md, docs/estimator.md).  The same name as
+    ``noise.reprojection_loss``: one graph for both stages."""
 
 
 @dataclass

@@ -210,7 +210,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     """Fit one track with ADMM (same graph, staging and outputs as :func:`pedx_graph.solvers.fit.fit_track`;
     ``iterations`` counts the ADMM iterations of both stages)."""
     from pedx_graph.graph.build import build_track_graph, extract_estimate
-    from pedx_graph.solvers.fit import TrackResult, _context
+    from pedx_graph.solvers.fit import TrackResult, _context, coarse_stage_config
 
     config = config or FitConfig()
     ctx = context or _context(config)
@@ -219,7 +219,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     initial = None
     if config.terms.lidar_chamfer:
         # staged as the batch fit: first without the chamfer term, then every term from that estimate
-        coarse_cfg = dataclasses.replace(config, terms=dataclasses.replace(config.terms, lidar_chamfer=False))
+        coarse_cfg = coarse_stage_config(config)
         coarse = build_track_graph(track, ctx, coarse_cfg)
         initial, coarse_report = admm_solve(coarse, coarse_cfg, admm, track=track, ctx=ctx)
         stage_iterations = coarse_report.iterations

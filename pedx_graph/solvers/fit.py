@@ -116,10 +116,21 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
                        extra_per_frame=per_frame, extra_track=per_track)
 
 
+def coarse_stage_config(config: FitConfig) -> FitConfig:
+    """The first stage's config: no LiDAR chamfer term, the stereo reprojection with
+    ``solver.coarse_reprojection_loss``."""
+    import dataclasses
+
+    return dataclasses.replace(
+        config, terms=dataclasses.replace(config.terms, lidar_chamfer=False),
+        noise=dataclasses.replace(config.noise, reprojection_loss=config.solver.coarse_reprojection_loss))
+
+
 def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     """Solve in two stages, as the paper's staged fitting: first without the LiDAR chamfer term (its
-    nearest-vertex correspondences only pull the right way once the body is roughly in place), then with
-    every term from that estimate.  Returns (problem, values, report) of the final stage; the report's
+    nearest-vertex correspondences only pull the right way once the body is roughly in place) and with the
+    stereo reprojection's ``solver.coarse_reprojection_loss`` (graduated non-convexity), then with every
+    term from that estimate.  Returns (problem, values, report) of the final stage; the report's
     iterations and seconds cover both stages, its initial error is the full graph's at the first stage's
     estimate."""
     import dataclasses
@@ -131,13 +142,21 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
         problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
         values, report = solve(problem.graph, problem.initial, config.solver, *_solver_parts(problem, config))
         return problem, values, report
-    problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
-    coarse = problem.without({"lidar_chamfer"})          # the same factors, the chamfer left out
+    coarse_config = coarse_stage_config(config)
     coarse_solver = dataclasses.replace(config.solver, max_iterations=config.solver.coarse_max_iterations,
                                         relative_error_tol=config.solver.coarse_relative_error_tol)
+    one_graph = coarse_config.noise.reprojection_loss == config.noise.reprojection_loss
+    if one_graph:
+        problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
+        coarse = problem.without({"lidar_chamfer"})          # the same factors, the chamfer left out
+    else:
+        coarse = build_track_graph(track, ctx, coarse_config, yaw_override=yaw_override)
     coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver,
                                          *_solver_parts(coarse, config))
-    problem.initial = coarse_values
+    if one_graph:
+        problem.initial = coarse_values
+    else:
+        problem = build_track_graph(track, ctx, config, initial=coarse_values)
     values, report = solve(problem.graph, problem.initial, config.solver, *_solver_parts(problem, config))
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
