@@ -259,9 +259,11 @@ class MaxMixture:
 
         The Jacobian of row n is ``self.jacobian(best[n])`` (:meth:`jacobian`).
         """
-        diff = np.asarray(x, dtype=np.float64)[:, None, :, None] - self.means[None, :, :, None]   # (N, K, D, 1)
-        white = np.matmul(self.lt[None], diff)[..., 0]                                          # (N, K, D)
-        cost = 0.5 * (white * white).sum(axis=2) + self.c[None]
+        x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
+        white = np.empty((len(x), self.num_components, self.dim))                               # (N, K, D)
+        for k in range(self.num_components):        # one (N, D) x (D, D) product per component
+            np.matmul(x - self.means[k], self.lt[k].T, out=white[:, k])
+        cost = 0.5 * np.einsum("nkd,nkd->nk", white, white) + self.c[None]
         best = np.argmin(cost, axis=1)
         rows = np.arange(len(best))
         return np.concatenate([white[rows, best], self.extra[best][:, None]], axis=1), best
@@ -269,6 +271,10 @@ class MaxMixture:
     def jacobian(self, component: int) -> np.ndarray:
         """The residual's Jacobian (D+1, D) when ``component`` is selected (read-only, shared)."""
         return self._jac[int(component)]
+
+    def jacobians(self, components: np.ndarray) -> np.ndarray:
+        """:meth:`jacobian` of each of N selected components, stacked: (N, D+1, D) (a new array)."""
+        return self._jac[np.asarray(components, dtype=np.int64)]
 
     def negative_log_likelihood(self, x: np.ndarray) -> float:
         """``0.5 ||r(x)||^2`` (max-mixture cost, up to a constant)."""

@@ -117,7 +117,9 @@ def temporal_prior_batch(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_p
         components.append(best)
     if not want_jacobian:
         return r, None
-    jac_x = np.stack([mixture.jacobian(k) for k in best]) / gap[:, None, None]
+    jac_x = mixture.jacobians(best)
+    if np.any(gap != 1.0):
+        jac_x /= gap[:, None, None]
     return r, _chain(jac_x, step, rot_i_t, rel, jr_inv)
 
 

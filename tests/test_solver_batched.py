@@ -81,6 +81,24 @@ def test_batched_linearizer_equals_graph_linearize(problem_and_point, coarse):
     _assert_systems_equal(system, reference)
 
 
+def test_batched_linearizer_with_active_joint_limits(problem_and_point):
+    """Joint limits enter as diagonal information; some frames past a limit (knee and elbow bent backwards)."""
+    from factors.joint_limits import DEFAULT_JOINT_LIMITS
+
+    _, _, problem, point = problem_and_point
+    values = gtsam.Values(point)
+    for i in (1, 3, 4):
+        k = problem.keys[i]
+        pose = values.atVector(k.body_pose).copy()
+        for lim in DEFAULT_JOINT_LIMITS[i % 2::2]:
+            pose[lim.index] = lim.lower - 0.3 if lim.lower > -1.0 else lim.upper + 0.3
+        values.update(k.body_pose, pose)
+    lin = BatchedLinearizer(problem)
+    assert lin.served["joint_limits"]
+    assert lin.error(values) == pytest.approx(problem.graph.error(values), rel=1e-10)
+    _assert_systems_equal(lin.system(values), problem.layout.assemble(problem.graph.linearize(values)))
+
+
 def test_term_cache_serves_only_the_prefetched_values(problem_and_point):
     ctx, track, problem, values = problem_and_point
     problem.prefetch(values, True)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import BODY_POSE_DIM, row_loss_and_weight
+from factors.common import row_loss_and_weight
 from factors.heading_prior import heading_prior_batch
 from factors.joint_limits import joint_limit_batch
 from factors.translation_prior import translation_prior_batch
@@ -194,10 +194,13 @@ class BatchedLinearizer:
             for limits, sigma, members in setup["groups"]:
                 r, idx, active = joint_limit_batch(arrays["pose"][frames[members], 3:], limits)
                 total += 0.5 * float(np.sum((r / sigma) ** 2))
-                if linearize:
-                    a = np.zeros((len(members), len(idx), BODY_POSE_DIM))
-                    a[:, np.arange(len(idx)), idx] = active / sigma
-                    self._add_dense(system, [keys_list[n] for n in members], a, -r / sigma)
+                if linearize and active.any():
+                    # row l of A is (active_l / sigma) e_idx[l]: A^T A is diagonal, A^T b sits on idx
+                    keys = [keys_list[n] for n in members]
+                    (_, _, _, offset), = self.layout.segments(keys[0])
+                    firsts, cols, coef = self._firsts(keys)[:, None], offset + idx[None], active / sigma
+                    np.add.at(system.frame, (firsts, cols, cols), coef * coef)
+                    np.add.at(system.grad_frame, (firsts, cols), coef * (-r / sigma))
             return (total,)
         if kind == "heading_prior":
             r, jac = heading_prior_batch(arrays["world_R_body"][frames], setup["heading"])
@@ -291,12 +294,13 @@ class BatchedLinearizer:
         self._scatter(system, group["keys"], rows_t @ (info @ jk).reshape(rows.shape),
                       (rows_t @ pull.reshape(num, -1, 1))[:, :, 0])
 
-    def _gram_of(self, mixture) -> np.ndarray:
-        """``J_k^T J_k`` (K, D, D) of every component's residual Jacobian (cached per mixture)."""
-        gram = self._gram.get(id(mixture))
+    def _gram_of(self, mixture, start: int = 0) -> np.ndarray:
+        """``J_k^T J_k`` (K, D - start, D - start) of every component's residual Jacobian, rows and columns
+        from ``start`` on (contiguous; cached per mixture and start)."""
+        gram = self._gram.get((id(mixture), start))
         if gram is None or gram[0] is not mixture:
-            jac = np.stack([mixture.jacobian(k) for k in range(mixture.num_components)])
-            gram = self._gram[id(mixture)] = (mixture, np.swapaxes(jac, 1, 2) @ jac)
+            jac = mixture.jacobians(np.arange(mixture.num_components))[:, :, start:]
+            gram = self._gram[(id(mixture), start)] = (mixture, np.swapaxes(jac, 1, 2) @ jac)
         return gram[1]
 
     def _add_pose_prior(self, system: ChainSystem, group: dict) -> None:
@@ -311,18 +315,20 @@ class BatchedLinearizer:
         translation columns of frames i and j, 76 x 6 each; L: the pose columns, the same up to sign for
         both frames), so ``A^T A`` costs ``L^T L`` once instead of a full 150-column product."""
         blocks = group["blocks"]                                          # six (P, 76, k)
-        b = -group["r"]                                                   # (P, 76)
+        r = group["r"]                                                    # (P, 76); b = -r
         u = np.concatenate([blocks[0], blocks[1], blocks[3], blocks[4]], axis=2)   # (P, 76, 12)
-        lp = np.ascontiguousarray(blocks[5])                              # (P, 76, 69); blocks[2] = -lp
-        # (contiguous: a strided view would make numpy's batched matmul skip BLAS)
+        lm = blocks[2]                                                    # -L (P, 76, 69), contiguous
+        # (a strided view, like blocks[5] = L, would make numpy's batched matmul skip BLAS)
         u_t = np.swapaxes(u, 1, 2)
-        l_t = np.swapaxes(lp, 1, 2)
         utu = u_t @ u
-        utl = u_t @ lp
+        utl = u_t @ lm
+        utl *= -1.0
         # L = J_k[:, 6:] / gap of the selected component k: L^T L from the component's Gram matrix
-        ltl = self._gram_of(group["mixture"])[group["best"], 6:, 6:] / (group["gap"] ** 2)[:, None, None]
-        ub = (u_t @ b[:, :, None])[:, :, 0]
-        lb = (l_t @ b[:, :, None])[:, :, 0]
+        ltl = self._gram_of(group["mixture"], 6)[group["best"]]
+        if np.any(group["gap"] != 1.0):
+            ltl /= (group["gap"] ** 2)[:, None, None]
+        ub = -(u_t @ r[:, :, None])[:, :, 0]
+        lb = (np.swapaxes(lm, 1, 2) @ r[:, :, None])[:, :, 0]             # L^T b = (-L)^T r
         num = len(group["keys"])
         firsts = self._firsts(group["keys"])
         if np.array_equal(firsts, np.arange(firsts[0], firsts[0] + num)):
