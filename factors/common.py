@@ -367,6 +367,7 @@ def robustify_groups(white: np.ndarray, kernel: str, scale: float,
     for block in blocks:
         jr = np.asarray(block, dtype=np.float64).reshape(num_g, d, -1)
         rt_j = np.einsum("gd,gdk->gk", white, jr)
-        new = g[:, None, None] * jr + h[:, None, None] * white[:, :, None] * rt_j[:, None, :]
+        new = g[:, None, None] * jr
+        new += (h[:, None] * white)[:, :, None] * rt_j[:, None, :]
         out.append(as_f64(new.reshape(num_g * d, -1)))
     return s, out

@@ -146,6 +146,51 @@ def test_vertex_jacobians_per_frame_equal_single_frame_calls():
         model.vertex_jacobians_per_frame(pose, betas, trans, ids[:2])
 
 
+def test_shared_jacobian_setup_gives_the_same_results():
+    """point_jacobians / vertex_jacobians_per_frame / vertices_subset with a precomputed setup (or some of
+    its frames) equal the calls that compute it themselves."""
+    ctx = synthetic_context()
+    model = ctx.model
+    rng = np.random.default_rng(7)
+    n = 4
+    pose = rng.normal(scale=0.3, size=(n, 72))
+    betas = rng.normal(size=(n, model.num_betas))
+    trans = rng.normal(size=(n, 3))
+    setup = model.jacobian_setup(pose, betas)
+    names = ("points", "d_root", "d_body_pose", "d_trans", "d_betas")
+    for a, b in ((model.point_jacobians(pose, betas, trans, setup=setup), model.point_jacobians(pose, betas, trans)),
+                 (model.point_jacobians(pose, betas, trans, vertex_ids=[3, 9], setup=setup),
+                  model.point_jacobians(pose, betas, trans, vertex_ids=[3, 9]))):
+        for name in names:
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    frames = np.array([0, 2, 3])
+    ids = np.stack([rng.choice(model.num_vertices, 5, replace=False) for _ in frames])
+    a = model.vertex_jacobians_per_frame(pose[frames], betas[frames], trans[frames], ids, setup=setup.rows(frames))
+    b = model.vertex_jacobians_per_frame(pose[frames], betas[frames], trans[frames], ids)
+    for name in names:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    subset = np.arange(0, model.num_vertices, 3)
+    np.testing.assert_allclose(model.vertices_subset(pose, betas, trans, subset, kinematics=setup.kin),
+                               model.vertices_subset(pose, betas, trans, subset), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError):
+        model.point_jacobians(pose[:2], betas[:2], trans[:2], setup=setup)
+
+
+def test_unique_per_frame_equals_np_unique():
+    from pedx_graph.graph.batch import _unique_per_frame
+
+    rng = np.random.default_rng(8)
+    ids = [rng.integers(0, 50, size=m) for m in (1, 6, 12, 3)]
+    counts, padded, local = _unique_per_frame(ids, 50)
+    assert padded.shape == (4, max(len(np.unique(x)) for x in ids))
+    for n, x in enumerate(ids):
+        u = np.unique(x)
+        assert counts[n] == len(u)
+        np.testing.assert_array_equal(padded[n, :len(u)], u)
+        assert np.all(padded[n, len(u):] == u[0])
+    np.testing.assert_array_equal(local, np.concatenate([np.searchsorted(np.unique(x), x) for x in ids]))
+
+
 def test_mixture_and_temporal_batches_equal_single_calls():
     ctx = synthetic_context()
     rng = np.random.default_rng(5)

@@ -51,6 +51,32 @@ class BodyOutput:
 
 
 @dataclass(frozen=True)
+class JacobianSetup:
+    """What every Jacobian of N frames shares (:meth:`BodyModel.jacobian_setup`): the kinematics and the
+    per-joint derivative bases.  Pass it to :meth:`BodyModel.point_jacobians`,
+    :meth:`BodyModel.vertex_jacobians_per_frame` (and its ``kin`` to :meth:`BodyModel.vertices_subset`) for
+    the same pose and betas to skip recomputing it."""
+
+    kin: object
+    """:class:`pedx_graph.body.lbs.Kinematics` (N frames)."""
+    bases: np.ndarray
+    """(N, J, 3, 3) parameter-to-world-rotation bases (:func:`pedx_graph.body.jacobians.rotation_bases`)."""
+    dt_dbeta: np.ndarray
+    """(N, J, 3, B) shape derivative of the skinning translations."""
+    drot: np.ndarray | None
+    """(N, J-1, 3, 3, 3) derivative of each body joint's rotation (None without pose correctives)."""
+
+    def __iter__(self):               # kin, bases, dt_dbeta, drot = setup
+        return iter((self.kin, self.bases, self.dt_dbeta, self.drot))
+
+    def rows(self, index: np.ndarray) -> "JacobianSetup":
+        """The setup of the frames ``index`` only."""
+        kin = type(self.kin)(**{name: getattr(self.kin, name)[index] for name in self.kin.__dataclass_fields__})
+        return JacobianSetup(kin, self.bases[index], self.dt_dbeta[index],
+                             None if self.drot is None else self.drot[index])
+
+
+@dataclass(frozen=True)
 class _VertexSubset:
     """Model arrays of a few vertices, rows of the flat arrays ordered (vertex, coordinate)."""
 
@@ -257,11 +283,12 @@ class BodyModel:
         return (kin.world_origin + trans[:, None]).reshape(lead + (self.num_joints, 3))
 
     def vertices_subset(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None,
-                        vertex_ids: np.ndarray) -> np.ndarray:
-        """Posed positions (..., P, 3) of the vertices ``vertex_ids`` (P,) only."""
+                        vertex_ids: np.ndarray, kinematics=None) -> np.ndarray:
+        """Posed positions (..., P, 3) of the vertices ``vertex_ids`` (P,) only (``kinematics``: those of these
+        pose and betas, e.g. a :class:`JacobianSetup`'s ``kin``, if already computed)."""
         pose, betas, trans, lead = self._prepare(pose, betas, trans)
         vertex_ids = np.asarray(vertex_ids, dtype=np.int64)
-        kin = self._kinematics(pose, betas)
+        kin = self._kinematics(pose, betas) if kinematics is None else kinematics
         sub = self._subset(vertex_ids)
         rest = self._rest_points(sub, betas, kin.rot_mats)
         pts = skin(rest, sub.weights, kin.world_rot, kin.bone_trans) + trans[:, None]
@@ -286,7 +313,13 @@ class BodyModel:
 
     # ------------------------------------------------------------------------------------- Jacobians
 
-    def _jacobian_setup(self, pose, betas):
+    def jacobian_setup(self, pose: np.ndarray, betas: np.ndarray) -> JacobianSetup:
+        """The kinematics and derivative bases of N frames, pose (N, 72) and betas (N, B), that every
+        Jacobian method shares (see :class:`JacobianSetup`)."""
+        pose, betas, _, _ = self._prepare(pose, betas, None)
+        return self._jacobian_setup(pose, betas)
+
+    def _jacobian_setup(self, pose, betas) -> JacobianSetup:
         axis_angle = pose.reshape(pose.shape[0], self.num_joints, 3)
         rot_mats, jr = exp_and_right_jacobian(axis_angle)
         kin = batch_rigid_transform(rot_mats, self.rest_joints(betas), self._parents)
@@ -295,7 +328,15 @@ class BodyModel:
         dt_dbeta = jac.shape_chain_jacobian(kin, self._joint_shapedirs, self._parents, self._desc)
         drot = (exp_so3_derivative(axis_angle[:, 1:], rot_mats[:, 1:], jr_body) if self.posedirs is not None
                 else None)
-        return kin, bases, dt_dbeta, drot
+        return JacobianSetup(kin, bases, dt_dbeta, drot)
+
+    def _setup_for(self, pose, betas, setup: JacobianSetup | None) -> JacobianSetup:
+        """``setup`` when given (it must be that of these N frames), else computed."""
+        if setup is None:
+            return self._jacobian_setup(pose, betas)
+        if setup.bases.shape[0] != pose.shape[0]:
+            raise ValueError(f"setup is for {setup.bases.shape[0]} frames, got {pose.shape[0]}")
+        return setup
 
     def _vertex_terms(self, kin, bases, dt_dbeta, drot, betas, vertex_ids):
         sub = self._subset(vertex_ids)
@@ -304,15 +345,17 @@ class BodyModel:
                                     sub.posedirs_flat, drot)
 
     def point_jacobians(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None,
-                        vertex_ids: np.ndarray | None = None) -> jac.PointJacobians:
-        """Positions and analytic Jacobians of the 18 keypoints (``vertex_ids=None``) or of given vertices.
+                        vertex_ids: np.ndarray | None = None, setup: JacobianSetup | None = None
+                        ) -> jac.PointJacobians:
+        """Positions and analytic Jacobians of the 18 keypoints (``vertex_ids=None``) or of given vertices
+        (``setup``: :meth:`jacobian_setup` of these pose and betas, if already computed).
 
         Returns :class:`pedx_graph.body.jacobians.PointJacobians` with ``points (..., N, 3)``,
         ``d_root (..., N, 3, 3)`` (right perturbation of ``world_R_body``), ``d_body_pose (..., N, 3, 69)``,
         ``d_trans (..., N, 3, 3)``, ``d_betas (..., N, 3, B)``; see docs/architecture.md.
         """
         pose, betas, trans, lead = self._prepare(pose, betas, trans)
-        kin, bases, dt_dbeta, drot = self._jacobian_setup(pose, betas)
+        kin, bases, dt_dbeta, drot = self._setup_for(pose, betas, setup)
         if vertex_ids is not None:
             vertex_ids = np.asarray(vertex_ids, dtype=np.int64).reshape(-1)
             if vertex_ids.size and (vertex_ids.min() < 0 or vertex_ids.max() >= self.num_vertices):
@@ -349,8 +392,9 @@ class BodyModel:
             d_betas=d_betas.reshape(lead + (num_p, 3, self.num_betas)))
 
     def vertex_jacobians_per_frame(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
-                                   vertex_ids: np.ndarray) -> jac.PointJacobians:
-        """Positions and Jacobians of a different vertex set per frame, in one batched pass.
+                                   vertex_ids: np.ndarray, setup: JacobianSetup | None = None) -> jac.PointJacobians:
+        """Positions and Jacobians of a different vertex set per frame, in one batched pass (``setup``:
+        :meth:`jacobian_setup` of these pose and betas, if already computed).
 
         pose (N, 72), betas (N, B), trans (N, 3), vertex_ids (N, P) (pad short sets by repeating an id).
         Returns ``PointJacobians`` with points (N, P, 3), d_root (N, P, 3, 3), d_body_pose (N, P, 3, 69),
@@ -364,7 +408,7 @@ class BodyModel:
         if ids.size and (ids.min() < 0 or ids.max() >= self.num_vertices):
             raise ValueError(f"vertex_ids must lie in [0, {self.num_vertices})")
         num_n, num_p = ids.shape
-        kin, bases, dt_dbeta, drot = self._jacobian_setup(pose, betas)
+        kin, bases, dt_dbeta, drot = self._setup_for(pose, betas, setup)
         rows = (3 * ids[:, :, None] + np.arange(3)).reshape(num_n, 3 * num_p)
         shapedirs = self._shapedirs_flat[rows]                                     # (N, 3P, B)
         flat = np.einsum("nb,ncb->nc", betas, shapedirs) + self._v_template_col[rows, 0]

@@ -30,7 +30,7 @@ import gtsam
 import numpy as np
 
 from factors.common import FrameKeys, FrameState, read_frame_state, robustify_groups
-from factors.lidar_chamfer import chamfer_residual, nearest_vertices
+from factors.lidar_chamfer import chamfer_residual, nearest_indices, nearest_vertices
 from factors.stereo_reprojection import stereo_blocks, stereo_pixels, stereo_select
 from factors.temporal_prior import temporal_prior_batch
 from pedx_graph.body import BodyModel
@@ -40,6 +40,20 @@ def _tag(pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None) -> bytes
     t = b"" if trans is None else np.ascontiguousarray(trans, dtype=np.float64).tobytes()
     return (np.ascontiguousarray(pose, dtype=np.float64).tobytes()
             + np.ascontiguousarray(betas, dtype=np.float64).tobytes() + t)
+
+
+def _unique_per_frame(ids: list[np.ndarray], num_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sorted distinct vertex ids of each frame's (non-empty) ``ids``, from one ``np.unique`` over all
+    frames: their counts (F,), padded into one (F, W) array (short rows repeat their first id), and the
+    position of every id in its frame's row (the ids of all frames concatenated)."""
+    counts = np.array([len(x) for x in ids])
+    frame = np.repeat(np.arange(len(ids)), counts)
+    distinct, inverse = np.unique(frame * num_vertices + np.concatenate(ids), return_inverse=True)
+    owner, vertex = np.divmod(distinct, num_vertices)
+    starts = np.searchsorted(owner, np.arange(len(ids) + 1))
+    padded = np.repeat(vertex[starts[:-1], None], int(np.diff(starts).max()), axis=1)
+    padded[owner, np.arange(len(distinct)) - starts[owner]] = vertex
+    return np.diff(starts), padded, inverse.reshape(-1) - starts[frame]
 
 
 @dataclass(frozen=True)
@@ -138,10 +152,11 @@ class BatchedBodyModel:
                 [np.ascontiguousarray(rows[:, bounds[3]:])]
         raise KeyError(kind)
 
-    def _chamfer_batch(self, chamfer: list, matches: list, vjac, unique) -> None:
+    def _chamfer_batch(self, chamfer: list, matches: list, vjac, local) -> None:
         """The chamfer factors of all frames as one group: every point's whitened, per-point robustified
-        residual ``s`` (N, 3) and (with ``vjac``, the padded per-frame vertex Jacobians) its Jacobian rows
-        ``a`` (N, 3, 75 + B) — one :func:`factors.common.robustify_groups` call for all points."""
+        residual ``s`` (N, 3) and (with ``vjac``, the padded per-frame vertex Jacobians, and ``local``, each
+        point's matched vertex's position in its frame's row of them) its Jacobian rows ``a`` (N, 3, 75 + B)
+        — one :func:`factors.common.robustify_groups` call for all points."""
         spec = chamfer[0][1]
         counts = np.array([len(m[0]) for m in matches])
         offsets = np.concatenate([[0], np.cumsum(counts)])
@@ -152,16 +167,25 @@ class BatchedBodyModel:
         a = None
         if vjac is not None:
             frame_idx = np.repeat(np.arange(len(matches)), counts)
-            local = np.concatenate([np.searchsorted(u, m[0]) for u, m in zip(unique, matches)])
             a = np.concatenate([vjac.d_root[frame_idx, local], vjac.d_trans[frame_idx, local],
                                 vjac.d_body_pose[frame_idx, local], vjac.d_betas[frame_idx, local]], axis=2)
-            s_flat, (a_flat,) = robustify_groups(white, spec.robust, spec.robust_scale,
-                                                 [a.reshape(-1, a.shape[2]) * inv])
+            a *= inv
+            s_flat, (a_flat,) = robustify_groups(white, spec.robust, spec.robust_scale, [a.reshape(-1, a.shape[2])])
             a = a_flat.reshape(a.shape)
         else:
             s_flat, _ = robustify_groups(white, spec.robust, spec.robust_scale)
         self._add_batch("lidar_chamfer", {"keys": [fk for fk, _ in chamfer], "offsets": offsets,
                                           "s": s_flat.reshape(-1, 3), "a": a})
+
+    def _nearest(self, state: FrameState, spec, subset_vertices: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`nearest_vertices` of one chamfer factor, searched directly in the prefetched posed subset
+        vertices (C, 3) when its candidates are that subset."""
+        cand = spec.candidate_vertex_ids
+        if subset_vertices is None or cand is None or not (
+                cand is self.subset_vertex_ids or np.array_equal(cand, self.subset_vertex_ids)):
+            return nearest_vertices(self, state, spec.world_points, cand)
+        nn = nearest_indices(subset_vertices, spec.world_points)
+        return cand[nn], subset_vertices[nn]
 
     def _add_batch(self, kind: str, group: dict) -> None:
         self._batches.setdefault(kind, []).append(group)
@@ -169,9 +193,10 @@ class BatchedBodyModel:
             self._where[(kind, keys)] = (group, n)
 
     def _evaluate_terms(self, keys: list[FrameKeys], states: list[FrameState], jac, keypoints,
-                        kinds=None) -> None:
+                        kinds=None, setup=None, subset_vertices=None) -> None:
         """Every registered term (of ``kinds``; all when None) at the prefetched states; ``jac`` (keypoint
-        Jacobians of all frames) or ``keypoints`` (T, 18, 3) from :meth:`prefetch`."""
+        Jacobians of all frames) or ``keypoints`` (T, 18, 3), the model's Jacobian ``setup`` of all frames
+        (with ``jac``) and the posed ``subset_vertices`` (T, C, 3) (or None) from :meth:`prefetch`."""
         specs = self._specs if kinds is None else {k: v for k, v in self._specs.items() if k in kinds}
         jacobians = jac is not None
         self._terms.clear()
@@ -193,26 +218,27 @@ class BatchedBodyModel:
                                                     "setups": setups})
         chamfer = [(fk, spec) for fk, spec in specs.get("lidar_chamfer", {}).items() if fk[0] in frame_of]
         if chamfer:
-            fstates = [states[frame_of[fk[0]]] for fk, _ in chamfer]
-            matches = [nearest_vertices(self, st, spec.world_points, spec.candidate_vertex_ids)
-                       for st, (_, spec) in zip(fstates, chamfer)]
-            vjac = unique = None
+            frames = np.array([frame_of[fk[0]] for fk, _ in chamfer], dtype=np.int64)
+            fstates = [states[f] for f in frames]
+            matches = [self._nearest(st, spec, None if subset_vertices is None else subset_vertices[f])
+                       for st, f, (_, spec) in zip(fstates, frames, chamfer)]
+            vjac = distinct = local = None
             if jacobians:             # the matched vertices' Jacobians of every frame in one batched pass
-                unique = [np.unique(ids) for ids, _ in matches]
-                width = max(len(u) for u in unique)
-                padded = np.stack([np.pad(u, (0, width - len(u)), mode="edge") for u in unique])
-                vjac = self.model.vertex_jacobians_per_frame(np.stack([st.full_pose for st in fstates]),
-                                                             np.stack([st.betas for st in fstates]),
-                                                             np.stack([st.trans for st in fstates]), padded)
+                distinct, padded, local = _unique_per_frame([ids for ids, _ in matches], self.model.num_vertices)
+                arrays = self.frame_arrays
+                every = len(frames) == len(states) and np.array_equal(frames, np.arange(len(states)))
+                vjac = self.model.vertex_jacobians_per_frame(
+                    arrays["pose"][frames], arrays["betas"][frames], arrays["trans"][frames], padded,
+                    setup=setup if every else setup.rows(frames))
             for (fk, _), match in zip(chamfer, matches):
                 self.chamfer_matches[fk] = match[0]
             kernels = {(spec.sigma_m, spec.robust, spec.robust_scale, spec.robust_per_point) for _, spec in chamfer}
             if len(kernels) == 1 and chamfer[0][1].robust_per_point:
-                self._chamfer_batch(chamfer, matches, vjac, unique)
+                self._chamfer_batch(chamfer, matches, vjac, local)
             else:                     # mixed noise settings: factor by factor
                 for n, ((fk, spec), st, match) in enumerate(zip(chamfer, fstates, matches)):
                     vj = None if vjac is None else _FrameJacobians(
-                        *(getattr(vjac, f)[n, :len(unique[n])]
+                        *(getattr(vjac, f)[n, :distinct[n]]
                           for f in ("points", "d_root", "d_body_pose", "d_trans", "d_betas")))
                     self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
         prior = specs.get("pose_prior", {})
@@ -274,9 +300,10 @@ class BatchedBodyModel:
             self._key_bytes[k.trans] = st.trans.tobytes()
             self._key_bytes[k.body_pose] = st.body_pose.tobytes()
             self._key_bytes[k.betas] = st.betas.tobytes()
-        jac = kps = None
-        if jacobians:
-            jac = self.model.point_jacobians(pose, betas, trans)
+        jac = kps = setup = None
+        if jacobians:                 # kinematics and derivative bases shared by every Jacobian below
+            setup = self.model.jacobian_setup(pose, betas)
+            jac = self.model.point_jacobians(pose, betas, trans, setup=setup)
             for i, tag in enumerate(tags):
                 self._keypoint_jacobians[tag] = _FrameJacobians(jac.points[i], jac.d_root[i], jac.d_body_pose[i],
                                                                 jac.d_trans[i], jac.d_betas[i])
@@ -284,12 +311,14 @@ class BatchedBodyModel:
             kps = self.model.keypoints(pose, betas, trans)
             for i, tag in enumerate(tags):
                 self._keypoints[tag] = kps[i]
+        verts = None
         if vertices and self.subset_vertex_ids is not None:
-            verts = self.model.vertices_subset(pose, betas, trans, self.subset_vertex_ids)
+            verts = self.model.vertices_subset(pose, betas, trans, self.subset_vertex_ids,
+                                               kinematics=None if setup is None else setup.kin)
             for i, tag in enumerate(tags):
                 self._subset_vertices[tag] = verts[i]
         if self._specs:
-            self._evaluate_terms(keys, states, jac, kps, kinds)
+            self._evaluate_terms(keys, states, jac, kps, kinds, setup, verts)
 
     def _holds(self, values: gtsam.Values, keys: list[FrameKeys]) -> bool:
         """Whether ``values`` has exactly the prefetched value of every variable of ``keys`` (raw bytes of
