@@ -13,12 +13,18 @@ reported per distance bin (horizontal distance of the true pelvis from the LiDAR
 7.815``; goal 92-97 %).  A consistent estimator has NEES ~ chi2_3 only if the model is right, so variants
 switch off one suspected cause at a time: ``default`` (shipped config), ``matched_noise`` (the config's
 noise set to the simulator's: 2 px visible / 8 px occluded clicks, 2 cm LiDAR range noise),
-``gaussian`` (no robust losses), ``no_temporal_prior`` (the shipped temporal GMM favours standing
+``gaussian`` (no robust losses), ``pose_prior_cov_x3`` (every pose-prior component 3x wider: the
+chain of per-frame pose priors and temporal priors counts the prior several times, see
+``chain_prior_overcount``), ``no_temporal_prior`` (the shipped temporal GMM favours standing
 still; see the findings), ``no_chamfer`` / ``lidar_sigma_x3`` (the chamfer's points are not independent:
 nearest-vertex matching on a vertex subset makes correlated errors); ``point_to_point_chamfer`` (same fit,
 covariances with the chamfer factor's fixed-correspondence information instead of the point-to-plane
 information of ``MarginalsConfig``); ``a+b`` combines variants.  Every variant is also reported on the
 frames the diagnostics judge consistent (``fit_consistent``, see ``pedx_graph.solvers.diagnostics``).
+Per variant also: the NEES per keypoint group and distance, and the objective at the estimate and at the
+truth per track (``objective_at_truth``: a truth with the lower objective is a local minimum of the fit,
+otherwise the model prefers the estimate); once: how much the chain of priors tightens a frame's pose
+prior (``chain_prior_overcount``).
 
     python benchmarks/bench_calibration.py [--seed 0] [--pedestrians 10] [--frames 50] [--variants ...]
 
@@ -39,6 +45,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
+from bench_solvers import values_of  # noqa: E402
 from _common import public_args  # noqa: E402
 from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin  # noqa: E402
@@ -51,6 +58,9 @@ from pedx_graph.solvers.marginals import MarginalsConfig  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 CHI2_3_95 = 7.814727903251178
+#: Keypoint groups of the per-distance tables (indices into PEDX_KEYPOINTS).
+KEYPOINT_GROUPS = {"head": [0, 1, 2, 3, 4], "neck+shoulders": [5, 6, 7], "elbows": [8, 9], "wrists": [10, 11],
+                   "hips": [12, 13], "knees": [14, 15], "ankles": [16, 17]}
 
 
 def _modify(config: FitConfig, name: str, marginals: MarginalsConfig | None = None) -> None:
@@ -67,6 +77,8 @@ def _modify(config: FitConfig, name: str, marginals: MarginalsConfig | None = No
         config.terms.temporal_prior = False
     elif name == "no_chamfer":
         config.terms.lidar_chamfer = False
+    elif name == "pose_prior_cov_x3":
+        return                                   # a context change: variant_context
     elif name == "lidar_sigma_x3":
         config.noise.lidar_sigma_m *= 3.0
     elif name == "gaussian":
@@ -85,17 +97,30 @@ def variant_config(name: str) -> tuple[FitConfig, MarginalsConfig]:
     return config, marginals
 
 
+def variant_context(name: str, ctx):
+    """The estimator context of a variant: ``pose_prior_cov_x3`` widens every pose-prior component 3x in
+    variance (about the median over-counting of the chain of priors, ``chain_prior_overcount``)."""
+    import dataclasses
+
+    from factors.common import MaxMixture
+    from pedx_graph.priors import load_pose_prior
+
+    if "pose_prior_cov_x3" not in name.split("+"):
+        return ctx
+    return dataclasses.replace(ctx, pose_mixture=MaxMixture.from_gmm(load_pose_prior(), covariance_scale=3.0))
+
+
 def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """(N,) ``e^T Sigma^-1 e`` for errors (N, 3) and covariances (N, 3, 3)."""
     return np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
 
 
 _FITS: dict = {}
-"""Solved tracks by (track, fit config): variants that differ only in the marginals share one fit."""
+"""Solved tracks by (track, fit config, context): variants that differ only in the marginals share one fit."""
 
 
 def _solve(tr, ctx, config):
-    key = (tr.sequence, tr.tracking_id, repr(config))
+    key = (tr.sequence, tr.tracking_id, repr(config), id(ctx))
     if key not in _FITS:
         _FITS[key] = solve_staged(tr, ctx, config)
     return _FITS[key]
@@ -107,6 +132,7 @@ def collect(tracks, truth, config, ctx, marginals_config: MarginalsConfig | None
     writes (``track_extras``: chain marginals, point-to-plane chamfer information unless
     ``marginals_config`` says otherwise); frames with an under-constrained status are left out."""
     kp_nees, tr_nees, dist, visible, kp_err, consistent = [], [], [], [], [], []
+    energies = []
     failed, seconds = 0, 0.0
     for tr in tracks:
         t0 = time.perf_counter()
@@ -114,7 +140,8 @@ def collect(tracks, truth, config, ctx, marginals_config: MarginalsConfig | None
             problem, values, _ = _solve(tr, ctx, config)
             per_frame, track_fields = track_extras(problem, values, ctx, marginals_config=marginals_config,
                                                    fit_config=config)
-        except Exception:
+        except Exception as exc:                       # noqa: BLE001 -- counted and reported, the run goes on
+            print(f"track {tr.sequence}/{tr.tracking_id} failed: {exc!r}", file=sys.stderr)
             failed += 1
             continue
         if "marginals_error" in track_fields:
@@ -123,6 +150,8 @@ def collect(tracks, truth, config, ctx, marginals_config: MarginalsConfig | None
         seconds += time.perf_counter() - t0
         est = extract_estimate(problem, values, ctx)
         labels = {lab.frame: lab for lab in truth.get((tr.sequence, tr.tracking_id), [])}
+        if all(fr.frame in labels for fr in tr.frames):
+            energies.append(objective_at_truth(problem, values, [labels[fr.frame] for fr in tr.frames]))
         for i, fr in enumerate(tr.frames):
             lab = labels.get(fr.frame)
             f = per_frame[i]
@@ -144,7 +173,71 @@ def collect(tracks, truth, config, ctx, marginals_config: MarginalsConfig | None
             visible.append(vis)
     return {"kp_nees": np.array(kp_nees).reshape(-1, 18), "tr_nees": np.array(tr_nees), "dist": np.array(dist),
             "visible": np.array(visible, dtype=bool).reshape(-1, 18), "kp_err": np.array(kp_err).reshape(-1, 18),
-            "consistent": np.array(consistent, dtype=bool), "failed_tracks": failed, "fit_seconds": seconds}
+            "consistent": np.array(consistent, dtype=bool), "failed_tracks": failed, "fit_seconds": seconds,
+            "energies": energies}
+
+
+def objective_at_truth(problem, values, labels) -> dict:
+    """The track's objective (graph error) per factor kind at the estimate and at the simulator's truth, and
+    the track's distance: is a miscalibrated fit a local minimum (truth lower) or the model's optimum?"""
+    truth = values_of(problem, np.stack([lab.pose for lab in labels]), labels[0].betas,
+                      np.stack([lab.trans for lab in labels]))
+    out = {"frames": len(labels), "estimate": {}, "truth": {}}
+    for j, kind in enumerate(problem.factor_kinds):
+        factor = problem.graph.at(j)
+        for name, v in (("estimate", values), ("truth", truth)):
+            out[name][kind] = out[name].get(kind, 0.0) + float(factor.error(v))
+    pelvis = np.mean([lab.trans for lab in labels], axis=0)
+    out["distance_m"] = float(np.hypot(pelvis[0], pelvis[1]))
+    return out
+
+
+def energy_summary(energies: list[dict]) -> dict:
+    """Per distance bin: tracks whose truth has a lower objective than the estimate (a local minimum of the
+    fit), and the mean objective per frame by term at the estimate and at the truth."""
+    out = {}
+    for lo, hi in DISTANCE_BINS:
+        sel = [e for e in energies if distance_bin(e["distance_m"]) == f"{lo:g}-{hi:g}"]
+        if not sel:
+            continue
+        frames = sum(e["frames"] for e in sel)
+        kinds = sorted({k for e in sel for k in e["estimate"]})
+        out[f"{lo:g}-{hi:g}"] = {
+            "tracks": len(sel),
+            "truth_lower": int(sum(sum(e["truth"].values()) < sum(e["estimate"].values()) for e in sel)),
+            "per_frame": {k: {"estimate": sum(e["estimate"].get(k, 0.0) for e in sel) / frames,
+                              "truth": sum(e["truth"].get(k, 0.0) for e in sel) / frames} for k in kinds}}
+    return out
+
+
+def chain_prior_overcount(ctx, frames: int = 21) -> dict:
+    """How much tighter the per-frame pose prior gets inside a chain of ``frames`` frames that also carries
+    the temporal prior: both mixtures moment-matched to Gaussians (pose ``S_P``, temporal body-pose block
+    ``S_T``), chain information ``I (x) S_P^-1 + L (x) S_T^-1`` (``L`` the path Laplacian), ratio of the pose
+    prior's variance to the middle frame's marginal variance per pose dimension.  1 = the chain's prior on
+    a single frame is the pose prior itself (what the data have); larger = the product of per-frame and
+    pairwise priors counts the same prior knowledge several times."""
+    def moment(mixture):
+        log_w = -mixture.c - np.linalg.slogdet(mixture.lt)[1]          # c_k = -log w_k - log|det L_k| (+ const)
+        w = np.exp(log_w - log_w.max())
+        w = w / w.sum()
+        covs = np.linalg.inv(np.einsum("kij,kil->kjl", mixture.lt, mixture.lt))        # (L L^T)^-1
+        mean = w @ mixture.means
+        diff = mixture.means - mean
+        return (np.einsum("k,kij->ij", w, covs) + np.einsum("k,ki,kj->ij", w, diff, diff))
+
+    pose_cov = moment(ctx.pose_mixture)
+    temporal_cov = moment(ctx.temporal_mixture)[6:, 6:]
+    n = pose_cov.shape[0]
+    lap = np.diag([1.0] + [2.0] * (frames - 2) + [1.0]) - np.eye(frames, k=1) - np.eye(frames, k=-1)
+    info = np.kron(np.eye(frames), np.linalg.inv(pose_cov)) + np.kron(lap, np.linalg.inv(temporal_cov))
+    mid = frames // 2
+    marginal = np.linalg.inv(info)[mid * n:(mid + 1) * n, mid * n:(mid + 1) * n]
+    ratio = np.diag(pose_cov) / np.diag(marginal)
+    from pedx_graph.keypoints import SMPL_JOINTS
+
+    per_joint = {SMPL_JOINTS[j + 1]: float(ratio[3 * j:3 * j + 3].max()) for j in range(n // 3)}
+    return {"frames": frames, "median_variance_ratio": float(np.median(ratio)), "max_variance_ratio_per_joint": per_joint}
 
 
 def stats(values: np.ndarray, dof: int = 3) -> dict:
@@ -173,13 +266,17 @@ def summarise(data: dict, split_consistent: bool = True) -> dict:
         key = f"{lo:g}-{hi:g}"
         sel = bins == key
         out["per_distance"][key] = {"frames": int(sel.sum()), "keypoints": stats(data["kp_nees"][sel]),
-                                    "translation": stats(data["tr_nees"][sel])}
+                                    "translation": stats(data["tr_nees"][sel]),
+                                    "keypoint_groups": {g: stats(data["kp_nees"][sel][:, idx])
+                                                        for g, idx in KEYPOINT_GROUPS.items()}}
     # worst keypoints (mean NEES / dof)
     if data["kp_nees"].size:
         from pedx_graph.keypoints import PEDX_KEYPOINTS
 
         per_kp = data["kp_nees"].mean(axis=0) / 3
         out["per_keypoint_mean_nees_over_dof"] = {name: float(v) for name, v in zip(PEDX_KEYPOINTS, per_kp)}
+    if split_consistent and data.get("energies"):
+        out["objective_at_truth"] = energy_summary(data["energies"])
     if split_consistent:
         ok = data["consistent"]
         out["inconsistent_frames"] = int((~ok).sum())
@@ -209,9 +306,50 @@ def to_markdown(result: dict) -> str:
                       f"(per distance bin {res['inconsistent_per_distance']}), mean keypoint error "
                       f"{_f(res['inconsistent_keypoint_error_mm_mean'], '.1f')} mm. Without them:", ""]
             lines += _tables(res["consistent_only"], "frames judged consistent")
+        lines += _group_table(res) + _energy_table(res)
+    if result.get("prior_overcount"):
+        po = result["prior_overcount"]
+        top = sorted(po["max_variance_ratio_per_joint"].items(), key=lambda kv: -kv[1])[:8]
+        lines += ["## The priors inside a chain of frames", "",
+                  f"Variance of the per-frame pose prior over the marginal variance of the middle frame of a "
+                  f"{po['frames']}-frame chain of pose + temporal priors (both moment-matched to Gaussians; "
+                  "`chain_prior_overcount`). 1 would mean the chain's prior on one frame is the pose prior, i.e. "
+                  "the spread of real poses; above 1 the product counts the same prior knowledge several times, "
+                  f"and where the prior dominates (far, occluded) the covariances are too small by about this "
+                  f"factor. Median over the 69 dimensions: {po['median_variance_ratio']:.1f}.", "",
+                  "| joint (largest) | variance ratio |", "|---|---:|"]
+        lines += [f"| {name} | {value:.1f} |" for name, value in top] + [""]
     if result.get("notes"):
         lines += ["## Findings", ""] + [f"- {n}" for n in result["notes"]]
     return "\n".join(lines) + "\n"
+
+
+def _group_table(res: dict) -> list[str]:
+    groups = list(KEYPOINT_GROUPS)
+    lines = ["Keypoint NEES/dof by group and distance (all frames with covariances):", "",
+             "| distance (m) | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
+    for key, row in res["per_distance"].items():
+        g = row.get("keypoint_groups", {})
+        lines.append(f"| {key} | " + " | ".join(_f(g.get(name, {}).get("mean_nees_over_dof")) for name in groups) + " |")
+    return lines + [""]
+
+
+def _energy_table(res: dict) -> list[str]:
+    energy = res.get("objective_at_truth")
+    if not energy:
+        return []
+    lines = ["Objective per frame at the estimate / at the truth (all terms, and the two motion priors): a "
+             "truth with the lower objective means the fit stopped in a local minimum; a truth with the higher "
+             "one means the model itself prefers the estimate.", "",
+             "| distance (m) | tracks | truth lower | total | pose prior | temporal prior |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for key, row in energy.items():
+        pf = row["per_frame"]
+        tot_e, tot_t = sum(v["estimate"] for v in pf.values()), sum(v["truth"] for v in pf.values())
+        cell = (lambda k: f"{pf[k]['estimate']:.1f} / {pf[k]['truth']:.1f}" if k in pf else "-")
+        lines.append(f"| {key} | {row['tracks']} | {row['truth_lower']} | {tot_e:.1f} / {tot_t:.1f} | "
+                     f"{cell('pose_prior')} | {cell('temporal_prior')} |")
+    return lines + [""]
 
 
 def _tables(res: dict, title: str) -> list[str]:
@@ -271,9 +409,10 @@ def main(argv=None) -> int:
             tracks += scene_tracks
             truth.update({(f"scene{b}/{seq}", tid): labs for (seq, tid), labs in read_smpl_labels(scene).items()})
         result["scenes"] = "one per distance bin (seed + bin index)" if args.per_bin_scenes else "one"
+        result["prior_overcount"] = chain_prior_overcount(ctx)
         for name in args.variants:
             fit_config, marginals_config = variant_config(name)
-            data = collect(tracks, truth, fit_config, ctx, marginals_config)
+            data = collect(tracks, truth, fit_config, variant_context(name, ctx), marginals_config)
             result["variants"][name] = summarise(data)
             print(name, result["variants"][name]["overall"], flush=True)
     out = Path(args.out)
