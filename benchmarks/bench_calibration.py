@@ -13,8 +13,8 @@ reported per distance bin (horizontal distance of the true pelvis from the LiDAR
 7.815``; goal 92-97 %).  A consistent estimator has NEES ~ chi2_3 only if the model is right, so variants
 switch off one suspected cause at a time: ``default`` (shipped config), ``matched_noise`` (the config's
 noise set to the simulator's: 2 px visible / 8 px occluded clicks, 2 cm LiDAR range noise),
-``gaussian`` (no robust losses), ``pose_prior_cov_x3`` (every pose-prior component 3x wider: the
-chain of per-frame pose priors and temporal priors counts the prior several times, see
+``gaussian`` (no robust losses), ``priors_cov_x3`` (``prior_covariance_scale = 3``: the chain
+of per-frame pose priors and temporal priors counts the prior several times, see
 ``chain_prior_overcount``), ``no_temporal_prior`` (the shipped temporal GMM favours standing
 still; see the findings), ``no_chamfer`` / ``lidar_sigma_x3`` (the chamfer's points are not independent:
 nearest-vertex matching on a vertex subset makes correlated errors); ``point_to_point_chamfer`` (same fit,
@@ -77,8 +77,8 @@ def _modify(config: FitConfig, name: str, marginals: MarginalsConfig | None = No
         config.terms.temporal_prior = False
     elif name == "no_chamfer":
         config.terms.lidar_chamfer = False
-    elif name == "pose_prior_cov_x3":
-        return                                   # a context change: variant_context
+    elif name == "priors_cov_x3":
+        config.prior_covariance_scale = 3.0
     elif name == "lidar_sigma_x3":
         config.noise.lidar_sigma_m *= 3.0
     elif name == "gaussian":
@@ -97,30 +97,17 @@ def variant_config(name: str) -> tuple[FitConfig, MarginalsConfig]:
     return config, marginals
 
 
-def variant_context(name: str, ctx):
-    """The estimator context of a variant: ``pose_prior_cov_x3`` widens every pose-prior component 3x in
-    variance (about the median over-counting of the chain of priors, ``chain_prior_overcount``)."""
-    import dataclasses
-
-    from factors.common import MaxMixture
-    from pedx_graph.priors import load_pose_prior
-
-    if "pose_prior_cov_x3" not in name.split("+"):
-        return ctx
-    return dataclasses.replace(ctx, pose_mixture=MaxMixture.from_gmm(load_pose_prior(), covariance_scale=3.0))
-
-
 def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """(N,) ``e^T Sigma^-1 e`` for errors (N, 3) and covariances (N, 3, 3)."""
     return np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
 
 
 _FITS: dict = {}
-"""Solved tracks by (track, fit config, context): variants that differ only in the marginals share one fit."""
+"""Solved tracks by (track, fit config): variants that differ only in the marginals share one fit."""
 
 
 def _solve(tr, ctx, config):
-    key = (tr.sequence, tr.tracking_id, repr(config), id(ctx))
+    key = (tr.sequence, tr.tracking_id, repr(config))
     if key not in _FITS:
         _FITS[key] = solve_staged(tr, ctx, config)
     return _FITS[key]
@@ -412,7 +399,7 @@ def main(argv=None) -> int:
         result["prior_overcount"] = chain_prior_overcount(ctx)
         for name in args.variants:
             fit_config, marginals_config = variant_config(name)
-            data = collect(tracks, truth, fit_config, variant_context(name, ctx), marginals_config)
+            data = collect(tracks, truth, fit_config, _context(fit_config), marginals_config)
             result["variants"][name] = summarise(data)
             print(name, result["variants"][name]["overall"], flush=True)
     out = Path(args.out)

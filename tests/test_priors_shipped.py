@@ -41,3 +41,19 @@ def test_walking_is_more_likely_than_random_poses():
     assert np.median(temporal.log_density(d)) > np.median(temporal.log_density(d + rng.normal(scale=0.2, size=d.shape)))
     r, jac, _ = pose.residual(walk.body_pose_aa[5, 3:], want_jacobian=True)
     assert r.shape == (70,) and jac.shape == (70, 69) and np.all(np.isfinite(r))
+
+
+def test_prior_covariance_scale_widens_both_mixtures():
+    from pedx_graph.graph.build import EstimatorContext
+    from pedx_graph.graph.config import FitConfig
+
+    base = EstimatorContext.create(FitConfig())
+    config = FitConfig(prior_covariance_scale=3.0)
+    wide = EstimatorContext.create(config)
+    for a, b in ((base.pose_mixture, wide.pose_mixture), (base.temporal_mixture, wide.temporal_mixture)):
+        np.testing.assert_allclose(b.lt, a.lt / np.sqrt(3.0))
+        np.testing.assert_allclose(b.means, a.means)
+        x = a.means[0] + 0.05
+        assert 0.5 * np.sum(b.residual(x)[0][:-1] ** 2) == pytest.approx(0.5 * np.sum(a.residual(x)[0][:-1] ** 2) / 3.0)
+    with pytest.raises(ValueError, match="prior_covariance_scale"):
+        EstimatorContext.create(FitConfig(prior_covariance_scale=0.0))

@@ -90,8 +90,11 @@ class EstimatorContext:
         model = BodyModel.load(config.body_model or None)
         pose_prior = load_pose_prior(config.pose_prior or None)
         temporal_prior = load_temporal_prior(config.temporal_prior or None)
-        pose_mixture = MaxMixture.from_gmm(pose_prior)
-        temporal_mixture = MaxMixture.from_gmm(temporal_prior)
+        scale = float(config.prior_covariance_scale)
+        if not scale > 0:
+            raise ValueError(f"prior_covariance_scale must be > 0, got {config.prior_covariance_scale}")
+        pose_mixture = MaxMixture.from_gmm(pose_prior, covariance_scale=scale)
+        temporal_mixture = MaxMixture.from_gmm(temporal_prior, covariance_scale=scale)
         # Template candidates: the pose prior's component means and the rest pose; the neutral template
         # is the mean nearest the rest pose (the heaviest component can be a reaching, arms-up pose).
         means = np.asarray(pose_prior.means, dtype=float)

@@ -117,6 +117,14 @@ class FitConfig:
     """Path of a pose GMM ``.npz`` (``pedx-graph train-prior``); empty: the shipped prior."""
     temporal_prior: str = ""
     """Path of a temporal GMM ``.npz``; empty: the shipped prior."""
+    prior_covariance_scale: float = 1.0
+    """Multiplies every covariance of the pose and the temporal GMM (1: the trained priors, as the paper).
+    Inside a track the per-frame pose priors and the frame-to-frame temporal priors multiply, and that
+    product holds a single frame's pose 3-12x tighter in variance than the pose prior itself (the spread
+    of real poses; ``benchmarks/bench_calibration.py``, ``chain_prior_overcount``), so where the priors
+    dominate (far, occluded joints) the covariances come out too small.  About 3 widens the product back
+    to the pose prior: better calibrated covariances, at some cost in accuracy beyond 35 m
+    (measured: docs/solvers.md)."""
     fps: float = 10.0
     """Nominal frame rate of synchronised samples, used when timestamps are missing."""
     chamfer_vertices: int = 1500

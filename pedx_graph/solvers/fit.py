@@ -74,7 +74,8 @@ _WORKER: dict = {}
 
 
 def _context(config: FitConfig):
-    key = (config.body_model, config.pose_prior, config.temporal_prior, config.chamfer_vertices)
+    key = (config.body_model, config.pose_prior, config.temporal_prior, config.prior_covariance_scale,
+           config.chamfer_vertices)
     if "threads" not in _WORKER:
         # Small dense products: BLAS threads only add overhead (measured ~2x on 2 cores); processes
         # over tracks use the cores instead.
