@@ -120,7 +120,7 @@ class FitConfig:
     prior_covariance_scale: float = 1.0
     """Multiplies every covariance of the pose and the temporal GMM (1: the trained priors, as the paper).
     Inside a track the per-frame pose priors and the frame-to-frame temporal priors multiply, and that
-    product holds a single frame's pose 3-12x tighter in variance than the pose prior itself (the spread
+    product holds a single frame's pose 2.5-11.5x (median 3.8) tighter in variance than the pose prior (the spread
     of real poses; ``benchmarks/bench_calibration.py``, ``chain_prior_overcount``), so where the priors
     dominate (far, occluded joints) the covariances come out too small.  About 3 widens the product back
     to the pose prior: better calibrated covariances, at some cost in accuracy beyond 35 m
