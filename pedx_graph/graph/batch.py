@@ -270,8 +270,8 @@ class BatchedBodyModel:
     def prefetch(self, values: gtsam.Values, keys: list[FrameKeys], jacobians: bool,
                  vertices: bool = True, kinds=None) -> None:
         """Evaluate every frame of ``keys`` at ``values`` in one batch (keypoints, with Jacobians when
-        ``jacobians``; the subset vertices when ``vertices`` and a subset is set; the registered terms of
-        ``kinds``, all when None); forget older entries."""
+        ``jacobians``; the subset vertices when ``vertices``, a subset is set and chamfer factors are
+        registered; the registered terms of ``kinds``, all when None); forget older entries."""
         if not keys:
             return
         signature = (tuple(k.root for k in keys), vertices, kinds)
@@ -312,7 +312,7 @@ class BatchedBodyModel:
             for i, tag in enumerate(tags):
                 self._keypoints[tag] = kps[i]
         verts = None
-        if vertices and self.subset_vertex_ids is not None:
+        if vertices and self.subset_vertex_ids is not None and self._specs.get("lidar_chamfer"):
             verts = self.model.vertices_subset(pose, betas, trans, self.subset_vertex_ids,
                                                kinematics=None if setup is None else setup.kin)
             for i, tag in enumerate(tags):
