@@ -274,3 +274,33 @@ def test_streaming_holds_shape_and_old_frames(ctx):
     assert not np.allclose(smoother.frame_estimate(problem.keys[-1])[3], betas0)
     values = smoother.finalize()
     assert np.isfinite(problem.graph.error(values))
+
+
+def test_frame_factors_enter_isam_linearised_and_are_relinearised_in_the_window():
+    """A frame's own factors enter iSAM2 as one Gaussian factor at the presolved point; within the
+    relinearisation window the point follows the estimate, after it never changes; finalising with iSAM2
+    gives iSAM2 the nonlinear factors back."""
+    from pedx_graph.solvers.isam import IncrementalTrack, frame_factor_groups, initial_frame_values
+
+    ctx = synthetic_context()
+    track, _ = synthetic_track(ctx, 6, seed=5)
+    problem = build_track_graph(track, ctx, synthetic_config(lidar_chamfer=False))
+    smoother = IncrementalTrack.create(IsamConfig(relinearize_skip=1, relinearize_window=2, finalize="isam"),
+                                       betas_key=problem.keys[0].betas)
+    groups = frame_factor_groups(problem)
+    previous, points, moved = None, [], False
+    for i, keys in enumerate(problem.keys):
+        smoother.add_frame(keys, groups[i], initial_frame_values(problem, i, previous))
+        previous = smoother.frame_estimate(keys)
+        assert [f.keys for f in smoother.linearized] == problem.keys[:i + 1]
+        graph = smoother.isam.getFactorsUnsafe()
+        for frame in smoother.linearized:
+            assert isinstance(graph.at(frame.slot), gtsam.LinearContainerFactor)
+        points.append([np.asarray(f.point.atVector(f.keys.body_pose)).copy() for f in smoother.linearized])
+        for j in range(i - 2):                       # last in the window of 2 at update j + 2, then frozen
+            np.testing.assert_array_equal(points[i][j], points[j + 2][j])
+        moved |= any(not np.array_equal(points[i][j], points[i - 1][j]) for j in range(max(i - 2, 0), i))
+    assert moved
+    values = smoother.finalize()
+    assert not smoother.linearized
+    assert problem.graph.error(values) < problem.graph.error(problem.initial)
