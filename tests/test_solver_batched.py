@@ -99,6 +99,15 @@ def test_batched_linearizer_with_active_joint_limits(problem_and_point):
     _assert_systems_equal(lin.system(values), problem.layout.assemble(problem.graph.linearize(values)))
 
 
+def test_graph_built_from_an_earlier_init_is_the_same(problem_and_point):
+    """build_track_graph(init=...) (the staged fit's second build) gives the graph built from scratch."""
+    ctx, track, problem, values = problem_and_point
+    again = build_track_graph(track, ctx, synthetic_config(), initial=values, init=problem.init)
+    assert again.init is problem.init
+    assert again.factor_kinds == problem.factor_kinds
+    assert again.graph.error(values) == pytest.approx(problem.graph.error(values), rel=1e-12)
+
+
 def test_term_cache_serves_only_the_prefetched_values(problem_and_point):
     ctx, track, problem, values = problem_and_point
     problem.prefetch(values, True)

@@ -295,19 +295,21 @@ def _heading_sigma(init: TrackInit, i: int) -> float:
 
 def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
                       yaw_override: np.ndarray | None = None,
-                      initial: gtsam.Values | None = None) -> TrackProblem:
+                      initial: gtsam.Values | None = None, init: TrackInit | None = None) -> TrackProblem:
     """The factor graph and initial values of ``track`` (see the module docstring).
 
     ``yaw_override`` (T,) replaces the initial headings; ``initial`` replaces all initial values (e.g. the
-    result of an earlier stage on the same track).
+    result of an earlier stage on the same track); ``init``: the track's :func:`initialise_track` with
+    ``config``'s noise settings when already computed (e.g. the ``init`` of an earlier stage's problem).
     """
     if len(track.frames) == 0:
         raise ValueError(f"track {track.sequence}/{track.tracking_id} has no frames")
     noise = config.noise
     model = BatchedBodyModel(ctx.model, ctx.chamfer_vertex_ids)
     nb = model.num_betas
-    init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
-                            min_speed_mps=noise.heading_min_speed_mps)
+    if init is None:
+        init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
+                                min_speed_mps=noise.heading_min_speed_mps)
     world_R_body = init.world_R_body if yaw_override is None else world_R_body_from_yaw(yaw_override)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()

@@ -157,7 +157,7 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     if one_graph:
         problem.initial = coarse_values
     else:
-        problem = build_track_graph(track, ctx, config, initial=coarse_values)
+        problem = build_track_graph(track, ctx, config, initial=coarse_values, init=coarse.init)
     values, report = solve(problem.graph, problem.initial, config.solver, *_solver_parts(problem, config))
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
