@@ -47,7 +47,7 @@ def test_prior_covariance_scale_widens_both_mixtures():
     from pedx_graph.graph.build import EstimatorContext
     from pedx_graph.graph.config import FitConfig
 
-    base = EstimatorContext.create(FitConfig())
+    base = EstimatorContext.create(FitConfig(prior_covariance_scale=1.0))
     config = FitConfig(prior_covariance_scale=3.0)
     wide = EstimatorContext.create(config)
     for a, b in ((base.pose_mixture, wide.pose_mixture), (base.temporal_mixture, wide.temporal_mixture)):
