@@ -34,9 +34,8 @@ def sensor_ray_frame(world_p_mean: np.ndarray, world_p_sensor: np.ndarray | None
     sensor = np.zeros(3) if world_p_sensor is None else as_f64(world_p_sensor)
     d = as_f64(world_p_mean)[:2] - sensor[:2]
     n = float(np.hypot(d[0], d[1]))
-    u = np.array([1.0, 0.0, 0.0]) if n < 1e-6 else np.array([d[0] / n, d[1] / n, 0.0])
-    up = np.array([0.0, 0.0, 1.0])
-    return np.stack([u, np.cross(up, u), up], axis=1)
+    ux, uy = (1.0, 0.0) if n < 1e-6 else (d[0] / n, d[1] / n)
+    return np.array([[ux, -uy, 0.0], [uy, ux, 0.0], [0.0, 0.0, 1.0]])     # columns u, up x u, up
 
 
 _BASIS: list = [None, 0, None]       # [weakref to the model, num_betas, (rest, basis)] of the last call
