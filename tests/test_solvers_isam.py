@@ -304,3 +304,26 @@ def test_frame_factors_enter_isam_linearised_and_are_relinearised_in_the_window(
     values = smoother.finalize()
     assert not smoother.linearized
     assert problem.graph.error(values) < problem.graph.error(problem.initial)
+
+
+def test_stream_sample_drops_only_its_bad_observation(ctx):
+    """The pedestrians of a sample go through the steps together: one that cannot be placed is dropped
+    (its new track forgotten), the others get the same estimates as when streamed alone."""
+    import dataclasses
+
+    from pedx_graph.solvers.stream import StreamConfig, StreamingEstimator
+
+    config = synthetic_config()
+    a, _ = synthetic_track(ctx, 3, seed=0)
+    b, _ = synthetic_track(ctx, 3, seed=3, distance_m=13.0)
+    lost = dataclasses.replace(b.frames[0], left=None, right=None, world_lidar_points=np.zeros((0, 3)))
+    together = StreamingEstimator(ctx, config, StreamConfig(marginals=False, diagnostics=False))
+    alone = StreamingEstimator(ctx, config, StreamConfig(marginals=False, diagnostics=False))
+    for j, fr in enumerate(a.frames):
+        sample = {a.tracking_id: fr, "pedB": lost if j == 0 else b.frames[j]}
+        current = together.add_frame(fr.timestamp, sample, a.calibrations)
+        reference = alone.add_frame(fr.timestamp, {a.tracking_id: fr}, a.calibrations)
+        assert sorted(current) == ([a.tracking_id] if j == 0 else sorted([a.tracking_id, "pedB"]))
+        np.testing.assert_allclose(current[a.tracking_id].world_keypoints,
+                                   reference[a.tracking_id].world_keypoints, atol=1e-9)
+    assert len(together.active["pedB"].frames) == 2

@@ -314,21 +314,41 @@ class IncrementalTrack:
         frame the shape prior) and the initial values of the variables not yet in the system.
 
         ``presolve_factors``: the factors the presolve uses (default: all of ``factors``), e.g. without the
-        costly LiDAR chamfer term (:attr:`StreamConfig.presolve_exclude`)."""
+        costly LiDAR chamfer term (:attr:`StreamConfig.presolve_exclude`).  The same as
+        :meth:`presolve` then :meth:`commit_frame`."""
+        t0 = time.perf_counter()
+        new_values = self.presolve(frame_keys, factors if presolve_factors is None else presolve_factors,
+                                   new_values)
+        stats = self.commit_frame(frame_keys, factors, new_values)
+        stats.seconds = time.perf_counter() - t0
+        return stats
+
+    def presolve(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values
+                 ) -> gtsam.Values:
+        """The new variables optimised on ``factors`` with the existing ones held at their estimate
+        (``IsamConfig.presolve_iterations``; ``new_values`` when 0)."""
+        if self.finalized:
+            raise RuntimeError("cannot add frames to a finalised track")
+        self.rotation_keys.add(int(frame_keys.root))
+        if self.config.presolve_iterations > 0:
+            return self._presolve(factors, new_values)
+        return new_values
+
+    def commit_frame(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values
+                     ) -> UpdateStats:
+        """The iSAM2 update of one frame (see :meth:`add_frame`) from its (presolved) ``new_values``."""
         if self.finalized:
             raise RuntimeError("cannot add frames to a finalised track")
         n = len(self.updates) + 1
         every = self.config.shape_relinearize_every
         hold = every <= 0 or n % every != 0
         t0 = time.perf_counter()
-        self.rotation_keys.add(int(frame_keys.root))
         cfg = self.config
+        self.rotation_keys.add(int(frame_keys.root))
         self.thresholds.update({int(frame_keys.root): cfg.relinearize_threshold_rad,
                                 int(frame_keys.trans): cfg.relinearize_threshold_m,
                                 int(frame_keys.body_pose): cfg.relinearize_threshold_rad,
                                 int(frame_keys.betas): cfg.shape_relinearize_threshold})
-        if self.config.presolve_iterations > 0:
-            new_values = self._presolve(factors if presolve_factors is None else presolve_factors, new_values)
         skip = max(int(self.config.relinearize_skip), 1)
         check = n % skip == 0
         t1 = time.perf_counter()

@@ -21,6 +21,11 @@ extrapolated at constant joint-angle velocity, ``StreamConfig.predict_body_pose`
 stereo centre (translation), then a damped Gauss-Newton step on the new frame alone
 (``IsamConfig.presolve_iterations`` / ``presolve_method``; without the chamfer term,
 ``StreamConfig.presolve_exclude``) before the iSAM2 update.
+
+Speed: each frame's initialisation measurements are taken once and kept; a frame's own factors enter iSAM2
+linearised once, as one Hessian-form factor (``IsamConfig.linearize_frame_factors``); the pedestrians of
+a sample go through the steps together so the body model is evaluated for all of them in one batched call
+per step (see :meth:`StreamingEstimator.add_frame`; measured in ``benchmarks/bench_solvers.py``).
 """
 from __future__ import annotations
 
@@ -34,6 +39,7 @@ import numpy as np
 from factors.common import FrameKeys
 from factors.shape_prior import make_shape_prior_factor
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
+from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements, measure_frame
@@ -87,10 +93,12 @@ class FrameEstimate:
     world_keypoints: np.ndarray
     """(18, 3) metres, world frame."""
     update_seconds: float
-    """Wall time of this frame's update (factors, initial values, presolve, iSAM2 update, reading the
-    estimate and its keypoints; not the optional covariances)."""
+    """Wall time of this frame's update (causal initialisation, factors, initial values, presolve, iSAM2
+    update, reading the estimate and its keypoints, plus an equal share of the sample's batched body-model
+    calls, :meth:`StreamingEstimator.add_frame`; not the optional covariances)."""
     isam_seconds: float = 0.0
-    """Wall time of the ``ISAM2.update`` call alone."""
+    """Wall time of the ``ISAM2.update`` call and of linearising the frame's own factors for it
+    (:attr:`pedx_graph.solvers.isam.UpdateStats.isam_seconds`)."""
     cpu_seconds: float = 0.0
     """CPU time of the same work as ``update_seconds`` (this process; robust to a shared machine)."""
     extra: dict = field(default_factory=dict)
@@ -137,6 +145,53 @@ class _ActiveTrack:
     """Pelvis of the frame before ``previous`` (constant-velocity prediction of unplaceable frames)."""
 
 
+class _StreamBody(BatchedBodyModel):
+    """:class:`~pedx_graph.graph.batch.BatchedBodyModel` as the streamed factors' body model: its value cache
+    (keypoints, their Jacobians, the chamfer vertex subset), prefetched for all pedestrians of a sample at
+    once (:meth:`StreamingEstimator._prefetch`), without its term registry (it would grow with the stream;
+    the factors then evaluate their terms themselves)."""
+
+    term_cache = None
+
+
+@dataclass
+class _Step:
+    """One observation on its way through :meth:`StreamingEstimator.add_frame`."""
+
+    tid: str
+    fr: TrackFrame
+    state: _ActiveTrack
+    i: int
+    """The frame's index in its track."""
+    n_kinds: int
+    """Number of the track's factors before this frame's."""
+    graph: gtsam.NonlinearFactorGraph
+    presolve_graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    """The new variables' initial values, then their presolved values."""
+    committed: bool = False
+    stats: object = None
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+
+    def point(self, values: gtsam.Values) -> tuple:
+        """The frame's ``(world_R_body, trans, body_pose, betas)`` in ``values`` (the shape at its estimate
+        when ``values`` lacks it): the state its factors are evaluated at."""
+        k, isam = self.state.keys[self.i], self.state.smoother.isam
+        betas = values.atVector(k.betas) if values.exists(k.betas) else isam.calculateEstimateVector(k.betas)
+        return values.atRot3(k.root), values.atVector(k.trans), values.atVector(k.body_pose), betas
+
+    def presolve(self) -> gtsam.Values:
+        self.values = self.state.smoother.presolve(self.state.keys[self.i], self.presolve_graph, self.values)
+        return self.values
+
+    def commit(self):
+        self.stats = self.state.smoother.commit_frame(self.state.keys[self.i], self.graph, self.values)
+        self.committed = True
+        return self.stats
+
+
+
 class StreamingEstimator:
     """Causal per-frame estimates of every visible pedestrian; smoothed tracks when they end."""
 
@@ -150,10 +205,12 @@ class StreamingEstimator:
         self.active: dict[str, _ActiveTrack] = {}
         self.finished: list = []
         self._pelvis_rest0 = ctx.model.rest_joints(np.zeros(ctx.model.num_betas))[0]
+        self.body = _StreamBody(ctx.model, ctx.chamfer_vertex_ids)
+        """The body model the streamed factors evaluate (batched over each sample's pedestrians)."""
 
     # --- factors of one new frame (pedx_graph.graph.build.frame_factors, as the batch graph) -------------
     def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: list[FrameMeasurements]):
-        noise, ctx, model = self.config.noise, self.ctx, self.ctx.model
+        noise, ctx, model = self.config.noise, self.ctx, self.body
         k = state.keys[i]
         graph = gtsam.NonlinearFactorGraph()
 
@@ -267,17 +324,81 @@ class StreamingEstimator:
 
         Returns the current (causal) estimate of every pedestrian observed in this sample.  Tracks not seen
         for ``track_timeout_s`` end here (finalised; collect them with :meth:`pop_finished`).
+
+        The pedestrians of the sample go through each step together (initial values; presolve; iSAM2
+        update; estimate), so the body model is evaluated for all of them in one batched call before the
+        presolves, the updates and the keypoint read-out (:meth:`_prefetch`); each pedestrian's latency is
+        its own work plus an equal share of those batched calls.
         """
         self._end_stale(timestamp, keep=observations.keys())
-        out = {}
+        steps: list[_Step] = []
         for tid, fr in observations.items():
+            step = self._guarded(None, lambda: self._begin(timestamp, tid, fr, calibrations), tid, fr)
+            if step is not None:
+                steps.append(step)
+        if self.stream_config.isam.presolve_iterations > 0:
+            self._shared(steps, lambda: self._prefetch([s.point(s.values) for s in steps], jacobians=True,
+                                                       vertices=False))
+        steps = [s for s in steps if self._guarded(s, lambda: s.presolve()) is not None]
+        self._shared(steps, lambda: self._prefetch([s.point(s.values) for s in steps], jacobians=True,
+                                                   vertices=True))
+        steps = [s for s in steps if self._guarded(s, lambda: s.commit()) is not None]
+        self._shared(steps, lambda: self._prefetch([self._read(s.state, s.i) for s in steps], jacobians=False,
+                                                   vertices=False))
+        out = {}
+        for step in steps:
             try:
-                out[tid] = self._add_observation(timestamp, tid, fr, calibrations)
+                out[step.tid] = self._finish_step(step, timestamp)
             except Exception as exc:        # one bad observation never stops the stream
-                log.warning("stream: %s frame %s: %s: %s", tid, fr.frame, type(exc).__name__, exc)
+                log.warning("stream: %s frame %s: %s: %s", step.tid, step.fr.frame, type(exc).__name__, exc)
         return out
 
-    def _add_observation(self, timestamp, tid, fr, calibrations) -> FrameEstimate:
+    def _guarded(self, step: "_Step | None", work, tid=None, fr=None):
+        """``work()`` timed into ``step``; on failure the observation is dropped (logged, the track's state
+        rolled back while its frame is not yet in iSAM2) and None returned."""
+        c0, t0 = time.process_time(), time.perf_counter()
+        try:
+            result = work()
+        except Exception as exc:            # one bad observation never stops the stream
+            if step is not None:
+                tid, fr = step.tid, step.fr
+                if not step.committed:
+                    self._rollback(step.state, step.i, step.n_kinds)
+            log.warning("stream: %s frame %s: %s: %s", tid, fr.frame, type(exc).__name__, exc)
+            return None
+        target = result if step is None else step
+        target.cpu_seconds += time.process_time() - c0
+        target.seconds += time.perf_counter() - t0
+        return result
+
+    @staticmethod
+    def _shared(steps: list["_Step"], work) -> None:
+        """``work()`` (a batched call for all ``steps``), its time shared equally by the steps."""
+        if not steps:
+            return
+        c0, t0 = time.process_time(), time.perf_counter()
+        work()
+        cpu, wall = (time.process_time() - c0) / len(steps), (time.perf_counter() - t0) / len(steps)
+        for step in steps:
+            step.cpu_seconds += cpu
+            step.seconds += wall
+
+    def _prefetch(self, states: list[tuple], jacobians: bool, vertices: bool) -> None:
+        """Evaluate the body model at every ``(world_R_body, trans, body_pose, betas)`` of ``states`` in one
+        batched call; the factors' own calls at exactly these values are then cache look-ups
+        (:class:`~pedx_graph.graph.batch.BatchedBodyModel`, keyed by the values)."""
+        values, keys = gtsam.Values(), []
+        for j, (rot, trans, body_pose, betas) in enumerate(states):
+            k = FrameKeys.for_frame(j, j)
+            values.insert(k.root, rot if isinstance(rot, gtsam.Rot3) else gtsam.Rot3(rot))
+            values.insert(k.trans, np.asarray(trans, float))
+            values.insert(k.body_pose, np.asarray(body_pose, float))
+            values.insert(k.betas, np.asarray(betas, float))
+            keys.append(k)
+        self.body.prefetch(values, keys, jacobians, vertices=vertices, kinds=frozenset())
+
+    def _begin(self, timestamp, tid, fr, calibrations) -> "_Step":
+        """A new observation's causal initialisation, factors and initial values."""
         state = self.active.get(tid)
         if state is None:
             state = _ActiveTrack(sequence=self.sequence, tracking_id=tid, calibrations=dict(calibrations),
@@ -289,7 +410,6 @@ class StreamingEstimator:
         state.frames.append(fr)
         state.keys.append(FrameKeys.for_frame(i))
         n_kinds = len(state.kinds)
-        t0, c0 = time.perf_counter(), time.process_time()
         try:
             state.measurements.append(measure_frame(state.calibrations[fr.pair], fr,
                                                     self.config.noise.translation_depth_offset_m))
@@ -299,32 +419,44 @@ class StreamingEstimator:
             values = self._initial_values(state, i, init)
             if i == 0 and not np.isfinite(init.heading_yaw):
                 values = self._best_facing(graph, values, state.keys[0])
-            state.smoother.add_frame(state.keys[i], graph, values,
-                                     self._presolve_factors(graph, state.kinds[n_kinds:]))
+            presolve = self._presolve_factors(graph, state.kinds[n_kinds:])
         except Exception:
-            del state.measurements[i:]
-            state.frames.pop()
-            state.keys.pop()
-            del state.kinds[n_kinds:], state.factor_frames[n_kinds:]
-            if not state.frames:
-                self.active.pop(tid, None)
+            self._rollback(state, i, n_kinds)
             raise
-        state.last_seen = timestamp
+        return _Step(tid=tid, fr=fr, state=state, i=i, n_kinds=n_kinds, graph=graph,
+                     presolve_graph=graph if presolve is None else presolve, values=values)
+
+    def _read(self, state: _ActiveTrack, i: int) -> tuple:
+        """Read frame ``i``'s new estimate into its track (``previous`` ...) and return it."""
         if state.previous is not None:
             state.last_pelvis = self.ctx.model.rest_joints(state.previous[3])[0] + state.previous[1]
         state.before_previous = state.previous
         state.previous = state.smoother.frame_estimate(state.keys[i])
+        return state.previous
+
+    def _rollback(self, state: _ActiveTrack, i: int, n_kinds: int) -> None:
+        del state.measurements[i:], state.frames[i:], state.keys[i:]
+        del state.kinds[n_kinds:], state.factor_frames[n_kinds:]
+        if not state.frames:
+            self.active.pop(state.tracking_id, None)
+
+    def _finish_step(self, step: "_Step", timestamp: float) -> FrameEstimate:
+        """The observation's estimate (keypoints from the batched read-out) and optional covariances."""
+        c0, t0 = time.process_time(), time.perf_counter()
+        state, i = step.state, step.i
+        state.last_seen = timestamp
         rot, trans, body_pose, betas = state.previous
         pose = np.concatenate([gtsam.Rot3.Logmap(gtsam.Rot3(rot)), body_pose])
-        kps = np.asarray(self.ctx.model.keypoints(pose, betas, trans))
-        seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
+        kps = np.array(self.body.keypoints(pose, betas, trans))
+        seconds = step.seconds + time.perf_counter() - t0
+        cpu_seconds = step.cpu_seconds + time.process_time() - c0
         state.frame_seconds.append(seconds)
         extra = {}
         if self.stream_config.causal_covariance:
             extra = self._causal_covariance(state, i, pose, betas, trans)
-        return FrameEstimate(tracking_id=tid, frame=fr.frame, timestamp=float(timestamp), pose=pose, betas=betas,
-                             trans=trans, world_keypoints=kps, update_seconds=seconds, cpu_seconds=cpu_seconds,
-                             isam_seconds=state.smoother.updates[-1].isam_seconds, extra=extra)
+        return FrameEstimate(tracking_id=step.tid, frame=step.fr.frame, timestamp=float(timestamp), pose=pose,
+                             betas=betas, trans=trans, world_keypoints=kps, update_seconds=seconds,
+                             cpu_seconds=cpu_seconds, isam_seconds=step.stats.isam_seconds, extra=extra)
 
     def _causal_covariance(self, state, i, pose, betas, trans) -> dict:
         from pedx_graph.solvers.marginals import MarginalsConfig, frame_fields, isam_frame_covariance
