@@ -137,14 +137,17 @@ def test_lm_with_batched_linearizer_follows_the_plain_lm(problem_and_point):
             np.testing.assert_allclose(est_a.atVector(key), est_b.atVector(key), atol=1e-7)
 
 
+def _random_frames(seed: int, n: int):
+    """The synthetic model, a generator and ``n`` random frames' pose (n, 72), betas and trans."""
+    model = synthetic_context().model
+    rng = np.random.default_rng(seed)
+    return (model, rng, rng.normal(scale=0.3, size=(n, 72)), rng.normal(size=(n, model.num_betas)),
+            rng.normal(size=(n, 3)))
+
+
 def test_vertex_jacobians_per_frame_equal_single_frame_calls():
-    ctx = synthetic_context()
-    model = ctx.model
-    rng = np.random.default_rng(4)
     n = 5
-    pose = rng.normal(scale=0.3, size=(n, 72))
-    betas = rng.normal(size=(n, model.num_betas))
-    trans = rng.normal(size=(n, 3))
+    model, rng, pose, betas, trans = _random_frames(4, n)
     ids = np.stack([rng.choice(model.num_vertices, 7, replace=False) for _ in range(n)])
     batch = model.vertex_jacobians_per_frame(pose, betas, trans, ids)
     for i in range(n):
@@ -158,13 +161,7 @@ def test_vertex_jacobians_per_frame_equal_single_frame_calls():
 def test_shared_jacobian_setup_gives_the_same_results():
     """point_jacobians / vertex_jacobians_per_frame / vertices_subset with a precomputed setup (or some of
     its frames) equal the calls that compute it themselves."""
-    ctx = synthetic_context()
-    model = ctx.model
-    rng = np.random.default_rng(7)
-    n = 4
-    pose = rng.normal(scale=0.3, size=(n, 72))
-    betas = rng.normal(size=(n, model.num_betas))
-    trans = rng.normal(size=(n, 3))
+    model, rng, pose, betas, trans = _random_frames(7, 4)
     setup = model.jacobian_setup(pose, betas)
     names = ("points", "d_root", "d_body_pose", "d_trans", "d_betas")
     for a, b in ((model.point_jacobians(pose, betas, trans, setup=setup), model.point_jacobians(pose, betas, trans)),
