@@ -29,6 +29,7 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, FrameKeys
+from pedx_graph.solvers.frame_system import hessian_factor
 
 
 @dataclass
@@ -183,16 +184,19 @@ def _free_normal_equations(linear: gtsam.GaussianFactorGraph, free: list[int], d
 
 
 def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys,
-                      damping: float = 1e-2) -> gtsam.Values:
+                      damping: float = 1e-2, system: tuple | None = None) -> gtsam.Values:
     """One damped Gauss-Newton step over ``free_keys``; every other key of ``values`` is held fixed.
 
     Solves ``(H_ff + damping I) delta_f = eta_f`` densely (``H``, ``eta``: the graph linearised at
     ``values``; ``f``: the free keys) and retracts the free keys.  This is :func:`local_lm`'s first
     iteration (the same damping) without its error evaluations, i.e. the step is not checked.
+    ``system``: ``(keys, H, eta)``, the normal equations of further factors at ``values`` over the columns
+    of ``keys`` in that order (e.g. factors linearised in a batch elsewhere), added to the graph's.
     Returns the updated ``values`` (a copy).
     """
     in_graph = {int(k) for k in graph.keyVector()}
-    free = [int(k) for k in free_keys if int(k) in in_graph]      # a key no factor sees does not move
+    seen = in_graph | ({int(k) for k in system[0]} if system is not None else set())
+    free = [int(k) for k in free_keys if int(k) in seen]          # a key no factor sees does not move
     free_set = set(free)
     held = [k for k in in_graph if k not in free_set]
     zero = values.zeroVectors()
@@ -202,16 +206,32 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, f
             step.insert(key, np.zeros(int(zero.at(key).shape[0])))
     if not free:
         return values.retract(step)
-    linear = graph.linearize(values)
     dims = [int(zero.at(k).shape[0]) for k in free]
     n = int(sum(dims))
-    h_ff, rhs = _free_normal_equations(linear, free, dims, zero)
-    if h_ff is None:                   # not all Jacobian factors: gtsam's dense Hessian of every key
-        ordering = gtsam.Ordering()
-        for key in free + held:
-            ordering.push_back(key)
-        hessian, eta = linear.hessian(ordering)
-        h_ff, rhs = hessian[:n, :n], np.asarray(eta, float).reshape(-1)[:n]
+    if graph.size():
+        linear = graph.linearize(values)
+        h_ff, rhs = _free_normal_equations(linear, free, dims, zero)
+        if h_ff is None:               # not all Jacobian factors: gtsam's dense Hessian of every key
+            ordering = gtsam.Ordering()
+            graph_free = [k for k in free if k in in_graph]
+            for key in graph_free + held:
+                ordering.push_back(key)
+            hessian, eta = linear.hessian(ordering)
+            m = int(sum(int(zero.at(k).shape[0]) for k in graph_free))
+            cols = _columns(free, dims, graph_free)
+            h_ff, rhs = np.zeros((n, n)), np.zeros(n)
+            h_ff[np.ix_(cols, cols)] = hessian[:m, :m]
+            rhs[cols] = np.asarray(eta, float).reshape(-1)[:m]
+    else:
+        h_ff, rhs = np.zeros((n, n)), np.zeros(n)
+    if system is not None:
+        keys, h_sys, eta_sys = system
+        keys = [int(k) for k in keys]
+        sys_dims = [int(zero.at(k).shape[0]) for k in keys]
+        both = [k for k in keys if k in free_set]
+        cols, sys_cols = _columns(free, dims, both), _columns(keys, sys_dims, both)
+        h_ff[np.ix_(cols, cols)] += h_sys[np.ix_(sys_cols, sys_cols)]
+        rhs[cols] += eta_sys[sys_cols]
     h_ff = h_ff + damping * np.eye(n)
     try:
         delta = np.linalg.solve(h_ff, rhs)
@@ -222,6 +242,16 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, f
         step.insert(key, delta[offset:offset + d])
         offset += d
     return values.retract(step)
+
+
+def _columns(keys: list[int], dims: list[int], subset: list[int]) -> np.ndarray:
+    """The column indices of the keys ``subset`` (in that order) in a system over ``keys`` (dimensions
+    ``dims``)."""
+    starts = dict(zip(keys, np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(int)))
+    width = dict(zip(keys, dims))
+    if not subset:
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate([np.arange(starts[k], starts[k] + width[k]) for k in subset])
 
 
 @dataclass
@@ -323,20 +353,30 @@ class IncrementalTrack:
         stats.seconds = time.perf_counter() - t0
         return stats
 
-    def presolve(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values
-                 ) -> gtsam.Values:
+    def presolve(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values,
+                 system: tuple | None = None) -> gtsam.Values:
         """The new variables optimised on ``factors`` with the existing ones held at their estimate
-        (``IsamConfig.presolve_iterations``; ``new_values`` when 0)."""
+        (``IsamConfig.presolve_iterations``; ``new_values`` when 0).
+
+        ``system``: ``(H, eta)``, the normal equations of further factors of the frame (columns ``[root,
+        trans, body_pose, betas]`` of ``frame_keys``) at ``new_values`` with the shape at its estimate,
+        formed elsewhere (:mod:`pedx_graph.solvers.frame_system`); only with one Gauss-Newton iteration."""
         if self.finalized:
             raise RuntimeError("cannot add frames to a finalised track")
         self.rotation_keys.add(int(frame_keys.root))
         if self.config.presolve_iterations > 0:
-            return self._presolve(factors, new_values)
+            own = None if system is None else (frame_keys.as_list(), system[0], system[1])
+            return self._presolve(factors, new_values, own)
         return new_values
 
-    def commit_frame(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values
-                     ) -> UpdateStats:
-        """The iSAM2 update of one frame (see :meth:`add_frame`) from its (presolved) ``new_values``."""
+    def commit_frame(self, frame_keys: FrameKeys, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values,
+                     own_system: tuple | None = None) -> UpdateStats:
+        """The iSAM2 update of one frame (see :meth:`add_frame`) from its (presolved) ``new_values``.
+
+        ``own_system``: ``(H, eta, f)``, the normal equations of the frame's own factors (columns ``[root,
+        trans, body_pose, betas]``) at ``new_values`` with the shape at its estimate, formed elsewhere
+        (:mod:`pedx_graph.solvers.frame_system`, the same system as ``graph.linearize``); with
+        ``IsamConfig.linearize_frame_factors`` they then enter iSAM2 without being linearised here."""
         if self.finalized:
             raise RuntimeError("cannot add frames to a finalised track")
         n = len(self.updates) + 1
@@ -355,16 +395,21 @@ class IncrementalTrack:
         graph, linearized, remove = factors, [], []
         if self.config.linearize_frame_factors:
             graph, own = self._split_own(frame_keys, factors)
+            new_frame = None
             if own.size():
-                linearized.append(_LinearizedFrame(frame_keys, own, self._with_estimates(new_values, own.keyVector())))
+                new_frame = _LinearizedFrame(frame_keys, own, self._with_estimates(new_values, own.keyVector()))
+                linearized.append(new_frame)
             if check:
                 for frame in self._to_relinearize(hold):
                     remove.append(frame.slot)
                     frame.point = self._with_estimates(gtsam.Values(), frame.factors.keyVector())
                     linearized.append(frame)
             for frame in linearized:
-                graph.add(gtsam.LinearContainerFactor(gtsam.HessianFactor(frame.factors.linearize(frame.point)),
-                                                      frame.point))
+                if frame is new_frame and own_system is not None:
+                    linear = hessian_factor(frame_keys, own.keyVector(), *own_system)
+                else:
+                    linear = gtsam.HessianFactor(frame.factors.linearize(frame.point))
+                graph.add(gtsam.LinearContainerFactor(linear, frame.point))
         linearize_seconds = time.perf_counter() - t1
         stats, result = self._update(graph, new_values, hold_shape=hold, hold_old_frames=check, remove=remove)
         if linearized:
@@ -437,15 +482,20 @@ class IncrementalTrack:
         self._update(graph, gtsam.Values(), hold_shape=False, remove=[f.slot for f in self.linearized])
         self.linearized = []
 
-    def _presolve(self, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values) -> gtsam.Values:
-        """Optimise the new variables on the new factors with the existing ones held at their estimate."""
+    def _presolve(self, factors: gtsam.NonlinearFactorGraph, new_values: gtsam.Values, system: tuple | None = None
+                  ) -> gtsam.Values:
+        """Optimise the new variables on the new factors (and ``system``: ``(keys, H, eta)`` at the starting
+        point, see :meth:`presolve`) with the existing ones held at their estimate."""
         free = [int(k) for k in new_values.keys()]
-        local = self._with_estimates(new_values, factors.keyVector())
+        keys = list(factors.keyVector()) + ([] if system is None else list(system[0]))
+        local = self._with_estimates(new_values, keys)
+        if system is not None and (self.config.presolve_method != "gn" or self.config.presolve_iterations != 1):
+            raise ValueError("a presolve with a precomputed system takes one Gauss-Newton iteration")
         if self.config.presolve_method == "lm":
             local, _, _ = local_lm(factors, local, free, max_iterations=self.config.presolve_iterations)
         elif self.config.presolve_method == "gn":
             for _ in range(self.config.presolve_iterations):
-                local = gauss_newton_step(factors, local, free)
+                local = gauss_newton_step(factors, local, free, system=system)
         else:
             raise ValueError(f"presolve_method must be 'gn' or 'lm', got {self.config.presolve_method!r}")
         out = gtsam.Values()

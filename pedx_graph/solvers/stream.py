@@ -43,6 +43,7 @@ from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements, measure_frame
+from pedx_graph.solvers.frame_system import OWN_KINDS, RecordingBody, SpecRecorder, frame_systems, register_sample
 from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig
 
 log = logging.getLogger(__name__)
@@ -71,6 +72,11 @@ class StreamConfig:
     """Factor kinds left out of the presolve (they still enter the iSAM2 update): the chamfer term is half
     the cost of linearising a frame, and its nearest-vertex correspondences are poor before the frame is
     placed by the other terms."""
+    batched_frame_systems: bool = True
+    """Form the new frames' own factors' Gauss-Newton systems (for the presolve and for iSAM2) for all
+    pedestrians of a sample in one batched pass (:mod:`pedx_graph.solvers.frame_system`; the same systems
+    as GTSAM's linearisation) instead of through one GTSAM callback per factor and frame.  Used with the
+    Gauss-Newton presolve of one iteration and ``IsamConfig.linearize_frame_factors``."""
     final_restart: bool = True
     """When a track ends, also solve it from scratch with the batch fit (staged LM, centred headings) and
     keep whichever estimate has the lower error on the track's streamed graph: the incremental path can
@@ -169,6 +175,15 @@ class _Step:
     presolve_graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     """The new variables' initial values, then their presolved values."""
+    specs: list | None = None
+    """What the frame's factors measure (their :class:`~pedx_graph.solvers.frame_system.SpecRecorder`), when
+    its own factors' systems are formed in a batch (``StreamConfig.batched_frame_systems``)."""
+    presolve_rest: gtsam.NonlinearFactorGraph | None = None
+    """The presolve's factors outside the batched system (temporal and shape priors)."""
+    presolve_system: tuple | None = None
+    """``(H, eta, f)`` of the frame's own factors in the presolve, at the initial values (batched)."""
+    own_system: tuple | None = None
+    """``(H, eta, f)`` of the frame's own factors at the presolved values (batched), for iSAM2."""
     committed: bool = False
     stats: object = None
     seconds: float = 0.0
@@ -182,11 +197,16 @@ class _Step:
         return values.atRot3(k.root), values.atVector(k.trans), values.atVector(k.body_pose), betas
 
     def presolve(self) -> gtsam.Values:
-        self.values = self.state.smoother.presolve(self.state.keys[self.i], self.presolve_graph, self.values)
+        keys, smoother = self.state.keys[self.i], self.state.smoother
+        if self.presolve_system is not None:
+            self.values = smoother.presolve(keys, self.presolve_rest, self.values, self.presolve_system[:2])
+        else:
+            self.values = smoother.presolve(keys, self.presolve_graph, self.values)
         return self.values
 
     def commit(self):
-        self.stats = self.state.smoother.commit_frame(self.state.keys[self.i], self.graph, self.values)
+        self.stats = self.state.smoother.commit_frame(self.state.keys[self.i], self.graph, self.values,
+                                                      own_system=self.own_system)
         self.committed = True
         return self.stats
 
@@ -207,10 +227,15 @@ class StreamingEstimator:
         self._pelvis_rest0 = ctx.model.rest_joints(np.zeros(ctx.model.num_betas))[0]
         self.body = _StreamBody(ctx.model, ctx.chamfer_vertex_ids)
         """The body model the streamed factors evaluate (batched over each sample's pedestrians)."""
+        self._recording = RecordingBody(self.body, SpecRecorder())
+        """:attr:`body` as the factors see it when their specs are recorded (the recorder is swapped for each
+        new frame before its factors are built; one object, so per-model caches such as
+        :func:`factors.translation_prior.pelvis_shape_basis` keep hitting)."""
 
     # --- factors of one new frame (pedx_graph.graph.build.frame_factors, as the batch graph) -------------
-    def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: list[FrameMeasurements]):
-        noise, ctx, model = self.config.noise, self.ctx, self.body
+    def _frame_factors(self, state: _ActiveTrack, i: int, fr: TrackFrame, window: list[FrameMeasurements],
+                       model=None):
+        noise, ctx, model = self.config.noise, self.ctx, model or self.body
         k = state.keys[i]
         graph = gtsam.NonlinearFactorGraph()
 
@@ -337,11 +362,9 @@ class StreamingEstimator:
             if step is not None:
                 steps.append(step)
         if self.stream_config.isam.presolve_iterations > 0:
-            self._shared(steps, lambda: self._prefetch([s.point(s.values) for s in steps], jacobians=True,
-                                                       vertices=False))
+            self._shared(steps, lambda: self._systems(steps, presolve=True))
         steps = [s for s in steps if self._guarded(s, lambda: s.presolve()) is not None]
-        self._shared(steps, lambda: self._prefetch([s.point(s.values) for s in steps], jacobians=True,
-                                                   vertices=True))
+        self._shared(steps, lambda: self._systems(steps, presolve=False))
         steps = [s for s in steps if self._guarded(s, lambda: s.commit()) is not None]
         self._shared(steps, lambda: self._prefetch([self._read(s.state, s.i) for s in steps], jacobians=False,
                                                    vertices=False))
@@ -383,7 +406,7 @@ class StreamingEstimator:
             step.cpu_seconds += cpu
             step.seconds += wall
 
-    def _prefetch(self, states: list[tuple], jacobians: bool, vertices: bool) -> None:
+    def _prefetch(self, states: list[tuple], jacobians: bool, vertices: bool, kinds=frozenset()) -> None:
         """Evaluate the body model at every ``(world_R_body, trans, body_pose, betas)`` of ``states`` in one
         batched call; the factors' own calls at exactly these values are then cache look-ups
         (:class:`~pedx_graph.graph.batch.BatchedBodyModel`, keyed by the values)."""
@@ -395,7 +418,7 @@ class StreamingEstimator:
             values.insert(k.body_pose, np.asarray(body_pose, float))
             values.insert(k.betas, np.asarray(betas, float))
             keys.append(k)
-        self.body.prefetch(values, keys, jacobians, vertices=vertices, kinds=frozenset())
+        self.body.prefetch(values, keys, jacobians, vertices=vertices, kinds=kinds)
 
     def _begin(self, timestamp, tid, fr, calibrations) -> "_Step":
         """A new observation's causal initialisation, factors and initial values."""
@@ -415,16 +438,63 @@ class StreamingEstimator:
                                                     self.config.noise.translation_depth_offset_m))
             window = [m for m in state.measurements[-16:]
                       if fr.timestamp - m.time <= self.stream_config.heading_half_window_s + 1e-9]
-            graph, init = self._frame_factors(state, i, fr, window)
+            recorder = None
+            if self._batched():
+                recorder = self._recording.term_cache = SpecRecorder()
+            graph, init = self._frame_factors(state, i, fr, window, None if recorder is None else self._recording)
             values = self._initial_values(state, i, init)
             if i == 0 and not np.isfinite(init.heading_yaw):
                 values = self._best_facing(graph, values, state.keys[0])
-            presolve = self._presolve_factors(graph, state.kinds[n_kinds:])
+            kinds = state.kinds[n_kinds:]
+            presolve = self._presolve_factors(graph, kinds)
+            specs = rest = None
+            if recorder is not None and sorted(k for k in kinds if k in OWN_KINDS) == \
+                    sorted(k for k, _, _ in recorder.specs if k in OWN_KINDS):
+                specs = recorder.specs
+                rest = gtsam.NonlinearFactorGraph()
+                for j, kind in enumerate(kinds):
+                    if kind not in OWN_KINDS:
+                        rest.add(graph.at(j))
         except Exception:
             self._rollback(state, i, n_kinds)
             raise
         return _Step(tid=tid, fr=fr, state=state, i=i, n_kinds=n_kinds, graph=graph,
-                     presolve_graph=graph if presolve is None else presolve, values=values)
+                     presolve_graph=graph if presolve is None else presolve, values=values, specs=specs,
+                     presolve_rest=rest)
+
+    def _batched(self) -> bool:
+        """Whether the new frames' own factors' systems are formed in a batch (see
+        ``StreamConfig.batched_frame_systems``)."""
+        isam = self.stream_config.isam
+        return bool(self.stream_config.batched_frame_systems and isam.linearize_frame_factors)
+
+    def _systems(self, steps: list["_Step"], presolve: bool) -> None:
+        """Prefetch the body model at the steps' current values (their keypoint Jacobians; for the update
+        also the chamfer's vertices) and, when batched, form each step's own factors' system there: for the
+        presolve without the kinds of ``StreamConfig.presolve_exclude`` (``presolve_system``), for the update
+        all of them (``own_system``)."""
+        states = [s.point(s.values) for s in steps]
+        isam = self.stream_config.isam
+        batched = self._batched() and (not presolve or (isam.presolve_method == "gn"
+                                                        and isam.presolve_iterations == 1))
+        served = [s for s in steps if s.specs is not None]
+        if not batched or not served:
+            self._prefetch(states, jacobians=True, vertices=not presolve)
+            return
+        exclude = set(self.stream_config.presolve_exclude or ()) if presolve else set()
+        kinds = tuple(k for k in OWN_KINDS if k not in exclude)
+        keys = register_sample(self.body, [(s.state.keys[s.i], s.specs or []) for s in steps])
+        try:
+            self._prefetch(states, jacobians=True, vertices=not presolve, kinds=frozenset(kinds))
+            systems = frame_systems(self.body, keys, kinds)
+        finally:
+            self.body._specs = {}
+        for j, step in enumerate(steps):
+            system = None if systems is None or step.specs is None else tuple(x[j] for x in systems)
+            if presolve:
+                step.presolve_system = system
+            else:
+                step.own_system = system
 
     def _read(self, state: _ActiveTrack, i: int) -> tuple:
         """Read frame ``i``'s new estimate into its track (``previous`` ...) and return it."""

@@ -1,0 +1,126 @@
+"""The streamed frames' own factors linearised in one batch per sample (pedx_graph.solvers.frame_system)
+against GTSAM's linearisation of the same factors, and the stream with and without it."""
+import gtsam
+import numpy as np
+import pytest
+
+from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
+from pedx_graph.solvers.frame_system import hessian_factor
+from pedx_graph.solvers.isam import IncrementalTrack
+from pedx_graph.solvers.stream import StreamConfig, StreamingEstimator
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return synthetic_context()
+
+
+def _tracks(ctx):
+    a, _ = synthetic_track(ctx, 4, seed=0)
+    b, _ = synthetic_track(ctx, 4, seed=3, distance_m=13.0, with_right=False)
+    b.tracking_id = "pedB"
+    for fr in b.frames:                      # background caught by the polygon: robust chamfer / translation
+        fr.world_lidar_points[:5] += np.array([2.0, 0.5, 0.0])
+    c, _ = synthetic_track(ctx, 4, seed=5, distance_m=8.0, with_lidar=False)
+    c.tracking_id = "pedC"
+    return [a, b, c]
+
+
+def _augmented(factor, keys) -> np.ndarray:
+    graph = gtsam.GaussianFactorGraph()
+    graph.push_back(factor)
+    ordering = gtsam.Ordering()
+    for k in keys:
+        ordering.push_back(k)
+    return graph.augmentedHessian(ordering)
+
+
+def _steps(ctx, config, frames_before: int):
+    """The steps of sample ``frames_before`` of three tracks (after streaming the earlier samples), their
+    values moved off the initial ones so that the robust kernels and joint limits are exercised."""
+    tracks = _tracks(ctx)
+    est = StreamingEstimator(ctx, config, StreamConfig(marginals=False, diagnostics=False))
+    for j in range(frames_before):
+        est.add_frame(tracks[0].frames[j].timestamp, {t.tracking_id: t.frames[j] for t in tracks},
+                      tracks[0].calibrations)
+    ts = tracks[0].frames[frames_before].timestamp
+    steps = [est._begin(ts, t.tracking_id, t.frames[frames_before], t.calibrations) for t in tracks]
+    rng = np.random.default_rng(1)
+    for s in steps:
+        keys = s.state.keys[s.i]
+        pose = np.asarray(s.values.atVector(keys.body_pose)) + rng.normal(scale=0.2, size=69)
+        pose[9] = 2.9                        # left knee beyond its limit
+        s.values.update(keys.body_pose, pose)
+        s.values.update(keys.trans, np.asarray(s.values.atVector(keys.trans)) + rng.normal(scale=0.05, size=3))
+    return est, steps
+
+
+@pytest.mark.parametrize("frames_before", [0, 2])
+def test_batched_frame_systems_equal_gtsam_linearisation(ctx, frames_before):
+    """For the update (all own factors) and the presolve (without the chamfer): the batched system of every
+    pedestrian of the sample is GTSAM's Hessian of the same factors at the same point, and
+    ``hessian_factor`` turns it into the same ``gtsam.HessianFactor``."""
+    config = synthetic_config()
+    est, steps = _steps(ctx, config, frames_before)
+    for presolve in (True, False):
+        est._systems(steps, presolve=presolve)
+        for s in steps:
+            keys = s.state.keys[s.i]
+            system = s.presolve_system if presolve else s.own_system
+            assert system is not None
+            _, own = IncrementalTrack._split_own(keys, s.graph)
+            kinds = s.state.kinds[s.n_kinds:]
+            if presolve:                     # the presolve's own factors: without the chamfer
+                own = gtsam.NonlinearFactorGraph()
+                for j, kind in enumerate(kinds):
+                    if kind not in ("lidar_chamfer", "temporal_prior", "shape_prior"):
+                        own.add(s.graph.at(j))
+            point = s.state.smoother._with_estimates(s.values, own.keyVector())
+            reference = gtsam.HessianFactor(own.linearize(point))
+            present = [k for k in keys.as_list() if k in set(own.keyVector())]
+            expected = _augmented(reference, present)
+            scale = np.abs(expected).max()
+            got = _augmented(hessian_factor(keys, own.keyVector(), *system), present)
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * scale)
+            # the dense system itself, on the columns [root, trans, body_pose, betas]
+            h, eta, f = system
+            dims = {keys.root: 3, keys.trans: 3, keys.body_pose: 69, keys.betas: ctx.model.num_betas}
+            starts = {keys.root: 0, keys.trans: 3, keys.body_pose: 6, keys.betas: 75}
+            cols = np.concatenate([np.arange(starts[k], starts[k] + dims[k]) for k in present])
+            np.testing.assert_allclose(h[np.ix_(cols, cols)], expected[:-1, :-1], atol=1e-9 * scale)
+            np.testing.assert_allclose(eta[cols], expected[:-1, -1], atol=1e-9 * scale)
+            assert f == pytest.approx(expected[-1, -1], rel=1e-9)
+            assert not np.any(np.delete(h, cols, axis=0)) and not np.any(np.delete(eta, cols))
+
+
+def test_hessian_factor_on_fewer_keys():
+    """A frame whose own factors touch only some of its variables gets a factor on just those."""
+    from factors.common import FrameKeys
+
+    keys = FrameKeys.for_frame(3)
+    rng = np.random.default_rng(0)
+    a = np.zeros((20, 85))
+    a[:, 6:75] = rng.normal(size=(20, 69))                   # body pose only
+    b = rng.normal(size=20)
+    factor = hessian_factor(keys, [keys.body_pose], a.T @ a, a.T @ b, float(b @ b))
+    assert list(factor.keys()) == [keys.body_pose]
+    np.testing.assert_allclose(_augmented(factor, [keys.body_pose])[:-1, :-1], a[:, 6:75].T @ a[:, 6:75])
+
+
+def test_stream_with_batched_systems_equals_gtsam_path(ctx):
+    """Causal estimates with the batched systems equal those with GTSAM's linearisation (round-off)."""
+    tracks = _tracks(ctx)
+    outs = []
+    for batched in (True, False):
+        est = StreamingEstimator(ctx, synthetic_config(), StreamConfig(batched_frame_systems=batched,
+                                                                       marginals=False, diagnostics=False))
+        per_frame = []
+        for j in range(4):
+            current = est.add_frame(tracks[0].frames[j].timestamp, {t.tracking_id: t.frames[j] for t in tracks},
+                                    tracks[0].calibrations)
+            assert sorted(current) == sorted(t.tracking_id for t in tracks)
+            per_frame.append({tid: e.world_keypoints for tid, e in current.items()})
+        outs.append(per_frame)
+    for with_batch, reference in zip(*outs):
+        for tid in reference:
+            np.testing.assert_allclose(with_batch[tid], reference[tid], atol=1e-7)
