@@ -105,6 +105,20 @@ class SolverConfig:
     template pose (e.g. a swinging arm) are treated as outliers and the fit stays in that local minimum
     (measured: benchmarks/results/bench_calibration.md, docs/estimator.md).  The same name as
     ``noise.reprojection_loss``: one graph for both stages."""
+    flip_segments: tuple[str, ...] = ("right_upper_arm", "left_upper_arm", "right_thigh", "left_thigh")
+    """Limb depth-flip search after the staged fit (:mod:`pedx_graph.solvers.flips`): each named bone
+    segment is mirrored in depth in every frame, the track re-solved for ``flip_max_iterations`` and the
+    mirror kept when the objective drops.  A swing along the viewing ray (walking towards or away from
+    the camera) is nearly invisible to stereo at range.  Empty: no search."""
+    flip_max_iterations: int = 8
+    """LM iterations that judge one mirrored candidate."""
+    flip_min_distance_m: float = 12.0
+    """Tracks nearer than this (median camera distance) skip the flip search: stereo disparity resolves
+    the swing depth there."""
+    flip_max_heading_angle_deg: float = 60.0
+    """Only tracks walking towards or away from the camera get the flip search: the median angle between
+    the trajectory heading and the horizontal viewing ray (folded to 0-90 degrees) at most this.  Walking
+    across the view, the swings show in the image and a mirrored limb is far off its labels."""
 
 
 @dataclass

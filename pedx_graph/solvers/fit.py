@@ -7,6 +7,7 @@ the resolved config beside them.  One failing track is reported in the summary a
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -109,6 +110,8 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
         per_frame, per_track = track_extras(problem, values, ctx, marginals=config.covariances,
                                             diagnostics=config.diagnostics, fit_config=config)
         per_track["extras_seconds"] = time.perf_counter() - t1
+    if report.flips:
+        per_track["flips"] = report.flips
     return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
                        frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
                        trans=est.trans, world_keypoints=est.world_keypoints,
@@ -120,8 +123,6 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
 def coarse_stage_config(config: FitConfig) -> FitConfig:
     """The first stage's config: no LiDAR chamfer term, the stereo reprojection with
     ``solver.coarse_reprojection_loss``."""
-    import dataclasses
-
     return dataclasses.replace(
         config, terms=dataclasses.replace(config.terms, lidar_chamfer=False),
         noise=dataclasses.replace(config.noise, reprojection_loss=config.solver.coarse_reprojection_loss))
@@ -131,11 +132,48 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     """Solve in two stages, as the paper's staged fitting: first without the LiDAR chamfer term (its
     nearest-vertex correspondences only pull the right way once the body is roughly in place) and with the
     stereo reprojection's ``solver.coarse_reprojection_loss`` (graduated non-convexity), then with every
-    term from that estimate.  Returns (problem, values, report) of the final stage; the report's
-    iterations and seconds cover both stages, its initial error is the full graph's at the first stage's
-    estimate."""
-    import dataclasses
+    term from that estimate.  Then, for tracks at range walking towards or away from the camera, the limb
+    depth-flip search (:mod:`pedx_graph.solvers.flips`, ``solver.flip_*``), which only ever lowers the
+    error.  Returns (problem, values, report) of the final stage; the report's iterations and seconds
+    cover every stage and the search, its initial error is the full graph's at the first stage's
+    estimate, ``report.flips`` records the search (empty when it did not run)."""
+    problem, values, report = _two_stages(track, ctx, config, yaw_override)
+    if config.solver.flip_segments and len(track.frames) > 1 and \
+            track_distance_m(track, problem.init) >= config.solver.flip_min_distance_m and \
+            heading_ray_angle_deg(track, problem.init) <= config.solver.flip_max_heading_angle_deg:
+        from pedx_graph.solvers.flips import flip_search
 
+        values, flips = flip_search(problem, values, track, ctx, config, _solver_parts(problem, config))
+        report.final_error = flips.final_error
+        report.iterations += flips.iterations
+        report.seconds += flips.seconds
+        report.flips = dataclasses.asdict(flips)
+    return problem, values, report
+
+
+def track_distance_m(track: Track, init) -> float:
+    """Median distance (m) of the track's initial body centres from their frames' left cameras."""
+    centres = np.stack([track.calibrations[fr.pair].world_T_cam[:3, 3] for fr in track.frames])
+    dist = np.linalg.norm(np.asarray(init.world_p_centre, float) - centres, axis=1)
+    dist = dist[np.isfinite(dist)]
+    return float(np.median(dist)) if dist.size else float("nan")
+
+
+def heading_ray_angle_deg(track: Track, init) -> float:
+    """Median angle (degrees, 0-90) between the trajectory heading and the horizontal ray from the camera
+    to the body: 0 walking straight towards or away from the camera, 90 walking across.  NaN (no
+    frame with a known heading) compares false with every threshold."""
+    centres = np.stack([track.calibrations[fr.pair].world_T_cam[:3, 3] for fr in track.frames])
+    ray = (np.asarray(init.world_p_centre, float) - centres)[:, :2]
+    yaw = np.asarray(init.heading_yaw, float)
+    heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+    cos = np.abs(np.sum(ray * heading, axis=1)) / np.linalg.norm(ray, axis=1)
+    cos = cos[np.isfinite(cos)]
+    return float(np.degrees(np.arccos(np.clip(np.median(cos), 0.0, 1.0)))) if cos.size else float("nan")
+
+
+def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
+    """The staged fit itself: (problem, values, report) as :func:`solve_staged` before the flip search."""
     from pedx_graph.graph.build import build_track_graph
     from pedx_graph.solvers.lm import solve
 

@@ -39,6 +39,9 @@ class SolveReport:
     backend: str
     errors: list[float] = field(default_factory=list)
     """Error after each accepted iteration."""
+    flips: dict = field(default_factory=dict)
+    """The limb depth-flip search's record (:mod:`pedx_graph.solvers.flips`): segments tried, accepted,
+    errors; empty when it did not run."""
 
 
 def _tangent_dims(values: gtsam.Values) -> dict[int, int]:
