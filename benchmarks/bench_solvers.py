@@ -17,6 +17,7 @@ Writes ``bench_solvers.json`` and ``bench_solvers.md`` into ``--out`` (default b
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import tempfile
 import time
@@ -162,6 +163,10 @@ def main(argv=None) -> int:
         for tr in [t for t in tracks if (t.sequence, t.tracking_id) in common][:args.admm_tracks]:
             admm_results.append(fit_track_admm(tr, config, ctx, admm_cfg))
         admm_ids = {(r.sequence, r.tracking_id) for r in admm_results}
+        # batch LM without the limb depth-flip search (the paper has none; ADMM runs without it)
+        plain_cfg = dataclasses.replace(config, solver=dataclasses.replace(config.solver, flip_segments=()))
+        plain_results = [lm_track(tr, plain_cfg, ctx)[0] for tr in tracks if (tr.sequence, tr.tracking_id) in common]
+        flipped = sorted(r.tracking_id for r in lm_results if r.extra_track.get("flips", {}).get("accepted"))
         track_of = {(t.sequence, t.tracking_id): t for t in tracks}
 
         def rows(results, name, subset, tag):
@@ -178,20 +183,23 @@ def main(argv=None) -> int:
                     "ms_per_frame": 1000.0 * float(np.sum([r.seconds for r in sel])) / frames,
                     "admm_iterations": [r.iterations for r in sel] if name == "admm" else None}
 
-        table_all = [rows(lm_results, "lm", common, "all"), rows(isam_results, "isam2", common, "all")]
+        table_all = [rows(lm_results, "lm", common, "all"), rows(isam_results, "isam2", common, "all"),
+                     rows(plain_results, "lm without flip search", common, "all")]
         table_sub = [rows(lm_results, "lm", admm_ids, "sub"), rows(isam_results, "isam2", admm_ids, "sub"),
-                     rows(admm_results, "admm", admm_ids, "sub")]
+                     rows(admm_results, "admm", admm_ids, "sub"),
+                     rows(plain_results, "lm without flip search", admm_ids, "sub")]
         causal = evaluate(work / "isam" / "causal", scene)["overall"]
     marg_frames = sum(r["frames"] for r in marg_rows)
     marg_ms = 1000.0 * sum(r["chain_seconds"] for r in marg_rows) / marg_frames
     marg_lin_ms = 1000.0 * sum(r["linearize_seconds"] for r in marg_rows) / marg_frames
     lat = stream_summary.get("update_ms", {})
-    lm_all, isam_all = table_all
-    lm_sub, _, admm_row = table_sub
+    lm_all, isam_all, _ = table_all
+    lm_sub, _, admm_row, plain_sub = table_sub
     goals = {
         "graph_10x_faster_than_admm": {
             "speedup": admm_row["ms_per_frame"] / lm_sub["ms_per_frame"] if admm_row else None,
-            "lm_global_mm": lm_sub["global_mm"], "admm_global_mm": admm_row["global_mm"] if admm_row else None},
+            "lm_global_mm": lm_sub["global_mm"], "admm_global_mm": admm_row["global_mm"] if admm_row else None,
+            "lm_without_flip_search_global_mm": plain_sub["global_mm"] if plain_sub else None},
         "isam_update_median_ms_le_10": {"median_ms": lat.get("median"), "cpu_median_ms": lat.get("cpu_median"),
                                         "cpu_p90_ms": lat.get("cpu_p90"),
                                         "p90_ms": lat.get("p90"), "isam_only_median_ms": lat.get("isam_update_median"),
@@ -215,6 +223,7 @@ def main(argv=None) -> int:
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "simulate_seconds": sim_s, "tracks": len(tracks), "lm_failed": failed,
               "isam_missing": sorted(t for _, t in fitted - common), "all_tracks": table_all,
+              "lm_tracks_with_accepted_flips": flipped,
               "admm_subset": table_sub,
               "stream": {k: v for k, v in stream_summary.items() if k not in ("tracks", "dataset")},
               "marginals": {"per_track": marg_rows, "gtsam_reference": gtsam_ref}, "goals": goals}
@@ -238,7 +247,10 @@ def to_markdown(result: dict) -> str:
              "compared on the common tracks). One process, BLAS one thread; "
              "wall-clock times on a shared machine.", "",
              "Objective: the batch graph's error at each solver's estimate (same graph for all). iSAM2 time per "
-             "track = its per-frame updates + the finalisation (batch LM warm start) + marginals/diagnostics.", ""]
+             "track = its per-frame updates + the finalisation (batch LM warm start) + marginals/diagnostics. "
+             "`lm` includes the limb depth-flip search (`pedx_graph.solvers.flips`; accepted on tracks "
+             f"{', '.join(t[:8] for t in result.get('lm_tracks_with_accepted_flips', [])) or 'none'}); "
+             "ADMM, as in the paper, runs without it; `lm without flip search` is the same batch LM without it.", ""]
     head = ["| solver | tracks | frames | MPJPE global (mm) | root-rel. (mm) | objective | s / track | ms / frame |",
             "|---|---:|---:|---:|---:|---:|---:|---:|"]
 
@@ -259,7 +271,9 @@ def to_markdown(result: dict) -> str:
     lines += ["", "## Goals", "", "| goal | measured | met |", "|---|---|---|",
               f"| graph >= 10x faster than ADMM at equal or lower MPJPE | speed-up "
               f"{_fmt(g['graph_10x_faster_than_admm']['speedup'])}x; MPJPE LM {_fmt(g['graph_10x_faster_than_admm']['lm_global_mm'])} "
-              f"vs ADMM {_fmt(g['graph_10x_faster_than_admm']['admm_global_mm'])} mm | {g['graph_10x_faster_than_admm']['met']} |",
+              f"vs ADMM {_fmt(g['graph_10x_faster_than_admm']['admm_global_mm'])} mm (LM without the flip search "
+              f"{_fmt(g['graph_10x_faster_than_admm'].get('lm_without_flip_search_global_mm'))} mm) | "
+              f"{g['graph_10x_faster_than_admm']['met']} |",
               f"| iSAM2 update <= 10 ms median per pedestrian-frame | whole per-frame update (causal initialisation, "
               f"factors, presolve, iSAM2, estimate and keypoints, plus an equal share of the sample's batched "
               f"body-model calls): "
