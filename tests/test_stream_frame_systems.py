@@ -57,9 +57,10 @@ def _steps(ctx, config, frames_before: int):
 
 @pytest.mark.parametrize("frames_before", [0, 2])
 def test_batched_frame_systems_equal_gtsam_linearisation(ctx, frames_before):
-    """For the update (all own factors) and the presolve (without the chamfer): the batched system of every
-    pedestrian of the sample is GTSAM's Hessian of the same factors at the same point, and
-    ``hessian_factor`` turns it into the same ``gtsam.HessianFactor``."""
+    """For the update (all own factors) and the presolve (without the chamfer, with the temporal prior to the
+    held previous frame): the batched system of every pedestrian of the sample is GTSAM's Hessian of the same
+    factors at the same point (the presolve: its block of the frame's variables), and ``hessian_factor``
+    turns it into the same ``gtsam.HessianFactor``."""
     config = synthetic_config()
     est, steps = _steps(ctx, config, frames_before)
     for presolve in (True, False):
@@ -70,25 +71,33 @@ def test_batched_frame_systems_equal_gtsam_linearisation(ctx, frames_before):
             assert system is not None
             _, own = IncrementalTrack._split_own(keys, s.graph)
             kinds = s.state.kinds[s.n_kinds:]
-            if presolve:                     # the presolve's own factors: without the chamfer
+            if presolve:     # without the chamfer, with the temporal prior's rows on the frame's variables
                 own = gtsam.NonlinearFactorGraph()
                 for j, kind in enumerate(kinds):
-                    if kind not in ("lidar_chamfer", "temporal_prior", "shape_prior"):
+                    if kind not in ("lidar_chamfer", "shape_prior"):
                         own.add(s.graph.at(j))
+                assert ("temporal_prior" in kinds) == (frames_before > 0)
             point = s.state.smoother._with_estimates(s.values, own.keyVector())
             reference = gtsam.HessianFactor(own.linearize(point))
+            frame = set(keys.as_list())
             present = [k for k in keys.as_list() if k in set(own.keyVector())]
-            expected = _augmented(reference, present)
+            held = [k for k in own.keyVector() if k not in frame]
+            expected = _augmented(reference, present + held)
+            if held:                         # the free block and its gradient (held keys' deltas are zero)
+                zero = point.zeroVectors()
+                n = sum(int(zero.at(k).shape[0]) for k in present)
+                expected = np.block([[expected[:n, :n], expected[:n, -1:]], [expected[-1:, :n], expected[-1:, -1:]]])
             scale = np.abs(expected).max()
-            got = _augmented(hessian_factor(keys, own.keyVector(), *system), present)
-            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * scale)
+            if not presolve:
+                got = _augmented(hessian_factor(keys, own.keyVector(), *system), present)
+                np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * scale)
             # the dense system itself, on the columns [root, trans, body_pose, betas]
             h, eta, f = system
             dims = {keys.root: 3, keys.trans: 3, keys.body_pose: 69, keys.betas: ctx.model.num_betas}
             starts = {keys.root: 0, keys.trans: 3, keys.body_pose: 6, keys.betas: 75}
             cols = np.concatenate([np.arange(starts[k], starts[k] + dims[k]) for k in present])
-            np.testing.assert_allclose(h[np.ix_(cols, cols)], expected[:-1, :-1], atol=1e-9 * scale)
-            np.testing.assert_allclose(eta[cols], expected[:-1, -1], atol=1e-9 * scale)
+            np.testing.assert_allclose(h[np.ix_(cols, cols)], expected[:-1, :-1], rtol=0, atol=1e-9 * scale)
+            np.testing.assert_allclose(eta[cols], expected[:-1, -1], rtol=0, atol=1e-9 * scale)
             assert f == pytest.approx(expected[-1, -1], rel=1e-9)
             assert not np.any(np.delete(h, cols, axis=0)) and not np.any(np.delete(eta, cols))
 
@@ -124,3 +133,39 @@ def test_stream_with_batched_systems_equals_gtsam_path(ctx):
     for with_batch, reference in zip(*outs):
         for tid in reference:
             np.testing.assert_allclose(with_batch[tid], reference[tid], atol=1e-7)
+
+
+def test_recorder_serves_batched_temporal_terms_only_at_their_point(ctx):
+    """The temporal prior's callback takes the terms served by its frame's recorder at exactly the values
+    they were computed at (the batched terms equal the callback's own), and computes them itself elsewhere."""
+    from factors.common import FrameKeys
+    from factors.temporal_prior import make_temporal_prior_factor
+    from pedx_graph.solvers.frame_system import SpecRecorder, temporal_terms
+
+    ka, kb = FrameKeys.for_frame(0), FrameKeys.for_frame(1)
+    recorder = SpecRecorder()
+    factor = make_temporal_prior_factor(ka.root, ka.trans, ka.body_pose, kb.root, kb.trans, kb.body_pose,
+                                        mixture=ctx.temporal_mixture, frame_gap=2, cache=recorder)
+    plain = make_temporal_prior_factor(ka.root, ka.trans, ka.body_pose, kb.root, kb.trans, kb.body_pose,
+                                       mixture=ctx.temporal_mixture, frame_gap=2)
+    assert [kind for kind, _, _ in recorder.specs] == ["temporal_prior"]
+    rng = np.random.default_rng(0)
+    values = gtsam.Values()
+    state = []
+    for k in (ka, kb):
+        rot = gtsam.Rot3.Expmap(rng.normal(scale=0.3, size=3))
+        trans, pose = rng.normal(size=3), rng.normal(scale=0.2, size=69)
+        values.insert(k.root, rot)
+        values.insert(k.trans, trans)
+        values.insert(k.body_pose, pose)
+        state.append((rot.matrix(), trans, pose))
+    (r, blocks), = temporal_terms([(state[0], state[1], ctx.temporal_mixture, 2)])
+    keys = recorder.specs[0][1]
+    recorder.serve("temporal_prior", keys, [*state[0], *state[1]], r, blocks)
+    expected = _augmented(plain.linearize(values), keys)
+    np.testing.assert_allclose(_augmented(factor.linearize(values), keys), expected, rtol=1e-12, atol=1e-12)
+    recorder.serve("temporal_prior", keys, [*state[0], *state[1]], np.zeros_like(r), blocks)    # a marker
+    assert factor.error(values) == 0.0                                    # served at its point
+    moved = gtsam.Values(values)
+    moved.update(kb.trans, state[1][1] + 0.01)
+    assert factor.error(moved) == pytest.approx(plain.error(moved), rel=1e-12) and plain.error(moved) > 0

@@ -28,6 +28,7 @@ from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, FrameKeys, row_lo
 from factors.heading_prior import heading_prior_batch
 from factors.joint_limits import joint_limit_batch
 from factors.stereo_reprojection import stereo_dense_rows
+from factors.temporal_prior import temporal_prior_batch
 from factors.translation_prior import translation_prior_batch
 
 #: Factor kinds whose frame systems are formed here (a frame's own factors).
@@ -37,17 +38,32 @@ _FRAME_DIM = ROOT_DIM + TRANS_DIM + BODY_POSE_DIM          # 75: the columns bef
 
 
 class SpecRecorder:
-    """Term cache of one frame's factors: records what each factor measures, serves nothing (the factors'
-    own callbacks always compute their terms)."""
+    """Term cache of one frame's factors: records what each factor measures (:attr:`specs`) and serves the
+    terms computed for it in a batch (:meth:`serve`) to the factors' callbacks while the values they are
+    called with are exactly those the terms were computed at (otherwise the callbacks compute them)."""
 
     def __init__(self) -> None:
         self.specs: list[tuple[str, tuple[int, ...], object]] = []
+        self.served: dict[tuple, tuple] = {}
 
     def register(self, kind: str, keys, spec) -> None:
         self.specs.append((kind, tuple(int(k) for k in keys), spec))
 
+    def serve(self, kind: str, keys, point: list[np.ndarray], residual: np.ndarray, blocks: list[np.ndarray]) -> None:
+        """Serve ``(residual, blocks)`` to the factor ``kind`` on ``keys`` at ``point`` (the value of each key:
+        a rotation matrix (3, 3) or a vector)."""
+        self.served[(kind, tuple(int(k) for k in keys))] = (point, residual, blocks)
+
     def lookup(self, kind, keys, values, jacobians):
-        return None
+        hit = self.served.get((kind, tuple(int(k) for k in keys))) if self.served else None
+        if hit is None:
+            return None
+        point, residual, blocks = hit
+        for key, expected in zip(keys, point):
+            current = values.atRot3(key).matrix() if expected.ndim == 2 else values.atVector(key)
+            if not np.array_equal(current, expected):
+                return None
+        return residual, (blocks if jacobians else None)
 
 
 class RecordingBody:
@@ -238,6 +254,36 @@ def _add_direct(kind: str, specs: list, frames: np.ndarray, arrays: dict, hess: 
     np.add.at(hess, (frames[:, None, None], cols[None, :, None], cols[None, None, :]), a_t @ a)
     np.add.at(grad, (frames[:, None], cols[None, :]), (a_t @ b[:, :, None])[:, :, 0])
     np.add.at(const, frames, np.sum(b * b, axis=1))
+
+
+def temporal_terms(pairs: list[tuple]) -> list[tuple[np.ndarray, list[np.ndarray]]]:
+    """Temporal-prior residuals and six Jacobian blocks (as the factor's callback returns them) of several
+    pairs of frames in batched calls: ``pairs`` of ``(previous (world_R_body, trans, body_pose), next (the
+    same), mixture, gap)``."""
+    out: list = [None] * len(pairs)
+    by_mixture: dict[int, list[int]] = {}
+    for n, pair in enumerate(pairs):
+        by_mixture.setdefault(id(pair[2]), []).append(n)
+    for members in by_mixture.values():
+        items = [pairs[n] for n in members]
+        states = [np.stack([np.asarray(it[side][n], float) for it in items]) for side in (0, 1) for n in range(3)]
+        r, blocks = temporal_prior_batch(*states, items[0][2], np.array([it[3] for it in items], float), True)
+        for m, n in enumerate(members):
+            out[n] = (np.ascontiguousarray(r[m]), [np.ascontiguousarray(b[m]) for b in blocks])
+    return out
+
+
+def add_temporal_new_frame(system: tuple[np.ndarray, np.ndarray, np.ndarray], frames: list[int],
+                           terms: list[tuple[np.ndarray, list[np.ndarray]]]) -> None:
+    """Add to ``system`` (:func:`frame_systems`' ``(H, g, f)``) the temporal priors between frames and their
+    tracks' previous frames, held: ``terms`` (:func:`temporal_terms`) of frame ``frames[n]``; only the rows
+    on the new frame's columns (the presolve's free block); unit noise (the mixture whitens)."""
+    hess, grad, const = system
+    for j, (r, blocks) in zip(frames, terms):
+        a = np.concatenate(blocks[3:], axis=1)                           # (76, 75): the new frame's columns
+        hess[j, :_FRAME_DIM, :_FRAME_DIM] += a.T @ a
+        grad[j, :_FRAME_DIM] -= a.T @ r
+        const[j] += float(r @ r)
 
 
 def hessian_factor(frame_keys: FrameKeys, present, hess: np.ndarray, grad: np.ndarray, const: float

@@ -99,13 +99,6 @@ def make_isam(config: IsamConfig) -> gtsam.ISAM2:
     return gtsam.ISAM2(params)
 
 
-def _key_value(values: gtsam.Values, key: int):
-    try:
-        return values.atRot3(key)
-    except RuntimeError:
-        return np.asarray(values.atVector(key), float)
-
-
 def local_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys, max_iterations: int = 5,
              lambda_initial: float = 1e-2, relative_tol: float = 1e-3, lambda_max: float = 1e6
              ) -> tuple[gtsam.Values, float, int]:
@@ -500,7 +493,10 @@ class IncrementalTrack:
             raise ValueError(f"presolve_method must be 'gn' or 'lm', got {self.config.presolve_method!r}")
         out = gtsam.Values()
         for key in free:
-            out.insert(key, _key_value(local, key))
+            if key in self.rotation_keys:
+                out.insert(key, local.atRot3(key))
+            else:
+                out.insert(key, np.asarray(local.atVector(key), float))
         return out
 
     def estimate(self) -> gtsam.Values:

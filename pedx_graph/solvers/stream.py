@@ -43,7 +43,8 @@ from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements, measure_frame
-from pedx_graph.solvers.frame_system import OWN_KINDS, RecordingBody, SpecRecorder, frame_systems, register_sample
+from pedx_graph.solvers.frame_system import (OWN_KINDS, RecordingBody, SpecRecorder, add_temporal_new_frame,
+                                             frame_systems, register_sample, temporal_terms)
 from pedx_graph.solvers.isam import IncrementalTrack, IsamConfig
 
 log = logging.getLogger(__name__)
@@ -178,10 +179,15 @@ class _Step:
     specs: list | None = None
     """What the frame's factors measure (their :class:`~pedx_graph.solvers.frame_system.SpecRecorder`), when
     its own factors' systems are formed in a batch (``StreamConfig.batched_frame_systems``)."""
+    recorder: SpecRecorder | None = None
+    """The frame's factors' term cache (it serves the temporal prior's terms during the iSAM2 update)."""
     presolve_rest: gtsam.NonlinearFactorGraph | None = None
-    """The presolve's factors outside the batched system (temporal and shape priors)."""
+    """The presolve's factors outside the batched system (the shape prior)."""
+    temporal: tuple | None = None
+    """``(keys, (mixture, gap))`` of the frame's temporal prior (in the presolve's batched system)."""
     presolve_system: tuple | None = None
-    """``(H, eta, f)`` of the frame's own factors in the presolve, at the initial values (batched)."""
+    """``(H, eta, f)`` in the presolve, at the initial values (batched): the frame's own factors but those
+    of ``StreamConfig.presolve_exclude`` and its temporal prior's rows on the frame's variables."""
     own_system: tuple | None = None
     """``(H, eta, f)`` of the frame's own factors at the presolved values (batched), for iSAM2."""
     committed: bool = False
@@ -205,8 +211,12 @@ class _Step:
         return self.values
 
     def commit(self):
-        self.stats = self.state.smoother.commit_frame(self.state.keys[self.i], self.graph, self.values,
-                                                      own_system=self.own_system)
+        try:
+            self.stats = self.state.smoother.commit_frame(self.state.keys[self.i], self.graph, self.values,
+                                                          own_system=self.own_system)
+        finally:
+            if self.recorder is not None:
+                self.recorder.served.clear()         # the factors keep their recorder: free the arrays
         self.committed = True
         return self.stats
 
@@ -447,20 +457,23 @@ class StreamingEstimator:
                 values = self._best_facing(graph, values, state.keys[0])
             kinds = state.kinds[n_kinds:]
             presolve = self._presolve_factors(graph, kinds)
-            specs = rest = None
+            specs = rest = temporal = None
             if recorder is not None and sorted(k for k in kinds if k in OWN_KINDS) == \
                     sorted(k for k, _, _ in recorder.specs if k in OWN_KINDS):
                 specs = recorder.specs
+                recorded = [(keys, spec) for kind, keys, spec in specs if kind == "temporal_prior"]
+                if kinds.count("temporal_prior") == len(recorded) == 1:
+                    temporal = recorded[0]
                 rest = gtsam.NonlinearFactorGraph()
                 for j, kind in enumerate(kinds):
-                    if kind not in OWN_KINDS:
+                    if kind not in OWN_KINDS and not (kind == "temporal_prior" and temporal is not None):
                         rest.add(graph.at(j))
         except Exception:
             self._rollback(state, i, n_kinds)
             raise
         return _Step(tid=tid, fr=fr, state=state, i=i, n_kinds=n_kinds, graph=graph,
                      presolve_graph=graph if presolve is None else presolve, values=values, specs=specs,
-                     presolve_rest=rest)
+                     presolve_rest=rest, temporal=temporal, recorder=recorder)
 
     def _batched(self) -> bool:
         """Whether the new frames' own factors' systems are formed in a batch (see
@@ -489,6 +502,32 @@ class StreamingEstimator:
             systems = frame_systems(self.body, keys, kinds)
         finally:
             self.body._specs = {}
+        # the temporal priors to the tracks' previous frames, batched: in the presolve their rows on the new
+        # frame (previous frame held at its estimate); for the update served to the factors' callbacks at
+        # the point iSAM2 linearises them (the previous frame's linearisation point)
+        pairs, owners = [], []
+        for j, (step, (rot, trans, body_pose, _)) in enumerate(zip(steps, states)):
+            if step.temporal is None or (presolve and systems is None):
+                continue
+            (kr, kt, kp, *_), (mixture, gap) = step.temporal
+            isam = step.state.smoother.isam
+            if presolve:
+                previous = (isam.calculateEstimateRot3(kr).matrix(), isam.calculateEstimateVector(kt),
+                            isam.calculateEstimateVector(kp))
+            else:
+                theta = isam.getLinearizationPoint()
+                previous = (theta.atRot3(kr).matrix(), theta.atVector(kt), theta.atVector(kp))
+            rot = rot.matrix() if isinstance(rot, gtsam.Rot3) else np.asarray(rot)
+            pairs.append((previous, (rot, np.asarray(trans), np.asarray(body_pose)), mixture, gap))
+            owners.append(j)
+        terms = temporal_terms(pairs) if pairs else []
+        if presolve and terms:
+            add_temporal_new_frame(systems, owners, terms)
+        elif terms:
+            for j, pair, (r, blocks) in zip(owners, pairs, terms):
+                step = steps[j]
+                if step.recorder is not None:
+                    step.recorder.serve("temporal_prior", step.temporal[0], [*pair[0], *pair[1]], r, blocks)
         for j, step in enumerate(steps):
             system = None if systems is None or step.specs is None else tuple(x[j] for x in systems)
             if presolve:
