@@ -13,8 +13,9 @@ Sminchisescu & Triggs ("Kinematic jump processes for monocular 3D human tracking
 such mirror configurations per frame.  A per-frame jump does not help here: the wrong swing is consistent
 over the whole track, so every frame's neighbours hold it too and the temporal prior rejects a single
 frame's jump.  :func:`flip_search` therefore mirrors one bone segment in *every* frame at once, re-solves
-the whole track from there with a few LM iterations and keeps the candidate only when the full graph's
-error drops (greedy over the segments, one final LM to convergence).  The result is never worse in the
+the whole track from there with a few LM iterations (a candidate not below the best error after the first
+few is dropped) and keeps the candidate only when the full graph's error drops (greedy over the segments,
+one final LM to convergence).  The result is never worse in the
 objective than the staged fit.
 """
 from __future__ import annotations
@@ -102,9 +103,10 @@ def _with_body_poses(problem, values: gtsam.Values, pose: np.ndarray) -> gtsam.V
 
 def flip_search(problem, values: gtsam.Values, track, ctx, config, solver_parts) -> tuple[gtsam.Values, FlipReport]:
     """Try the whole-track depth mirror of each segment of ``config.solver.flip_segments`` (greedy, in
-    order): mirror the segment in every frame, run ``config.solver.flip_max_iterations`` LM iterations on
-    ``problem.graph``, keep it if the error is lower than the best so far; then LM to convergence from the
-    best.  ``solver_parts``: (prefetch, layout, linearizer) for :func:`pedx_graph.solvers.lm.solve`."""
+    order): mirror the segment in every frame, run ``config.solver.flip_screen_iterations`` LM iterations
+    on ``problem.graph``; only a candidate already below the best error goes on, up to
+    ``flip_max_iterations`` in all, and it is kept if its error is still lower; then LM to convergence from
+    the best.  ``solver_parts``: (prefetch, layout, linearizer) for :func:`pedx_graph.solvers.lm.solve`."""
     import time
 
     from pedx_graph.solvers.lm import solve
@@ -113,16 +115,24 @@ def flip_search(problem, values: gtsam.Values, track, ctx, config, solver_parts)
     report = FlipReport()
     best_error = report.initial_error = float(problem.graph.error(values))
     cameras = np.stack([track.calibrations[fr.pair].world_T_cam[:3, 3] for fr in track.frames])
-    short = dataclasses.replace(config.solver, max_iterations=config.solver.flip_max_iterations)
+    n_screen = max(1, min(config.solver.flip_screen_iterations, config.solver.flip_max_iterations))
+    more = config.solver.flip_max_iterations - n_screen
+    screen = dataclasses.replace(config.solver, max_iterations=n_screen)
+    rest = dataclasses.replace(config.solver, max_iterations=max(more, 1))
     for name in config.solver.flip_segments:
         if name not in SEGMENTS:
             raise ValueError(f"solver.flip_segments: unknown segment {name!r}; known: {sorted(SEGMENTS)}")
         pose, betas, trans = _read(problem, values)
         candidate = _with_body_poses(problem, values, mirror_segment(ctx.model, pose, betas, trans, cameras,
                                                                      SEGMENTS[name]))
-        solved, rep = solve(problem.graph, candidate, short, *solver_parts)
         report.tried.append(name)
+        solved, rep = solve(problem.graph, candidate, screen, *solver_parts)
         report.iterations += rep.iterations
+        if rep.final_error < best_error and not rep.converged and more > 0:
+            # below the best already after the screening iterations: judge it with the rest
+            solved, rep2 = solve(problem.graph, solved, rest, *solver_parts)
+            report.iterations += rep2.iterations
+            rep = rep2
         report.errors[name] = float(rep.final_error)
         if rep.final_error < best_error:
             best_error, values = float(rep.final_error), solved
