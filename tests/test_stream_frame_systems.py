@@ -169,3 +169,27 @@ def test_recorder_serves_batched_temporal_terms_only_at_their_point(ctx):
     moved = gtsam.Values(values)
     moved.update(kb.trans, state[1][1] + 0.01)
     assert factor.error(moved) == pytest.approx(plain.error(moved), rel=1e-12) and plain.error(moved) > 0
+
+
+def test_wildfire_threshold_keeps_the_newest_frame_and_the_final_start_exact(ctx):
+    """With a (huge) wildfire threshold iSAM2 may stop back-substituting below the top of the tree: the newest
+    frame's estimate (the causal output) is still exact, and :meth:`IncrementalTrack.estimate` (the
+    finalisation's start) is the full back-substitution."""
+    from pedx_graph.graph.build import build_track_graph
+    from pedx_graph.solvers.isam import IsamConfig, frame_factor_groups, initial_frame_values
+
+    track, _ = synthetic_track(ctx, 12, seed=1)
+    problem = build_track_graph(track, ctx, synthetic_config(lidar_chamfer=False))
+    groups = frame_factor_groups(problem)
+    smoothers = [IncrementalTrack.create(IsamConfig(wildfire_threshold=w), betas_key=problem.keys[0].betas)
+                 for w in (0.0, 1e6)]
+    previous = None
+    for i, keys in enumerate(problem.keys):
+        initial = initial_frame_values(problem, i, previous)
+        exact, lazy = [(s.add_frame(keys, groups[i], initial), s.frame_estimate(keys))[1] for s in smoothers]
+        for a, b in zip(lazy[1:], exact[1:]):
+            np.testing.assert_allclose(a, b, atol=1e-9)
+        previous = exact
+    exact, lazy = smoothers[0].estimate(), smoothers[1].estimate()
+    for keys in problem.keys:
+        np.testing.assert_allclose(lazy.atVector(keys.body_pose), exact.atVector(keys.body_pose), atol=1e-9)
