@@ -25,7 +25,10 @@ stereo centre (translation), then a damped Gauss-Newton step on the new frame al
 Speed: each frame's initialisation measurements are taken once and kept; a frame's own factors enter iSAM2
 linearised once, as one Hessian-form factor (``IsamConfig.linearize_frame_factors``); the pedestrians of
 a sample go through the steps together so the body model is evaluated for all of them in one batched call
-per step (see :meth:`StreamingEstimator.add_frame`; measured in ``benchmarks/bench_solvers.py``).
+per step (see :meth:`StreamingEstimator.add_frame`), and the new frames' Gauss-Newton systems (presolve and
+update) are formed for all of them in one batched pass without GTSAM callbacks
+(:mod:`pedx_graph.solvers.frame_system`, ``StreamConfig.batched_frame_systems``); measured in
+``benchmarks/bench_solvers.py``.
 """
 from __future__ import annotations
 
@@ -155,8 +158,10 @@ class _ActiveTrack:
 class _StreamBody(BatchedBodyModel):
     """:class:`~pedx_graph.graph.batch.BatchedBodyModel` as the streamed factors' body model: its value cache
     (keypoints, their Jacobians, the chamfer vertex subset), prefetched for all pedestrians of a sample at
-    once (:meth:`StreamingEstimator._prefetch`), without its term registry (it would grow with the stream;
-    the factors then evaluate their terms themselves)."""
+    once (:meth:`StreamingEstimator._prefetch`).  The factors do not register with it (a stream-long
+    registry would grow without bound, and tracks share keys); its registry holds one sample's specs at a
+    time, filed under per-pedestrian keys (:func:`~pedx_graph.solvers.frame_system.register_sample`), for
+    the batched frame systems."""
 
     term_cache = None
 
