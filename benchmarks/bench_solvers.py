@@ -66,7 +66,7 @@ def lm_track(track, config, ctx) -> tuple[TrackResult, dict]:
                          frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas, trans=est.trans,
                          world_keypoints=est.world_keypoints, final_error=report.final_error,
                          initial_error=report.initial_error, iterations=report.iterations, seconds=seconds,
-                         solver="lm-python")
+                         solver="lm-python", extra_track={"flips": report.flips} if report.flips else {})
     # marginal covariances of the solved track as `pedx-graph fit` computes them (chain method from the
     # batched linearizer, point-to-plane chamfer information), and the gtsam.Marginals reference
     t1 = time.perf_counter()
