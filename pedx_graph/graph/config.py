@@ -105,13 +105,15 @@ class SolverConfig:
     template pose (e.g. a swinging arm) are treated as outliers and the fit stays in that local minimum
     (measured: benchmarks/results/bench_calibration.md, docs/estimator.md).  The same name as
     ``noise.reprojection_loss``: one graph for both stages."""
-    flip_segments: tuple[str, ...] = ("right_upper_arm", "left_upper_arm")
+    flip_segments: tuple[str, ...] = ("right_upper_arm", "left_upper_arm", "right_forearm", "left_forearm")
     """Limb depth-flip search after the staged fit (:mod:`pedx_graph.solvers.flips`): each named bone
     segment is mirrored in depth in every frame, the track re-solved for ``flip_max_iterations`` and the
     mirror kept when the objective drops.  A swing along the viewing ray (walking towards or away from
     the camera) is nearly invisible to stereo at range.  Any of ``pedx_graph.solvers.flips.SEGMENTS``
-    (forearms, thighs, shins too); the upper arms by default: on the benchmark scenes the thighs were
-    rarely kept and each tried segment costs ``flip_screen_iterations`` LM iterations.  Empty: no search."""
+    (thighs, shins too); the upper arms and forearms by default: on the benchmark scenes the thighs were
+    rarely kept, the forearms brought the 35-45 m keypoint calibration into its goal
+    (docs/estimator.md), and each tried segment costs ``flip_screen_iterations`` LM iterations.  Empty:
+    no search."""
     flip_max_iterations: int = 8
     """LM iterations that judge one mirrored candidate, at most."""
     flip_screen_iterations: int = 3
