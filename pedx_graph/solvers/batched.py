@@ -262,19 +262,8 @@ class BatchedLinearizer:
 
     def _add_lidar_chamfer(self, system: ChainSystem, group: dict) -> None:
         """Chamfer factors from the cache's all-frames group (rows already whitened and robustified)."""
-        offsets, a, s = group["offsets"], group["a"], group["s"]
-        counts = np.diff(offsets)
-        num, width = len(counts), int(counts.max())
-        # every factor's points padded with zero rows to the largest count: one batched product for all
-        frame = np.repeat(np.arange(num), counts)
-        slot = np.arange(len(a)) - offsets[frame]
-        rows = np.zeros((num, width, 3, a.shape[2]))
-        rhs = np.zeros((num, width, 3))
-        rows[frame, slot] = a
-        rhs[frame, slot] = s
-        rows = rows.reshape(num, 3 * width, a.shape[2])
-        rows_t = np.swapaxes(rows, 1, 2)
-        self._scatter(system, group["keys"], rows_t @ rows, -(rows_t @ rhs.reshape(num, 3 * width, 1))[:, :, 0])
+        hess, grad, _ = chamfer_normal_equations(group)
+        self._scatter(system, group["keys"], hess, grad)
 
     def _add_stereo_reprojection(self, system: ChainSystem, group: dict) -> None:
         """Stereo factors through their keypoints: the rows of keypoint k in both images are ``D_k J_k`` (D_k:
@@ -365,3 +354,25 @@ class BatchedLinearizer:
         hess[:, pi, pj], hess[:, pj, pi] = -ltl, -ltl
         grad = np.concatenate([ub[:, :6], -lb, ub[:, 6:], lb], axis=1)
         self._scatter(system, group["keys"], hess, grad)
+
+
+def chamfer_normal_equations(group: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened normal equations of a term cache's chamfer group: per factor ``(A^T A, A^T b, b^T b)``.
+
+    ``group["a"]`` (P, 3, D) the points' whitened, robustified rows over the factor's columns,
+    ``group["s"]`` (P, 3) their whitened residuals, ``group["offsets"]`` (F + 1,) where each factor's
+    points start.  Every factor's points are padded with zero rows to the largest count, so all factors
+    take one batched product.  Returns hess (F, D, D), grad (F, D) = ``-A^T s``, cost (F,) = ``s^T s``."""
+    offsets, a, s = group["offsets"], group["a"], group["s"]
+    counts = np.diff(offsets)
+    num, width = len(counts), int(counts.max())
+    frame = np.repeat(np.arange(num), counts)
+    slot = np.arange(len(a)) - offsets[frame]
+    rows = np.zeros((num, width, 3, a.shape[2]))
+    rhs = np.zeros((num, width, 3))
+    rows[frame, slot] = a
+    rhs[frame, slot] = s
+    rows = rows.reshape(num, 3 * width, a.shape[2])
+    rows_t = np.swapaxes(rows, 1, 2)
+    return (rows_t @ rows, -(rows_t @ rhs.reshape(num, 3 * width, 1))[:, :, 0],
+            np.bincount(frame, weights=np.sum(s * s, axis=1), minlength=num))

@@ -30,6 +30,7 @@ from factors.joint_limits import joint_limit_batch
 from factors.stereo_reprojection import stereo_dense_rows
 from factors.temporal_prior import temporal_prior_batch
 from factors.translation_prior import translation_prior_batch
+from pedx_graph.solvers.batched import chamfer_normal_equations
 
 #: Factor kinds whose frame systems are formed here (a frame's own factors).
 OWN_KINDS = ("stereo_reprojection", "lidar_chamfer", "translation_prior", "heading_prior", "pose_prior",
@@ -138,7 +139,7 @@ def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.nd
             elif kind == "lidar_chamfer":
                 if group.get("a") is None:
                     return None
-                h, gr, f = _chamfer(group)
+                h, gr, f = chamfer_normal_equations(group)
             elif kind == "pose_prior":
                 h, gr, f = _pose_prior(group)
                 hess[frames, ROOT_DIM + TRANS_DIM:_FRAME_DIM, ROOT_DIM + TRANS_DIM:_FRAME_DIM] += h
@@ -174,23 +175,6 @@ def _stereo(group: dict, specs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     used = inv > 0
     return (rows_t @ (info @ jk).reshape(rows.shape), (rows_t @ pull.reshape(num, -1, 1))[:, :, 0],
             np.sum(weight * white * white * used, axis=1))
-
-
-def _chamfer(group: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Chamfer factors from the cache's group (rows already whitened and robustified per point)."""
-    offsets, a, s = group["offsets"], group["a"], group["s"]
-    counts = np.diff(offsets)
-    num, width = len(counts), int(counts.max())
-    frame = np.repeat(np.arange(num), counts)
-    slot = np.arange(len(a)) - offsets[frame]
-    rows = np.zeros((num, width, 3, a.shape[2]))
-    rhs = np.zeros((num, width, 3))
-    rows[frame, slot] = a
-    rhs[frame, slot] = s
-    rows = rows.reshape(num, 3 * width, a.shape[2])
-    rows_t = np.swapaxes(rows, 1, 2)
-    return (rows_t @ rows, -(rows_t @ rhs.reshape(num, 3 * width, 1))[:, :, 0],
-            np.bincount(frame, weights=np.sum(s * s, axis=1), minlength=num))
 
 
 _GRAMS: dict[int, tuple] = {}
