@@ -19,8 +19,8 @@ see ``chain_prior_overcount``), ``no_temporal_prior`` (the shipped temporal GMM 
 still; see the findings), ``no_chamfer`` / ``lidar_sigma_x3`` (the chamfer's points are not independent:
 nearest-vertex matching on a vertex subset makes correlated errors); ``point_to_point_chamfer`` (same fit,
 covariances with the chamfer factor's fixed-correspondence information instead of the point-to-plane
-information of ``MarginalsConfig``); ``forearm_flips`` (the limb depth-flip search also tries the
-forearms); ``a+b`` combines variants.  Every variant is also reported on the
+information of ``MarginalsConfig``); ``upper_arm_flips`` (the limb depth-flip search without the
+forearms, as before they were added to the default); ``a+b`` combines variants.  Every variant is also reported on the
 frames the diagnostics judge consistent (``fit_consistent``, see ``pedx_graph.solvers.diagnostics``).
 Per variant also: the NEES per keypoint group and distance, and the objective at the estimate and at the
 truth per track and after LM started from the truth (``objective_at_truth``: LM from the truth ending
@@ -82,8 +82,8 @@ def _modify(config: FitConfig, name: str, marginals: MarginalsConfig | None = No
         config.prior_covariance_scale = 1.0
     elif name == "lidar_sigma_x3":
         config.noise.lidar_sigma_m *= 3.0
-    elif name == "forearm_flips":
-        config.solver.flip_segments = tuple(config.solver.flip_segments) + ("right_forearm", "left_forearm")
+    elif name == "upper_arm_flips":
+        config.solver.flip_segments = tuple(seg for seg in config.solver.flip_segments if "forearm" not in seg)
     elif name == "gaussian":
         config.noise.reprojection_loss = "none"
         config.noise.lidar_loss = "none"
