@@ -4,8 +4,10 @@ Data flows one way: dataset -> :class:`Track` -> graph -> solver -> result -> re
 
 Frames
 ------
-* ``world``: the LiDAR (range) frame of the capture vehicle, z up, metres. Every 3D quantity of a
-  :class:`Track` and of a result is in this frame (one world frame per sequence).
+* ``world``: the LiDAR (range) frame of the capture vehicle, metres. Every 3D quantity of a
+  :class:`Track` and of a result is in this frame (one world frame per sequence).  No axis of it is assumed
+  to point up (real PedX: z points *down*): up, ground and headings come from the track's
+  :class:`~pedx_graph.data.ground.GroundFrame`, derived from the data.
 * ``cam``: the left (reference) camera of a stereo pair before rectification, x right, y down, z forward.
 * ``rect``: the rectified left camera frame, ``rect_p = R_rect_00 @ cam_p``.
 * image coordinates are pixels of the rectified images, ``uv = project(P_rect @ [rect_p; 1])``.
@@ -22,6 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
+from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.keypoints import EVAL_JOINTS, PEDX_KEYPOINTS  # noqa: F401  (re-exported)
 
 
@@ -136,6 +139,13 @@ class Track:
     """Observed frames in increasing frame order (gaps allowed)."""
     calibrations: dict[str, StereoCalibration]
     """Stereo pairs by name; every ``TrackFrame.pair`` is a key."""
+    ground: GroundFrame | None = None
+    """The sequence's up axis, ground plane and viewpoint (the reader derives it per sequence from the
+    calibration and point clouds); None here = derived from ``calibrations`` alone on construction."""
+
+    def __post_init__(self) -> None:
+        if self.ground is None and self.calibrations:
+            self.ground = ground_from_calibrations(self.calibrations, self.sequence)
 
     def __len__(self) -> int:
         return len(self.frames)
