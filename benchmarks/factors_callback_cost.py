@@ -77,9 +77,12 @@ def factor_sets(rng, model, calib, states, keys):
     cand = np.arange(0, model.num_vertices, 4)
     sets["lidar_chamfer (300 points, 1/4 of vertices)"] = [
         make_lidar_chamfer_factor(k, model, p, candidate_vertex_ids=cand) for k, p in zip(keys, lidar)]
-    sets["translation_prior"] = [make_translation_prior_factor(k.trans, k.betas, model, p)
+    up, sensor = np.array([0.0, 0.0, 1.0]), np.zeros(3)          # the synthetic frames' z-up world
+    sets["translation_prior"] = [make_translation_prior_factor(k.trans, k.betas, model, p, world_up=up,
+                                                               world_p_sensor=sensor)
                                  for k, p in zip(keys, lidar)]
-    sets["heading_prior"] = [make_heading_prior_factor(k.root, 2.8, speed=1.2) for k in keys]
+    sets["heading_prior"] = [make_heading_prior_factor(k.root, 2.8, speed=1.2, world_R_level=np.eye(3))
+                             for k in keys]
     sets["pose_prior (K=8)"] = [make_pose_prior_factor(k.body_pose, mixture=pose_mix) for k in keys]
     sets["joint_limits"] = [make_joint_limit_factor(k.body_pose) for k in keys]
     sets["shape_prior (native)"] = [make_shape_prior_factor(k.betas) for k in keys]

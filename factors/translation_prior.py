@@ -5,18 +5,19 @@ front of the body's centre along the viewing ray, and its height depends on whic
 prior therefore compares the pelvis with ``m`` in a *sensor-ray frame* and allows for both effects:
 
     world_p_pelvis = J_0(betas) + trans                (SMPL: the root joint never moves with the pose)
-    Q = [u, l, e_z]   u = unit ground-plane direction from the sensor to m,  l = e_z x u        (3, 3)
+    Q = [u, l, up]    u = unit ground-plane direction from the sensor to m,  l = up x u         (3, 3)
     r = Q^T (world_p_pelvis - m) - [depth_offset_m, 0, height_offset_m]                  (3,) metres
 
 with per-axis sigmas ``(sigma_ray_m, sigma_lateral_m, sigma_vertical_m)``: the pelvis is expected
 ``depth_offset_m`` (default 0.10 m, about half a torso depth) *behind* the visible surface along the ray,
 and the along-ray and vertical sigmas are larger than the lateral one (the offset varies with the
-body's orientation and with occlusion).  World = LiDAR frame, z up; the sensor sits at ``world_p_sensor``
-(default the origin).  ``J_0`` is linear in ``betas``, so ``J_0(betas) = J_0(0) + D betas`` is precomputed
+body's orientation and with occlusion).  World = LiDAR frame; ``world_up`` (3,) is the sequence's up axis
+and ``world_p_sensor`` the rig's viewpoint, both derived from the data
+(:class:`pedx_graph.data.ground.GroundFrame`; no axis of the LiDAR frame is assumed to point up).  ``J_0`` is linear in ``betas``, so ``J_0(betas) = J_0(0) + D betas`` is precomputed
 from ``model.rest_joints`` once; the callback needs no body-model evaluation.  Keys: ``trans`` (3) and
 ``betas`` (B) only (the pelvis does not depend on the root rotation or the body pose).
-Jacobians: ``dr/dtrans = Q^T``, ``dr/dbetas = Q^T D``.  If the points are (horizontally) on the sensor axis,
-``u`` falls back to world +x.
+Jacobians: ``dr/dtrans = Q^T``, ``dr/dbetas = Q^T D``.  If the points are (horizontally) at the sensor,
+``u`` falls back to the ground-plane direction of the world axis most perpendicular to ``up``.
 """
 from __future__ import annotations
 
@@ -29,13 +30,20 @@ import numpy as np
 from factors.common import TRANS_DIM, BodyModelLike, as_f64, make_noise, set_jacobians
 
 
-def sensor_ray_frame(world_p_mean: np.ndarray, world_p_sensor: np.ndarray | None = None) -> np.ndarray:
-    """``world_R_ray`` (3, 3), columns ``[u, l, e_z]``: ground-plane viewing direction, its left, world up."""
-    sensor = np.zeros(3) if world_p_sensor is None else as_f64(world_p_sensor)
-    d = as_f64(world_p_mean)[:2] - sensor[:2]
-    n = float(np.hypot(d[0], d[1]))
-    ux, uy = (1.0, 0.0) if n < 1e-6 else (d[0] / n, d[1] / n)
-    return np.array([[ux, -uy, 0.0], [uy, ux, 0.0], [0.0, 0.0, 1.0]])     # columns u, up x u, up
+def sensor_ray_frame(world_p_mean: np.ndarray, world_p_sensor: np.ndarray, world_up: np.ndarray) -> np.ndarray:
+    """``world_R_ray`` (3, 3), columns ``[u, l, up]``: ground-plane viewing direction from the sensor, its left
+    (``up x u``), and the up axis (unit ``world_up``)."""
+    up = as_f64(world_up)
+    up = up / np.linalg.norm(up)
+    d = as_f64(world_p_mean) - as_f64(world_p_sensor)
+    d = d - (d @ up) * up
+    n = float(np.linalg.norm(d))
+    if n < 1e-6:
+        axis = np.eye(3)[int(np.argmin(np.abs(up)))]
+        d = axis - (axis @ up) * up
+        n = float(np.linalg.norm(d))
+    u = d / n
+    return np.stack([u, np.cross(up, u), up], axis=1)
 
 
 _BASIS: list = [None, 0, None]       # [weakref to the model, num_betas, (rest, basis)] of the last call
@@ -97,14 +105,15 @@ class TranslationSpec:
 
 
 def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyModelLike, world_points: np.ndarray,
-                                  num_betas: int = 10, world_p_sensor: np.ndarray | None = None,
+                                  *, world_up: np.ndarray, world_p_sensor: np.ndarray, num_betas: int = 10,
                                   depth_offset_m: float = 0.10, height_offset_m: float = 0.0,
                                   sigma_ray_m: float = 0.15, sigma_lateral_m: float = 0.10,
                                   sigma_vertical_m: float = 0.25, robust: str = "none",
                                   robust_scale: float = 3.0, cache=None) -> gtsam.CustomFactor | None:
     """Pelvis-to-LiDAR-mean prior on ``(trans, betas)``; ``None`` when there are no points.
 
-    ``world_points`` (M, 3) metres; offsets and sigmas in metres (see the module docstring).  ``robust``
+    ``world_points`` (M, 3) metres; ``world_up`` (3,) and ``world_p_sensor`` (3,) from the sequence's
+    :class:`~pedx_graph.data.ground.GroundFrame`; offsets and sigmas in metres (see the module docstring).  ``robust``
     (a kernel of :func:`factors.common.make_noise`, scale in sigmas) guards against frames whose 2D polygon
     picked up more background than person, so that the points' mean is off by metres.
     """
@@ -114,7 +123,7 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
     if not np.all(np.isfinite(pts)):
         raise ValueError("translation prior: world_points contain non-finite values")
     mean = pts.mean(axis=0)
-    world_R_ray = sensor_ray_frame(mean, world_p_sensor)
+    world_R_ray = sensor_ray_frame(mean, world_p_sensor, world_up)
     offsets = np.array([depth_offset_m, 0.0, height_offset_m], dtype=np.float64)
     pelvis_rest, pelvis_dirs = pelvis_shape_basis(model, num_betas)
     sigmas = np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m], dtype=np.float64)

@@ -19,6 +19,7 @@ from pedx_graph.baselines.smplify_disparity import (SmplifyDispConfig, fit_frame
 from pedx_graph.baselines.triangulation import (KEYPOINT_SOURCES, STANDING_BODY_POSE, triangulation_baseline,
                                                 triangulate_visible)
 from pedx_graph.data.types import Track, TrackFrame, View2D
+from pedx_graph.data.ground import make_ground_frame
 from pedx_graph.graph.init import world_R_body_from_yaw
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
@@ -38,7 +39,8 @@ def scene(model):
     calib = make_test_calibration()
     rng = np.random.default_rng(3)
     frames, truth, poses, transes = [], [], [], []
-    root = gtsam.Rot3.Logmap(gtsam.Rot3(world_R_body_from_yaw(np.pi / 2)))
+    root = gtsam.Rot3.Logmap(gtsam.Rot3(world_R_body_from_yaw(np.pi / 2, make_ground_frame([0, 0, 1], [1, 0, 0],
+                                                                                           np.zeros(3)))))
     pelvis_rest = model.rest_joints(np.zeros(model.num_betas))[0]
     for i in range(NUM_FRAMES):
         pose = np.concatenate([root, STANDING_BODY_POSE + rng.normal(scale=0.05, size=69)])
@@ -154,7 +156,7 @@ def test_smplify_scaling_keeps_left_projection_and_sets_depth(model, scene):
     track, _, _ = scene
     calib = track.calibrations[track.frames[0].pair]
     fit = fit_frame_monocular(model, calib, track.frames[0].left, _test_mixture(), STANDING_BODY_POSE,
-                              SmplifyDispConfig(yaw_candidates_deg=(0.0,)))
+                              SmplifyDispConfig(yaw_candidates_deg=(0.0,)), ground=track.ground)
     scaled = scale_about_camera(calib, fit.world_keypoints, 1.7)
     np.testing.assert_allclose(calib.project(scaled)[0], calib.project(fit.world_keypoints)[0], atol=1e-9)
     np.testing.assert_allclose(calib.world_to_rect(scaled)[:, 2], 1.7 * calib.world_to_rect(fit.world_keypoints)[:, 2])

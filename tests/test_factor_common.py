@@ -60,9 +60,10 @@ def test_one_frame_levenberg_marquardt_recovers_truth():
     graph = gtsam.NonlinearFactorGraph()
     graph.add(make_stereo_reprojection_factor(keys, model, meas, calib, sigma_px=1.0))
     graph.add(make_lidar_chamfer_factor(keys, model, pts, sigma_m=0.02))
-    graph.add(make_heading_prior_factor(keys.root, 2.8, speed=1.3))
+    graph.add(make_heading_prior_factor(keys.root, 2.8, speed=1.3, world_R_level=np.eye(3)))
     graph.add(make_shape_prior_factor(keys.betas, sigma=3.0))
-    graph.add(make_translation_prior_factor(keys.trans, keys.betas, model, pts, sigma_ray_m=1.0,
+    graph.add(make_translation_prior_factor(keys.trans, keys.betas, model, pts, world_up=np.array([0.0, 0.0, 1.0]),
+                                            world_p_sensor=np.zeros(3), sigma_ray_m=1.0,
                                             sigma_lateral_m=1.0, sigma_vertical_m=1.0))
     graph.add(gtsam.PriorFactorVector(keys.body_pose, truth.body_pose, gtsam.noiseModel.Isotropic.Sigma(69, 0.3)))
     init = frame_values(keys.as_list(), truth.world_R_body @ gtsam.Rot3.Expmap([0.01, 0.02, -0.02]).matrix(),

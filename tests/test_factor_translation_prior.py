@@ -8,6 +8,7 @@ from factors.translation_prior import (make_translation_prior_factor, pelvis_sha
                                        translation_prior_error)
 
 KT, KB = gtsam.symbol("t", 1), gtsam.symbol("b", 0)
+UP, ORIGIN = np.array([0.0, 0.0, 1.0]), np.zeros(3)      # a z-up world with the sensor at its origin
 
 
 def _values(trans, betas):
@@ -18,11 +19,16 @@ def _values(trans, betas):
 
 
 def test_ray_frame():
-    q = sensor_ray_frame(np.array([0.0, 5.0, 1.0]))
+    q = sensor_ray_frame(np.array([0.0, 5.0, 1.0]), ORIGIN, UP)
     np.testing.assert_allclose(q[:, 0], [0, 1, 0], atol=1e-12)      # ray
     np.testing.assert_allclose(q[:, 1], [-1, 0, 0], atol=1e-12)     # left of the ray
     np.testing.assert_allclose(q.T @ q, np.eye(3), atol=1e-12)
-    np.testing.assert_allclose(sensor_ray_frame(np.array([0.0, 0.0, 3.0]))[:, 0], [1, 0, 0])
+    np.testing.assert_allclose(sensor_ray_frame(np.array([0.0, 0.0, 3.0]), ORIGIN, UP)[:, 0], [1, 0, 0])
+    # z-down world, sensor off the origin: the ray is laid on the ground plane, the third column is up
+    q = sensor_ray_frame(np.array([-10.0, 1.0, -1.0]), np.array([-2.0, 1.0, -1.5]), np.array([0.0, 0.0, -1.0]))
+    np.testing.assert_allclose(q[:, 0], [-1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(q[:, 2], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(q), 1.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("model_kind", ["toy", "synthetic_smpl"])
@@ -50,7 +56,7 @@ def test_zero_at_expected_offset_and_jacobians():
     pts = pelvis - 0.1 * ray + rng.normal(scale=0.2, size=(50, 3))
     pts -= pts.mean(axis=0) - (pelvis - 0.1 * ray)
     trans = pelvis - rest - dirs @ betas
-    f = make_translation_prior_factor(KT, KB, model, pts)
+    f = make_translation_prior_factor(KT, KB, model, pts, world_up=UP, world_p_sensor=ORIGIN)
     np.testing.assert_allclose(f.unwhitenedError(_values(trans, betas)), 0.0, atol=1e-12)
     v = _values(trans + rng.normal(scale=0.3, size=3), betas + 0.5)
     assert f.error(v) > 0
@@ -60,11 +66,11 @@ def test_zero_at_expected_offset_and_jacobians():
 def test_sigmas_per_axis_and_no_points():
     model = ToyBodyModel()
     pts = np.array([[5.0, 0.0, 1.0]])
-    f = make_translation_prior_factor(KT, KB, model, pts, sigma_ray_m=0.2, sigma_lateral_m=0.05,
+    f = make_translation_prior_factor(KT, KB, model, pts, world_up=UP, world_p_sensor=ORIGIN, sigma_ray_m=0.2, sigma_lateral_m=0.05,
                                       sigma_vertical_m=0.3)
     np.testing.assert_allclose(f.noiseModel().sigmas(), [0.2, 0.05, 0.3])
-    q = sensor_ray_frame(pts[0])
+    q = sensor_ray_frame(pts[0], ORIGIN, UP)
     r, _ = translation_prior_error(np.array([1.0, 2.0, 3.0]), np.zeros(10), np.zeros(3), np.zeros((3, 10)),
                                    pts[0], q, np.zeros(3))
     np.testing.assert_allclose(r, [1.0 - 5.0, 2.0, 3.0 - 1.0])
-    assert make_translation_prior_factor(KT, KB, model, np.zeros((0, 3))) is None
+    assert make_translation_prior_factor(KT, KB, model, np.zeros((0, 3)), world_up=UP, world_p_sensor=ORIGIN) is None

@@ -49,6 +49,7 @@ from pedx_graph.baselines.triangulation import (LHIP, NUM_KEYPOINTS, RHIP, SRC_D
                                                 fill_missing_keypoints)
 from pedx_graph.data.types import StereoCalibration, Track, View2D
 from pedx_graph.graph.config import SolverConfig
+from pedx_graph.data.ground import GroundFrame
 from pedx_graph.graph.init import world_R_body_from_yaw
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 from pedx_graph.solvers.lm import python_lm
@@ -165,8 +166,10 @@ def _build_graph(model, calib: StereoCalibration, left: View2D, keys: FrameKeys,
 
 
 def fit_frame_monocular(model, calib: StereoCalibration, left: View2D, mixture: MaxMixture,
-                        template_body_pose: np.ndarray, config: SmplifyDispConfig | None = None) -> FrameFit:
-    """SMPLify-style fit of one frame to its left-image keypoints (see the module docstring); unscaled."""
+                        template_body_pose: np.ndarray, config: SmplifyDispConfig | None = None, *,
+                        ground: GroundFrame) -> FrameFit:
+    """SMPLify-style fit of one frame to its left-image keypoints (see the module docstring); unscaled.
+    ``ground``: the sequence's up axis and level frame (the candidate bodies stand upright in it)."""
     config = config or SmplifyDispConfig()
     if config.reprojection_loss.lower() not in _ROBUST:
         raise ValueError(f"unknown reprojection_loss {config.reprojection_loss!r}; choose one of {sorted(_ROBUST)}")
@@ -183,12 +186,13 @@ def fit_frame_monocular(model, calib: StereoCalibration, left: View2D, mixture: 
     target = back_project(calib, uv[anchor_set].mean(0, keepdims=True), np.array([depth]))[0]
     camera = np.linalg.inv(calib.rect_T_world)[:3, 3]
     towards_camera = camera - target
-    yaw_face = float(np.arctan2(towards_camera[1], towards_camera[0]))
+    level_towards = ground.level_directions(towards_camera)
+    yaw_face = float(np.arctan2(level_towards[1], level_towards[0]))
     betas0 = np.zeros(model.num_betas)
     keys = FrameKeys.for_frame(0)
     best: FrameFit | None = None
     for yaw_deg in config.yaw_candidates_deg:
-        world_R_body = world_R_body_from_yaw(yaw_face + np.deg2rad(yaw_deg))
+        world_R_body = world_R_body_from_yaw(yaw_face + np.deg2rad(yaw_deg), ground)
         pose0 = np.concatenate([gtsam.Rot3.Logmap(gtsam.Rot3(world_R_body)), template_body_pose])
         kp0 = np.asarray(model.keypoints(pose0, betas0, np.zeros(3)), dtype=float)
         values = gtsam.Values()
@@ -261,7 +265,8 @@ def smplify_disparity_baseline(track: Track, model, pose_mixture: MaxMixture,
         if fr.left is None or fr.left.labelled.sum() < config.min_keypoints:
             continue
         calib = track.calibrations[fr.pair]
-        fit = fit_frame_monocular(model, calib, fr.left, pose_mixture, template_body_pose, config)
+        fit = fit_frame_monocular(model, calib, fr.left, pose_mixture, template_body_pose, config,
+                                  ground=track.ground)
         depth, source = disparity_depths(track, fr, disparity)
         use = source == SRC_DISPARITY
         scale = disparity_scale(calib, fit.world_keypoints, depth, use)

@@ -29,6 +29,7 @@ from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojectio
 from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.body import BodyModel
+from pedx_graph.data.ground import GroundFrame
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.config import FitConfig
@@ -125,6 +126,8 @@ class TrackProblem:
 
     active_kinds: frozenset | None = None
     """The factor kinds this graph holds when it is a :meth:`without` view (None: all registered)."""
+    ground: GroundFrame | None = None
+    """The track's up axis, level frame and viewpoint (``Track.ground``), for diagnostics along them."""
 
     def prefetch(self, values: gtsam.Values, jacobians: bool) -> None:
         """Batch-evaluate the body model for every frame before the graph is linearised / evaluated."""
@@ -146,7 +149,7 @@ class TrackProblem:
                 kept_frames.append(frame)
         return TrackProblem(graph=graph, initial=self.initial, keys=self.keys, init=self.init,
                             factor_kinds=kept_kinds, factor_frames=kept_frames, body=self.body,
-                            active_kinds=frozenset(kept_kinds))
+                            active_kinds=frozenset(kept_kinds), ground=self.ground)
 
     @property
     def layout(self):
@@ -180,13 +183,16 @@ def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.n
     return points
 
 
-def core_points(world_points: np.ndarray, radius_m: float = 0.5) -> np.ndarray:
-    """The instance points within ``radius_m`` (horizontally) of their median: the 2D polygons also pick up
-    background and other people's points, which would drag a plain mean (paper Eq. 2) by metres."""
+def core_points(world_points: np.ndarray, world_up: np.ndarray, radius_m: float = 0.5) -> np.ndarray:
+    """The instance points within ``radius_m`` (measured in the ground plane, ``world_up`` (3,) unit) of their
+    median: the 2D polygons also pick up background and other people's points, which would drag a plain mean
+    (paper Eq. 2) by metres."""
     if len(world_points) < 3:
         return world_points
     median = np.median(world_points, axis=0)
-    keep = np.linalg.norm(world_points[:, :2] - median[:2], axis=1) <= radius_m
+    offset = world_points - median
+    offset = offset - np.outer(offset @ world_up, world_up)
+    keep = np.linalg.norm(offset, axis=1) <= radius_m
     return world_points[keep] if keep.any() else world_points
 
 
@@ -228,14 +234,16 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
 def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                   previous: tuple[FrameKeys, float] | None, heading_yaw: float, speed_mps: float,
                   model, ctx: EstimatorContext, config: FitConfig,
-                  rng: np.random.Generator, heading_sigma_rad: float = 0.0) -> list[tuple[gtsam.NonlinearFactor, str]]:
+                  rng: np.random.Generator, heading_sigma_rad: float = 0.0, *,
+                  ground: GroundFrame) -> list[tuple[gtsam.NonlinearFactor, str]]:
     """The factors of one frame (every term but the track's shape prior), as ``(factor, kind)`` pairs.
 
     ``k``: the frame's keys; ``previous``: (keys, timestamp) of the track's previous observed frame for the
     temporal prior, or None; ``heading_yaw``/``speed_mps``: the trajectory heading (NaN: unknown) and
     speed; ``model``: the body model the factors evaluate (a :class:`BatchedBodyModel` in batch fits);
     ``rng``: draws the LiDAR subsample; ``heading_sigma_rad``: the trajectory heading's own uncertainty
-    (``TrackInit.heading_sigma_rad``; inf: no heading factor).  Shared by the batch builder and the streaming estimator so the
+    (``TrackInit.heading_sigma_rad``; inf: no heading factor); ``ground``: the sequence's up axis, level
+    frame and viewpoint (``Track.ground``).  Shared by the batch builder and the streaming estimator so the
     two graphs stay identical.
     """
     noise, terms = config.noise, config.terms
@@ -259,7 +267,8 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                                       robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
                                       candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
     if terms.translation_prior and len(points):
-        add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points),
+        add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points, ground.world_up),
+                                          world_up=ground.world_up, world_p_sensor=ground.world_p_sensor,
                                           num_betas=model.num_betas,
                                           depth_offset_m=noise.translation_depth_offset_m,
                                           sigma_ray_m=noise.translation_ray_sigma_m,
@@ -269,7 +278,8 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
                                           robust_scale=noise.translation_loss_scale,
                                           cache=getattr(model, "term_cache", None)), "translation_prior")
     if terms.heading_prior and np.isfinite(heading_yaw) and np.isfinite(heading_sigma_rad):
-        add(make_heading_prior_factor(k.root, heading_yaw, speed_mps, sigma0_rad=noise.heading_sigma_rad,
+        add(make_heading_prior_factor(k.root, heading_yaw, speed_mps, world_R_level=ground.world_R_level,
+                                      sigma0_rad=noise.heading_sigma_rad,
                                       v0=noise.heading_min_speed_mps * 2,
                                       min_speed=noise.heading_min_speed_mps,
                                       cache=getattr(model, "term_cache", None),
@@ -310,7 +320,7 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     if init is None:
         init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
                                 min_speed_mps=noise.heading_min_speed_mps)
-    world_R_body = init.world_R_body if yaw_override is None else world_R_body_from_yaw(yaw_override)
+    world_R_body = init.world_R_body if yaw_override is None else world_R_body_from_yaw(yaw_override, track.ground)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     kinds: list[str] = []
@@ -338,13 +348,13 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
         previous = (keys[i - 1], track.frames[i - 1].timestamp) if i > 0 else None
         for factor, kind in frame_factors(k, fr, track.calibrations[fr.pair], previous,
                                           float(init.heading_yaw[i]), float(init.speed_mps[i]),
-                                          model, ctx, config, rng, _heading_sigma(init, i)):
+                                          model, ctx, config, rng, _heading_sigma(init, i), ground=track.ground):
             add(factor, kind, i)
     add(make_shape_prior_factor(keys[0].betas, num_betas=nb, sigma=noise.shape_sigma), "shape_prior", -1)
     if initial is not None:
         values = gtsam.Values(initial)
     return TrackProblem(graph=graph, initial=values, keys=keys, init=init, factor_kinds=kinds,
-                        factor_frames=frames_of, body=model)
+                        factor_frames=frames_of, body=model, ground=track.ground)
 
 
 def extract_estimate(problem: TrackProblem, values: gtsam.Values, ctx: EstimatorContext) -> TrackEstimate:

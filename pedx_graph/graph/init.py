@@ -3,7 +3,9 @@
 * translation from the LiDAR instance points (median, robust to mislabeled points), or from stereo
   triangulation of the labelled hips/torso when a frame has no LiDAR points;
 * heading from the LiDAR (or triangulated) trajectory, smoothed over neighbouring frames; at low speed from
-  the triangulated torso (left-right shoulder/hip line); the body stands upright (body +Y = world +z);
+  the triangulated torso (left-right shoulder/hip line); the body stands upright (body +Y = the sequence's
+  up axis, :class:`~pedx_graph.data.ground.GroundFrame`: derived from the data, never a fixed world axis);
+  headings and speeds are measured in the ground plane (the level frame);
 * body pose: the template (the pose prior's dominant mean when a prior is given, else zeros);
 * shape: betas = 0.
 
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pedx_graph.data.ground import GroundFrame
 from pedx_graph.data.types import Track, TrackFrame
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
@@ -24,24 +27,15 @@ _TORSO_LEFT = (_IDX["lsho"], _IDX["lhip"])
 _TORSO_RIGHT = (_IDX["rsho"], _IDX["rhip"])
 
 
-def world_R_body_from_yaw(yaw: float | np.ndarray) -> np.ndarray:
-    """Upright body orientation: body +Y -> world +z, body +Z (forward) -> (cos yaw, sin yaw, 0).
-
-    Returns (..., 3, 3); columns are the world images of the body X (left), Y (up), Z (forward) axes.
-    """
-    yaw = np.asarray(yaw, dtype=float)
-    c, s = np.cos(yaw), np.sin(yaw)
-    zero, one = np.zeros_like(c), np.ones_like(c)
-    col_x = np.stack([-s, c, zero], axis=-1)
-    col_y = np.stack([zero, zero, one], axis=-1)
-    col_z = np.stack([c, s, zero], axis=-1)
-    return np.stack([col_x, col_y, col_z], axis=-1)
+def world_R_body_from_yaw(yaw: float | np.ndarray, ground: GroundFrame) -> np.ndarray:
+    """Upright body orientation (..., 3, 3): body +Y -> ``ground.world_up``, body +Z (forward) -> the level
+    direction of heading ``yaw`` (:meth:`GroundFrame.world_R_body_from_yaw`)."""
+    return ground.world_R_body_from_yaw(yaw)
 
 
-def yaw_of(world_R_body: np.ndarray) -> np.ndarray:
-    """Heading angle (radians) of the body's forward axis projected on the ground plane."""
-    fwd = np.asarray(world_R_body)[..., :, 2]
-    return np.arctan2(fwd[..., 1], fwd[..., 0])
+def yaw_of(world_R_body: np.ndarray, ground: GroundFrame) -> np.ndarray:
+    """Heading angle (radians, level frame) of the body's forward axis projected on the ground plane."""
+    return ground.yaw_of(world_R_body)
 
 
 def triangulate_frame(track: Track, frame: TrackFrame) -> np.ndarray:
@@ -82,7 +76,7 @@ class TrackInit:
     world_p_centre: np.ndarray
     """(T, 3) body centre (pelvis) estimates in the world frame, metres."""
     heading_yaw: np.ndarray
-    """(T,) heading from the trajectory (radians); NaN where unknown."""
+    """(T,) heading from the trajectory (radians, in the ground frame's level frame); NaN where unknown."""
     speed_mps: np.ndarray
     """(T,) speed of the smoothed trajectory, m/s (0 for a single frame)."""
     lidar_centroid: np.ndarray
@@ -102,7 +96,8 @@ def _lidar_centroid(frame: TrackFrame) -> np.ndarray:
 
 
 def _smoothed_velocity(times: np.ndarray, points: np.ndarray, half_window_s: float) -> np.ndarray:
-    """Velocity (T, 2) of the horizontal trajectory by a local linear fit; NaN where undetermined."""
+    """Velocity (T, 2) of the horizontal trajectory (``points`` (T, 3) in the level frame, z up) by a local
+    linear fit; NaN where undetermined."""
     vel = np.full((len(times), 2), np.nan)
     ok = np.all(np.isfinite(points[:, :2]), axis=1)
     for i in range(len(times)):
@@ -201,13 +196,14 @@ class FrameMeasurements:
     centre_pixel: tuple | None
     """``(uv, "left"|"right")`` of the body centre in the image (:func:`_centre_pixel`), or None."""
     torso_yaw: float
-    """Facing (radians) from the triangulated shoulders / hips (forward = left x up); NaN when unknown."""
+    """Facing (radians, level frame) from the triangulated shoulders / hips (forward = left x up); NaN when
+    unknown."""
     placeable: bool
     """The frame can place the pedestrian on its own (>= 3 LiDAR points or a triangulated torso joint)."""
 
 
-def measure_frame(calib, frame: TrackFrame, surface_offset_m: float = 0.10, stereo_px: float = 3.0
-                  ) -> FrameMeasurements:
+def measure_frame(calib, frame: TrackFrame, ground: GroundFrame, surface_offset_m: float = 0.10,
+                  stereo_px: float = 3.0) -> FrameMeasurements:
     """The per-frame measurements of :func:`initialise_track` (see its docstring for the parameters)."""
     centroid = _lidar_centroid(frame)
     lidar_depth = float(calib.world_to_rect(centroid)[2] + surface_offset_m) if np.all(np.isfinite(centroid)) \
@@ -225,7 +221,8 @@ def measure_frame(calib, frame: TrackFrame, surface_offset_m: float = 0.10, ster
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN rows: no torso this frame
             left = np.nanmean(tri[list(_TORSO_LEFT)], axis=0) - np.nanmean(tri[list(_TORSO_RIGHT)], axis=0)
-    torso_yaw = float(np.arctan2(-left[0], left[1]))       # forward = (l_y, -l_x) for left = (l_x, l_y)
+    level_left = ground.level_directions(left)
+    torso_yaw = float(np.arctan2(-level_left[0], level_left[1]))   # forward = (l_y, -l_x) for left = (l_x, l_y)
     torso = tri[list(_TORSO_LEFT + _TORSO_RIGHT)]
     placeable = bool(np.all(np.isfinite(centroid)) or np.isfinite(torso).any())
     return FrameMeasurements(time=float(frame.timestamp), calibration=calib, lidar_centroid=centroid,
@@ -249,17 +246,18 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
 
     The per-frame part is :func:`measure_frame`, the rest :func:`initialise_from_measurements`.
     """
-    measurements = [measure_frame(track.calibrations[fr.pair], fr, surface_offset_m, stereo_px)
+    measurements = [measure_frame(track.calibrations[fr.pair], fr, track.ground, surface_offset_m, stereo_px)
                     for fr in track.frames]
-    return initialise_from_measurements(measurements, f"{track.sequence}/{track.tracking_id}",
+    return initialise_from_measurements(measurements, track.ground, f"{track.sequence}/{track.tracking_id}",
                                         half_window_s=half_window_s, min_speed_mps=min_speed_mps,
                                         lidar_sigma_m=lidar_sigma_m, depth_window_s=depth_window_s)
 
 
-def initialise_from_measurements(measurements: list[FrameMeasurements], name: str = "", *,
+def initialise_from_measurements(measurements: list[FrameMeasurements], ground: GroundFrame, name: str = "", *,
                                  half_window_s: float = 0.35, min_speed_mps: float = 0.3,
                                  lidar_sigma_m: float = 0.15, depth_window_s: float = 1.0) -> TrackInit:
-    """:func:`initialise_track` from the frames' :class:`FrameMeasurements` (``name``: for the errors)."""
+    """:func:`initialise_track` from the frames' :class:`FrameMeasurements` and the sequence's ground frame
+    (``name``: for the errors)."""
     n = len(measurements)
     times = np.array([m.time for m in measurements], dtype=float)
     centroids = np.array([m.lidar_centroid for m in measurements], dtype=float).reshape(n, 3)
@@ -291,7 +289,8 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], name: st
         for axis in range(3):
             centre[missing, axis] = np.interp(times[missing], times[known], centre[known, axis])
 
-    vel = _smoothed_velocity(times, centre, half_window_s)
+    level_centre = ground.to_level(centre)
+    vel = _smoothed_velocity(times, level_centre, half_window_s)
     speed = np.linalg.norm(np.nan_to_num(vel), axis=1)
     heading = np.where(np.isfinite(vel[:, 0]), np.arctan2(vel[:, 1], vel[:, 0]), np.nan)
     # Uncertainty of that heading: the trajectory's depth trend is uncertain by depth_rate_sigma (m/s)
@@ -302,8 +301,8 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], name: st
         if not (np.isfinite(heading[i]) and speed[i] > 0):
             continue
         rect_T_world = m.calibration.rect_T_world
-        camera = -rect_T_world[:3, :3].T @ rect_T_world[:3, 3]
-        ray = centre[i, :2] - camera[:2]
+        camera = ground.to_level(-rect_T_world[:3, :3].T @ rect_T_world[:3, 3])
+        ray = level_centre[i, :2] - camera[:2]
         ray = ray / max(float(np.hypot(*ray)), 1e-9)
         sin_across = abs(ray[0] * np.sin(heading[i]) - ray[1] * np.cos(heading[i]))
         heading_sigma[i] = float(np.arctan2(depth_rate_sigma[i] * sin_across, speed[i]))
@@ -319,5 +318,5 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], name: st
         known = np.flatnonzero(np.isfinite(yaw))
         for i in np.flatnonzero(~np.isfinite(yaw)):
             yaw[i] = yaw[known[np.argmin(np.abs(known - i))]]
-    return TrackInit(world_R_body=world_R_body_from_yaw(yaw), world_p_centre=centre, heading_yaw=heading,
+    return TrackInit(world_R_body=world_R_body_from_yaw(yaw, ground), world_p_centre=centre, heading_yaw=heading,
                      speed_mps=speed, lidar_centroid=centroids, times=times, heading_sigma_rad=heading_sigma)

@@ -41,6 +41,7 @@ import gtsam
 import numpy as np
 
 from factors.translation_prior import sensor_ray_frame
+from pedx_graph.data.ground import GroundFrame
 from pedx_graph.solvers.marginals import FRAME_DIM, POSE_SLICE, ROOT_SLICE, TRANS_SLICE
 
 
@@ -144,13 +145,14 @@ def residual_tables(problem, values: gtsam.Values, config: DiagnosticsConfig | N
 
 
 def weak_directions(frame_cov: np.ndarray, world_R_body: np.ndarray, world_p_pelvis: np.ndarray,
-                    config: DiagnosticsConfig | None = None) -> dict:
-    """Standard deviations along the viewing ray / heading and the weakest normalised direction."""
+                    ground: GroundFrame, config: DiagnosticsConfig | None = None) -> dict:
+    """Standard deviations along the viewing ray / heading and the weakest normalised direction (the ray
+    from ``ground.world_p_sensor`` laid on the ground plane; heading = rotation about ``ground.world_up``)."""
     config = config or DiagnosticsConfig()
     cov_t = frame_cov[TRANS_SLICE, TRANS_SLICE]
-    world_R_ray = sensor_ray_frame(world_p_pelvis)
+    world_R_ray = sensor_ray_frame(world_p_pelvis, ground.world_p_sensor, ground.world_up)
     ray_cov = world_R_ray.T @ cov_t @ world_R_ray
-    up_in_body = world_R_body.T @ np.array([0.0, 0.0, 1.0])        # heading = rotation about world up
+    up_in_body = world_R_body.T @ ground.world_up                  # heading = rotation about the up axis
     var_heading = float(up_in_body @ frame_cov[ROOT_SLICE, ROOT_SLICE] @ up_in_body)
     nb = frame_cov.shape[0] - FRAME_DIM
     scale = np.concatenate([np.full(3, config.ref_root_rad), np.full(3, config.ref_trans_m),
@@ -192,13 +194,15 @@ def track_diagnostics(problem, values: gtsam.Values, ctx=None, marginals=None,
             marginals = None
             track_table = dict(track_table)
             per_frame[0]["weak_directions_error"] = f"{type(exc).__name__}: {exc}"
-    if marginals is not None and ctx is not None:
+    ground = getattr(problem, "ground", None)
+    if marginals is not None and ctx is not None and ground is not None:
         betas = np.asarray(values.atVector(problem.keys[0].betas), float)
         pelvis_rest = ctx.model.rest_joints(betas)[0]
         for i, k in enumerate(problem.keys):
             rot = values.atRot3(k.root).matrix()
             pelvis = pelvis_rest + np.asarray(values.atVector(k.trans), float)
-            per_frame[i]["weak_directions"] = weak_directions(marginals.frame_covariances[i], rot, pelvis, config)
+            per_frame[i]["weak_directions"] = weak_directions(marginals.frame_covariances[i], rot, pelvis, ground,
+                                                              config)
     # frames ranked by chi2 per row (all kinds)
     scores = []
     for i, t in enumerate(per_frame_tables):

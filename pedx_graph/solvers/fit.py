@@ -160,11 +160,12 @@ def track_distance_m(track: Track, init) -> float:
 
 
 def heading_ray_angle_deg(track: Track, init) -> float:
-    """Median angle (degrees, 0-90) between the trajectory heading and the horizontal ray from the camera
-    to the body: 0 walking straight towards or away from the camera, 90 walking across.  NaN (no
-    frame with a known heading) compares false with every threshold."""
+    """Median angle (degrees, 0-90) between the trajectory heading and the ray from the camera to the body,
+    both laid on the ground plane (``track.ground``'s level frame): 0 walking straight towards or away
+    from the camera, 90 walking across.  NaN (no frame with a known heading) compares false with every
+    threshold."""
     centres = np.stack([track.calibrations[fr.pair].world_T_cam[:3, 3] for fr in track.frames])
-    ray = (np.asarray(init.world_p_centre, float) - centres)[:, :2]
+    ray = track.ground.level_directions(np.asarray(init.world_p_centre, float) - centres)[:, :2]
     yaw = np.asarray(init.heading_yaw, float)
     heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
     cos = np.abs(np.sum(ray * heading, axis=1)) / np.linalg.norm(ray, axis=1)
@@ -223,7 +224,7 @@ def _single_frame_search(track: Track, ctx, config: FitConfig, n_headings: int =
     from pedx_graph.graph.init import yaw_of
 
     base = build_track_graph(track, ctx, config)
-    start = yaw_of(base.init.world_R_body[0])
+    start = yaw_of(base.init.world_R_body[0], track.ground)
     candidates = [np.array([start])] + [
         np.array([yaw]) for yaw in np.linspace(-np.pi, np.pi, n_headings, endpoint=False)
         if abs(np.angle(np.exp(1j * (yaw - start)))) > 1e-3]

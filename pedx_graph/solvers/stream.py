@@ -45,6 +45,7 @@ from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
+from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements, measure_frame
 from pedx_graph.solvers.frame_system import (OWN_KINDS, RecordingBody, SpecRecorder, add_temporal_new_frame,
                                              frame_systems, register_sample, temporal_terms)
@@ -231,8 +232,10 @@ class StreamingEstimator:
     """Causal per-frame estimates of every visible pedestrian; smoothed tracks when they end."""
 
     def __init__(self, ctx, config: FitConfig | None = None, stream_config: StreamConfig | None = None,
-                 sequence: str = ""):
+                 sequence: str = "", ground: GroundFrame | None = None):
         self.ctx = ctx
+        self.ground = ground
+        """The sequence's up axis, level frame and viewpoint (None: derived from the first frame's calibrations)."""
         self.config = config or FitConfig()
         self.stream_config = stream_config or StreamConfig()
         self.stream_config.isam.num_betas = ctx.model.num_betas
@@ -264,7 +267,7 @@ class StreamingEstimator:
         previous = (state.keys[i - 1], state.frames[i - 1].timestamp) if i > 0 else None
         for factor, kind in frame_factors(k, fr, state.calibrations[fr.pair], previous, init.heading_yaw,
                                           init.speed_mps, model, ctx, self.config, state.rng,
-                                          init.heading_sigma_rad):
+                                          init.heading_sigma_rad, ground=self.ground):
             add(factor, kind)
         if i == 0:
             add(make_shape_prior_factor(k.betas, num_betas=model.num_betas, sigma=noise.shape_sigma),
@@ -291,7 +294,7 @@ class StreamingEstimator:
         the track has any; a track's first frame must be placeable (``ValueError``)."""
         if window[-1].placeable or state.previous is None:
             try:
-                init = initialise_from_measurements(window, f"{state.sequence}/{state.tracking_id}",
+                init = initialise_from_measurements(window, self.ground, f"{state.sequence}/{state.tracking_id}",
                                                     min_speed_mps=self.config.noise.heading_min_speed_mps,
                                                     half_window_s=self.stream_config.heading_half_window_s)
             except ValueError:
@@ -310,7 +313,7 @@ class StreamingEstimator:
         """A new track's first body pose: the candidate (pose prior means) reprojecting best onto its labels."""
         from pedx_graph.graph.build import select_template_poses
 
-        track = Track(self.sequence, state.tracking_id, state.frames[-1:], state.calibrations)
+        track = Track(self.sequence, state.tracking_id, state.frames[-1:], state.calibrations, ground=self.ground)
         return select_template_poses(track, self.ctx, init.world_R_body[None], init.world_p_centre[None])[0].copy()
 
     def _initial_values(self, state: _ActiveTrack, i: int, init) -> gtsam.Values:
@@ -436,6 +439,8 @@ class StreamingEstimator:
         self.body.prefetch(values, keys, jacobians, vertices=vertices, kinds=kinds)
 
     def _begin(self, timestamp, tid, fr, calibrations) -> "_Step":
+        if self.ground is None:
+            self.ground = ground_from_calibrations(calibrations, self.sequence)
         """A new observation's causal initialisation, factors and initial values."""
         state = self.active.get(tid)
         if state is None:
@@ -449,7 +454,7 @@ class StreamingEstimator:
         state.keys.append(FrameKeys.for_frame(i))
         n_kinds = len(state.kinds)
         try:
-            state.measurements.append(measure_frame(state.calibrations[fr.pair], fr,
+            state.measurements.append(measure_frame(state.calibrations[fr.pair], fr, self.ground,
                                                     self.config.noise.translation_depth_offset_m))
             window = [m for m in state.measurements[-16:]
                       if fr.timestamp - m.time <= self.stream_config.heading_half_window_s + 1e-9]
@@ -611,7 +616,8 @@ class StreamingEstimator:
         """The batch fit of the track's frames if it has a lower error on the streamed graph."""
         from pedx_graph.solvers.fit import solve_staged
 
-        track = Track(state.sequence, state.tracking_id, list(state.frames), dict(state.calibrations))
+        track = Track(state.sequence, state.tracking_id, list(state.frames), dict(state.calibrations),
+                      ground=self.ground)
         try:
             _, batch_values, _ = solve_staged(track, self.ctx, self.config)
             if state.smoother.factors.error(batch_values) < state.smoother.factors.error(values):
@@ -637,7 +643,7 @@ class StreamingEstimator:
             values, final_from = self._restart_if_better(state, values)
         finalize_s = time.perf_counter() - t0
         problem = TrackProblem(graph=state.smoother.factors, initial=values, keys=state.keys, init=None,
-                               factor_kinds=state.kinds, factor_frames=state.factor_frames)
+                               factor_kinds=state.kinds, factor_frames=state.factor_frames, ground=self.ground)
         est = extract_estimate(problem, values, self.ctx)
         extra_frames = [{} for _ in state.frames]
         extra_track = {
@@ -724,7 +730,8 @@ def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config:
                 calibrations.update(tr.calibrations)
                 for fr in tr.frames:
                     samples.setdefault(float(fr.timestamp), {})[tr.tracking_id] = fr
-            estimator = StreamingEstimator(ctx, config, stream_config, sequence=sequence)
+            estimator = StreamingEstimator(ctx, config, stream_config, sequence=sequence,
+                                           ground=seq_tracks[0].ground)
             for timestamp in sorted(samples):
                 current = estimator.add_frame(timestamp, samples[timestamp], calibrations)
                 cpu_latencies.extend(e.cpu_seconds for e in current.values())
