@@ -118,3 +118,20 @@ def test_results_carry_marginal_covariances_and_diagnostics(fitted):
         assert np.all(np.linalg.eigvalsh(cov) > -1e-12)
         assert np.asarray(lab.extra["cov_trans"]).shape == (3, 3)
     assert all("diagnostics" in t for t in summary["tracks"])
+
+
+def test_summary_records_the_ground_and_fps_reaches_the_reader(scene, fitted, tmp_path):
+    import shutil
+
+    _, summary = fitted
+    (sequence, ground), = summary["ground"].items()
+    assert ground["source"] == "pointclouds"
+    # the simulator's default frame: z up, ground 1.95 m below the LiDAR (SimConfig.lidar.height_m)
+    assert np.degrees(np.arccos(np.clip(ground["world_up"][2], -1, 1))) < 0.5
+    assert ground["ground_offset_m"] == pytest.approx(-SimConfig().lidar.height_m, abs=0.05)
+    copy = tmp_path / "no_timestamps"
+    shutil.copytree(scene, copy)
+    shutil.rmtree(copy / "timestamps")
+    tracks = read_dataset(copy, config=FitConfig(fps=5.0).reader_config())
+    for track in tracks:
+        np.testing.assert_allclose([fr.timestamp for fr in track.frames], [fr.frame / 5.0 for fr in track.frames])

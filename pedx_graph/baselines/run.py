@@ -118,7 +118,7 @@ def fit_dataset_baseline(dataset: str | os.PathLike, out: str | os.PathLike, nam
     each track's baseline extras (e.g. how many keypoints were filled).
     """
     from pedx_graph.data.reader import read_dataset
-    from pedx_graph.solvers.fit import write_outcomes
+    from pedx_graph.solvers.fit import sequence_grounds, write_outcomes
 
     _check_name(name)
     config = config or BaselineConfig()
@@ -127,5 +127,6 @@ def fit_dataset_baseline(dataset: str | os.PathLike, out: str | os.PathLike, nam
     save_config(config, out / "baseline_config.yaml")
     t0 = time.perf_counter()
     tracks = read_dataset(dataset, sequences=sequences)
-    summary = {"dataset": str(dataset), "baseline": name, "tracks": [], "failed": [], "workers": workers}
+    summary = {"dataset": str(dataset), "baseline": name, "tracks": [], "failed": [], "workers": workers,
+               "ground": sequence_grounds(tracks)}
     return write_outcomes(run_tracks(name, tracks, config, workers), out, summary, t0)

@@ -30,11 +30,15 @@ def _keypoints_of(labels, model: BodyModel, use_extra: bool) -> np.ndarray:
     return np.asarray(model.keypoints(pose, betas, trans))
 
 
-def _visibility(truth_root) -> dict:
+def _visibility(truth_root, grounds: dict | None = None) -> dict:
+    """(sequence, tracking id, frame) -> (18,) labelled-and-visible flags of the truth's 2D labels; fills
+    ``grounds`` (sequence -> :class:`~pedx_graph.data.ground.GroundFrame`) when given."""
     from pedx_graph.data.reader import read_dataset
 
     vis = {}
     for track in read_dataset(truth_root):
+        if grounds is not None:
+            grounds[track.sequence] = track.ground
         for fr in track.frames:
             v = np.zeros(18, dtype=bool)
             for view in (fr.left, fr.right):
@@ -57,13 +61,16 @@ def evaluate(results: str | os.PathLike, truth: str | os.PathLike, model: BodyMo
 def evaluate_arrays(results: str | os.PathLike, truth: str | os.PathLike, model: BodyModel | None = None
                     ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], int]:
     """Per-frame errors of ``results`` against ``truth``: ((global (N,13), root-relative (N,13),
-    visibility weights (N,13), distance (N,)), number of labelled truth frames without a result)."""
+    visibility weights (N,13), distance (N,): the pelvis' distance from the rig in the ground plane of the
+    sequence's :class:`~pedx_graph.data.ground.GroundFrame`), number of labelled truth frames without a
+    result)."""
     from pedx_graph.data.reader import read_smpl_labels
 
     model = model or BodyModel.load()
     pred = read_smpl_labels(results)
     gt = read_smpl_labels(truth)
-    vis = _visibility(truth)
+    grounds: dict = {}
+    vis = _visibility(truth, grounds)
     glob_all, rel_all, w_all, dist_all = [], [], [], []
     missing = 0
     for key, gt_labels in gt.items():
@@ -79,7 +86,7 @@ def evaluate_arrays(results: str | os.PathLike, truth: str | os.PathLike, model:
         weights = np.stack([eval_visibility(vis[(key[0], key[1], g.frame)]) for g, _ in pairs])
         pelvis = 0.5 * (gt_kp[:, 12] + gt_kp[:, 13])
         glob_all.append(glob); rel_all.append(rel); w_all.append(weights)
-        dist_all.append(np.linalg.norm(pelvis[:, :2], axis=1))
+        dist_all.append(grounds[key[0]].horizontal_distance(pelvis))
     if not glob_all:
         raise ValueError(f"no frame of {results} matches a labelled frame of {truth}")
     arrays = (np.concatenate(glob_all), np.concatenate(rel_all), np.concatenate(w_all), np.concatenate(dist_all))

@@ -198,11 +198,12 @@ def plot_top_view(results: str | os.PathLike, truth: str | os.PathLike, path: st
     if picked is None:
         return None
     seq, frame, pair, tracks, pred = picked
+    ground = next(tr.ground for tr in tracks if tr.sequence == seq)      # top view = the level frame's x, y
     gt = read_smpl_labels(truth)
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9, 9))
     try:
-        scene = read_scene_points(truth, seq, frame)
+        scene = ground.to_level(read_scene_points(truth, seq, frame))
         scene = scene[np.hypot(scene[:, 0], scene[:, 1]) < 55][::2]
         ax.scatter(scene[:, 0], scene[:, 1], s=0.2, color="0.6")
     except Exception:
@@ -218,29 +219,30 @@ def plot_top_view(results: str | os.PathLike, truth: str | os.PathLike, path: st
         k += 1
         true_kp = np.asarray(model.keypoints(np.stack([l.pose for l in labels]),
                                              np.stack([l.betas for l in labels]), np.stack([l.trans for l in labels])))
-        pelvis = 0.5 * (true_kp[:, lhip] + true_kp[:, rhip])
+        pelvis = ground.to_level(0.5 * (true_kp[:, lhip] + true_kp[:, rhip]))
         people_xy.append(pelvis[:, :2])
         ax.plot(pelvis[:, 0], pelvis[:, 1], "-", color=colour, lw=1.5)
         fitted = pred.get(key, [])
         if fitted:
             kp = np.stack([np.asarray(l.extra["keypoints_3d"], float) for l in fitted])
-            fp = 0.5 * (kp[:, lhip] + kp[:, rhip])
+            fp = ground.to_level(0.5 * (kp[:, lhip] + kp[:, rhip]))
             ax.scatter(fp[:, 0], fp[:, 1], s=8, color=colour, marker="o", edgecolors="k", linewidths=0.3)
             now = [l for l in fitted if l.frame == frame]
             if now:
-                verts = np.asarray(model.forward(now[0].pose, now[0].betas, now[0].trans).vertices)[::5]
+                verts = ground.to_level(np.asarray(model.forward(now[0].pose, now[0].betas,
+                                                                 now[0].trans).vertices)[::5])
                 ax.scatter(verts[:, 0], verts[:, 1], s=0.3, color=colour, alpha=0.5)
     if people_xy:
         xy = np.concatenate(people_xy)
         lo, hi = np.minimum(xy.min(axis=0), 0.0) - 4.0, xy.max(axis=0) + 4.0
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
-    ax.plot([0], [0], "k^", ms=9, label="LiDAR (vehicle)")
+    ax.plot([0], [0], "k^", ms=9, label="camera rig (vehicle)")
     ax.plot([], [], "k-", label="true pelvis trajectory")
     ax.plot([], [], "ko", ms=4, label="fitted pelvis (each frame)")
     ax.set_aspect("equal")
-    ax.set_xlabel("x (m, forward)")
-    ax.set_ylabel("y (m, left)")
+    ax.set_xlabel("level x (m, along the reference camera)")
+    ax.set_ylabel("level y (m, left of it)")
     ax.set_title(f"{seq}: top view (sweep and meshes of frame {frame})", fontsize=10)
     ax.legend(fontsize=8, loc="upper left")
     ax.grid(alpha=0.3)

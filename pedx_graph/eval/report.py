@@ -246,7 +246,7 @@ def error_floor(truth: str | os.PathLike, fit_config=None, samples: int = 64, se
             rel_all.append(r)
             w_all.append(eval_visibility(frame_visibility(fr)))
             pelvis = truth13[i][EVAL_JOINTS.index("hip")]
-            dist_all.append(float(np.hypot(pelvis[0], pelvis[1])))
+            dist_all.append(float(track.ground.horizontal_distance(pelvis)))
     if not glob_all:
         raise ValueError(f"{truth}: no frame with ground truth for the error floor")
     out = summarise(np.array(glob_all), np.array(rel_all), np.array(w_all), np.array(dist_all))
@@ -332,8 +332,9 @@ def calibration(results: str | os.PathLike, truth: str | os.PathLike, model=None
     covs = run_covariances(results, truth)
     pred = read_smpl_labels(results)
     gt = read_smpl_labels(truth)
-    vis = {}
+    vis, grounds = {}, {}
     for track in read_dataset(truth):
+        grounds[track.sequence] = track.ground
         for fr in track.frames:
             vis[(track.sequence, track.tracking_id, fr.frame)] = frame_visibility(fr)
     nees_all, vis_all, dist_all = [], [], []
@@ -354,7 +355,7 @@ def calibration(results: str | os.PathLike, truth: str | os.PathLike, model=None
             nees_all.append(_nees(est - true_kp, cov))
             vis_all.append(vis[(key[0], key[1], g.frame)])
             pelvis = 0.5 * (true_kp[_IDX["lhip"]] + true_kp[_IDX["rhip"]])
-            dist_all.append(float(np.hypot(pelvis[0], pelvis[1])))
+            dist_all.append(float(grounds[key[0]].horizontal_distance(pelvis)))
     if not nees_all:
         return {"frames": 0, "skipped_frames": skipped}
     nees_arr, vis_arr, dist = np.array(nees_all), np.array(vis_all), np.array(dist_all)
