@@ -1,9 +1,13 @@
 """Rectified stereo cameras: calibration of the simulated rig, pixel rays, visibility and silhouettes.
 
 Frames (as in :mod:`pedx_graph.data.types`): ``cam`` = raw left camera (x right, y down, z forward),
-``rect`` = rectified left camera, ``rect_p = rect_R_cam @ cam_p``; world = LiDAR frame.  The rectified left
-camera looks along ``(cos p cos y, cos p sin y, sin p)`` for yaw ``y`` and pitch ``p``; its x axis is
-horizontal, to the right of the viewing direction.  The right camera of a pair sits at ``rect (b, 0, 0)``:
+``rect`` = rectified left camera, ``rect_p = rect_R_cam @ cam_p``; world = the simulator's internal (sim)
+frame, z up, LiDAR at the origin (the written calibration is mapped into the output frame by
+:func:`output_calibration`).  A pair is placed either by yaw ``y`` and pitch ``p`` in the sim frame (the
+rectified left camera looks along ``(cos p cos y, cos p sin y, sin p)``, its x axis horizontal, to the right
+of the viewing direction), or by the raw left camera's optical axis and image-down direction given in the
+frame ``CamerasConfig.frame`` (``sim`` or ``output``; see :func:`camera_axes`).  The right camera of a pair
+sits at ``rect (b, 0, 0)``:
 
     uv_left  = project(K @ rect_p),   uv_right = project(K @ (rect_p - (b, 0, 0))),   K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]
 
@@ -14,6 +18,7 @@ every mesh occludes every other one and a body occludes itself (the far arm behi
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -22,7 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pedx_graph.data.types import StereoCalibration
-from pedx_graph.sim.config import StereoPairConfig
+from pedx_graph.sim.config import SimConfig, StereoPairConfig
 from pedx_graph.sim.scene import RayScene
 
 
@@ -35,8 +40,24 @@ def world_R_rect_for(yaw_deg: float, pitch_deg: float) -> np.ndarray:
     return np.stack([x_axis, y_axis, z_axis], axis=1)
 
 
-def make_calibration(pair: StereoPairConfig) -> StereoCalibration:
-    """The :class:`StereoCalibration` of a simulated pair (ideal rectified rig, see module docstring)."""
+def camera_axes(optical_axis, image_down) -> np.ndarray:
+    """(3, 3) camera orientation, columns x (right), y (down), z (forward) in the frame of the two vectors.
+
+    ``z`` = the normalised optical axis, ``y`` = ``image_down`` minus its component along ``z``, normalised,
+    ``x = y cross z``.
+    """
+    z_axis = np.asarray(optical_axis, dtype=float)
+    z_axis = z_axis / np.linalg.norm(z_axis)
+    y_axis = np.asarray(image_down, dtype=float)
+    y_axis = y_axis - (y_axis @ z_axis) * z_axis
+    y_axis = y_axis / np.linalg.norm(y_axis)
+    return np.stack([np.cross(y_axis, z_axis), y_axis, z_axis], axis=1)
+
+
+def make_calibration(pair: StereoPairConfig, sim_T_frame: np.ndarray | None = None) -> StereoCalibration:
+    """The :class:`StereoCalibration` of a simulated pair in the sim frame (ideal rectified rig, see module
+    docstring).  ``sim_T_frame`` (4, 4): maps the frame the pair's position and axes are given in
+    (``CamerasConfig.frame``) into the sim frame; None = they are given in the sim frame."""
     width, height = pair.image_size
     cx, cy = pair.principal_point if pair.principal_point is not None else (width / 2.0, height / 2.0)
     f = pair.focal_px
@@ -45,12 +66,36 @@ def make_calibration(pair: StereoPairConfig) -> StereoCalibration:
     right_P = left_P.copy()
     right_P[0, 3] = -f * pair.baseline_m
     rect_R_cam = Rotation.from_rotvec(np.deg2rad(pair.rectification_deg)).as_matrix()
-    world_R_cam = world_R_rect_for(pair.yaw_deg, pair.pitch_deg) @ rect_R_cam
-    world_T_cam = np.eye(4)
-    world_T_cam[:3, :3] = world_R_cam
-    world_T_cam[:3, 3] = pair.left_camera_xyz
+    frame_T_cam = np.eye(4)
+    if pair.optical_axis is None:
+        frame_T_cam[:3, :3] = world_R_rect_for(pair.yaw_deg, pair.pitch_deg) @ rect_R_cam
+    else:
+        frame_T_cam[:3, :3] = camera_axes(pair.optical_axis, pair.image_down)
+    frame_T_cam[:3, 3] = pair.left_camera_xyz
+    world_T_cam = frame_T_cam if sim_T_frame is None else np.asarray(sim_T_frame, dtype=float) @ frame_T_cam
     return StereoCalibration(name=pair.name, left_P_rect=left_P, right_P_rect=right_P, rect_R_cam=rect_R_cam,
                              world_T_cam=world_T_cam, image_size=(int(width), int(height)))
+
+
+def rig_calibrations(config: SimConfig) -> dict[str, StereoCalibration]:
+    """The calibrations of the config's pairs in the sim frame, by pair name (forward slot first)."""
+    sim_T_frame = None
+    if config.cameras.frame == "output":
+        sim_T_frame = np.linalg.inv(config.output_frame.output_T_sim())
+    return {pair.name: make_calibration(pair, sim_T_frame) for pair in config.cameras.pairs()}
+
+
+def output_calibration(calib: StereoCalibration, output_T_sim: np.ndarray) -> StereoCalibration:
+    """``calib`` (sim frame) with its placement mapped into the output frame: ``output_T_sim @ world_T_cam``."""
+    if np.array_equal(output_T_sim, np.eye(4)):
+        return calib
+    return dataclasses.replace(calib, world_T_cam=np.asarray(output_T_sim, dtype=float) @ calib.world_T_cam)
+
+
+def sim_yaw_deg(calib: StereoCalibration) -> float:
+    """Bearing (degrees about the sim frame's z, 0 = +x) of the rectified left camera's optical axis."""
+    axis = (calib.world_T_cam[:3, :3] @ calib.rect_R_cam.T)[:, 2]
+    return float(np.degrees(np.arctan2(axis[1], axis[0])))
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""``pedx-graph simulate``: write a PedX-like simulated dataset (release layout + ``truth/``)."""
+"""``pedx-graph simulate``: write a PedX-like simulated dataset (release layout + ``truth/``), default or PedX rig."""
 from __future__ import annotations
 
 import argparse
@@ -12,7 +12,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "simulate", help="simulate a PedX-like intersection sequence (labels, LiDAR, ground truth)",
         description="Simulate a four-way-stop intersection seen by two stereo pairs and a 32-beam LiDAR and "
-                    "write it in the PedX release layout under OUT, with exact ground truth under OUT/truth.")
+                    "write it in the PedX release layout under OUT, with exact ground truth under OUT/truth. "
+                    "--rig pedx: the real PedX cameras and z-down LiDAR frame.")
     p.add_argument("out", metavar="OUT", help="output folder (created)")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed + config = same bytes)")
     p.add_argument("--pedestrians", type=int, default=None, help="number of pedestrians (config: scene.n_pedestrians)")
@@ -21,7 +22,11 @@ def register(subparsers) -> None:
                    help="folder of BVH clips with clips.csv (hold-out split); default: procedural gait")
     p.add_argument("--split", default=None, choices=["holdout", "train", "all"],
                    help="clip split used with --motion-dir (default from config: holdout)")
-    p.add_argument("--config", default=None, help="YAML preset (e.g. configs/sim_default.yaml)")
+    p.add_argument("--rig", default=None, choices=["default", "pedx"],
+                   help="rig preset: 'default' (z-up LiDAR frame, forward + left pairs) or 'pedx' (the real PedX "
+                        "rig, z-down LiDAR frame, real-label quirks); default: the YAML's 'rig:' key, else default")
+    p.add_argument("--config", default=None,
+                   help="YAML read on top of the rig preset (e.g. configs/sim_default.yaml, configs/sim_pedx.yaml)")
     p.add_argument("--body-model", default=None, help="SMPL-format .npz (default: the package's open model)")
     p.add_argument("--workers", type=int, default=1, help="processes over frames (same files for any count)")
     p.add_argument("--overwrite", action="store_true", help="replace a simulation already in OUT")
@@ -31,11 +36,10 @@ def register(subparsers) -> None:
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
-    from pedx_graph.config import load_config
-    from pedx_graph.sim.config import SimConfig
+    from pedx_graph.sim.config import load_sim_config
     from pedx_graph.sim.simulate import simulate
 
-    config = load_config(SimConfig, args.config)
+    config = load_sim_config(args.config, rig=args.rig)
     if args.pedestrians is not None:
         config.scene.n_pedestrians = args.pedestrians
     if args.frames is not None:

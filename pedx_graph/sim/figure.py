@@ -5,7 +5,9 @@ Top row: the left image of a pair (a blank canvas, cropped to the labelled peopl
 Bottom row: the sweep from above (grey) with walkways, camera fields of view and each instance's segment points
 coloured by whether they really come from that person (green) or not (red: ground, background, other people);
 points on people that no segment caught are blue; black dots are the true joints, circles the pelvis.  Left:
-the intersection; right: a zoom on the labelled people.  Reads only the written files (release + ``truth/``).
+the intersection; right: a zoom on the labelled people.  Top views are drawn in the sim frame (x forward, y left),
+whatever the rig's output frame (``truth/meta.json``'s ``output_T_sim``).  Reads only the written files
+(release + ``truth/``).
 """
 from __future__ import annotations
 
@@ -15,10 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from pedx_graph.data.calib import read_calibrations
+from pedx_graph.data.transform import transform_points
 from pedx_graph.data.labels2d import iter_label2d_files, read_label2d
 
 
-def _top_view(ax, meta, calibs, pair, points, truth, person_ids, limits, title):
+def _top_view(ax, meta, calibs, pair, points, truth, person_ids, limits, title, sim_T_output):
+    """Top view in the sim frame (x forward, y left, z up): ``points`` are already there, calibrations and
+    truth joints (output frame) are mapped with ``sim_T_output``."""
     from matplotlib.patches import Polygon as MplPolygon, Wedge
 
     # plot coordinates: x_plot = world y (axis inverted so the vehicle's left is on the left), y_plot = world x
@@ -30,7 +35,7 @@ def _top_view(ax, meta, calibs, pair, points, truth, person_ids, limits, title):
         ax.add_patch(MplPolygon(quad[:, ::-1], closed=True, lw=0, alpha=0.5, zorder=0,
                                 color="gold" if w["kind"] == "crosswalk" else "0.88"))
     for name, c in calibs.items():
-        axis = (c.world_T_cam[:3, :3] @ c.rect_R_cam.T)[:, 2]
+        axis = (sim_T_output[:3, :3] @ c.world_T_cam[:3, :3] @ c.rect_R_cam.T)[:, 2]
         yaw = np.degrees(np.arctan2(axis[1], axis[0]))
         half = np.degrees(np.arctan2(c.image_size[0] / 2, c.focal_px))
         ax.add_patch(Wedge((0, 0), 60, 90 - yaw - half, 90 - yaw + half, alpha=0.07, zorder=0,
@@ -57,14 +62,14 @@ def _top_view(ax, meta, calibs, pair, points, truth, person_ids, limits, title):
     for tid in person_ids:
         key = f"joints__{tid}"
         if key in truth.files:
-            joints = truth[key]
+            joints = transform_points(sim_T_output, truth[key])
             ax.scatter(joints[:, 1], joints[:, 0], s=2, c="k", lw=0, zorder=4)
             ax.plot(joints[0, 1], joints[0, 0], "o", ms=6, mfc="none", mec="k", mew=0.7, zorder=4)
     ax.set_xlim(ymax, ymin)
     ax.set_ylim(xmin, xmax)
     ax.set_aspect("equal")
-    ax.set_xlabel("world y (m)")
-    ax.set_ylabel("world x (m, forward)")
+    ax.set_xlabel("sim y (m, left)")
+    ax.set_ylabel("sim x (m, forward)")
     ax.set_title(title.format(n_bad=n_bad, n_seg=n_seg), fontsize=9)
 
 
@@ -86,6 +91,8 @@ def render_frame(out_dir: str | Path, frame: int, path: str | Path, pair: str | 
     left_cam = pair.split("-")[0]
     truth = np.load(out / "truth" / seq / f"{seq}_{frame:07d}.npz")
     points = truth["scene_points"].astype(float)
+    sim_T_output = np.linalg.inv(np.asarray(meta.get("output_T_sim", np.eye(4)), dtype=float))
+    sim_points = transform_points(sim_T_output, points)
     person_ids = {o["name"]: o["id"] for o in meta["objects"] if o["kind"] == "pedestrian"}
 
     fig = plt.figure(figsize=(14, 10.5))
@@ -141,16 +148,17 @@ def render_frame(out_dir: str | Path, frame: int, path: str | Path, pair: str | 
                      "guess, line = polygon, black = its LiDAR segment", fontsize=9)
 
     # ---- top views
-    _top_view(ax_all, meta, calibs, pair, points, truth, person_ids, ((-25.0, 25.0), (-3.0, 47.0)),
+    _top_view(ax_all, meta, calibs, pair, sim_points, truth, person_ids, ((-25.0, 25.0), (-3.0, 47.0)),
               "top view: segment points on the person (green) / wrong (red: {n_bad} of {n_seg});\n"
-              "person points in no segment (blue); joints (black), pelvis (circle)")
-    centres = [truth[f"joints__{t}"][0, :2] for t in labelled_tids if f"joints__{t}" in truth.files]
+              "person points in no segment (blue); joints (black), pelvis (circle)", sim_T_output)
+    centres = [transform_points(sim_T_output, truth[f"joints__{t}"][0])[:2] for t in labelled_tids
+               if f"joints__{t}" in truth.files]
     if centres:
         c = np.median(np.array(centres), axis=0)
     else:
         c = np.array([20.0, 0.0])
-    _top_view(ax_zoom, meta, calibs, pair, points, truth, person_ids,
-              ((c[1] - 7.0, c[1] + 7.0), (c[0] - 7.0, c[0] + 7.0)), "zoom on the labelled people")
+    _top_view(ax_zoom, meta, calibs, pair, sim_points, truth, person_ids,
+              ((c[1] - 7.0, c[1] + 7.0), (c[0] - 7.0, c[0] + 7.0)), "zoom on the labelled people", sim_T_output)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

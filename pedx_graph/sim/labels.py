@@ -2,12 +2,17 @@
 
 Keypoints (per image, PEDX_KEYPOINTS order)::
 
-    uv_label = uv_true + n,   n ~ N(0, s^2 I2),   s = visible_noise_px if visible else occluded_noise_px
+    uv_label = uv_true + (0, -d) + n,   n ~ N(0, s_j^2 I2),   s_j = keypoint_noise_px[j] (or visible_noise_px)
+                                                              if visible, else occluded_noise_px
 
 ``uv_true`` is the exact projection of the body model's 3D keypoint; ``visible`` comes from ray tests
-(:func:`pedx_graph.sim.cameras.point_visibility`).  Joints whose true projection falls outside the image
-are not labelled (the key is absent from the JSON); occluded in-image joints are labelled
-(``visible: false``) with probability ``occluded_label_prob``.  Noisy positions are clipped to the image.
+(:func:`pedx_graph.sim.cameras.point_visibility`); ``d`` is the pair's ``vertical_disparity_px`` in a right
+image (0 in a left one).  Joints whose true projection falls outside the image are not labelled (the key is
+absent from the JSON); occluded in-image joints are labelled with probability ``occluded_label_prob``, with
+``visible: false`` (or ``true`` when ``occlusion_flags`` is off, as in real PedX).  Noisy positions are
+clipped to the image and, with ``integer_clicks``, rounded to whole pixels (polygon vertices too).
+
+File quirks (:func:`file_quirks`, real PedX): a file may carry no keypoints (polygon only) or miss one.
 
 Segments, as in the PedX paper: the LiDAR points of an instance are the points of the full sweep that
 project inside its polygon in the *left* image of the pair (in front of the camera).  This keeps the
@@ -33,33 +38,80 @@ from pedx_graph.sim.cameras import CameraView, points_in_polygon
 from pedx_graph.sim.config import LabelConfig
 
 
-def keypoint_labels(uv_true: np.ndarray, visible: np.ndarray, in_image: np.ndarray, config: LabelConfig,
-                    rng: np.random.Generator, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Noisy keypoint clicks: ((18, 2) pixels, NaN = not labelled; (18,) visible flags).
+def keypoint_sigma_px(visible: np.ndarray, config: LabelConfig) -> np.ndarray:
+    """(18,) click noise per keypoint (px per axis): the visible profile where visible, else the occluded one."""
+    visible_sigma = config.visible_noise_px if config.keypoint_noise_px is None else np.asarray(
+        config.keypoint_noise_px, dtype=float)
+    return np.where(visible, visible_sigma, config.occluded_noise_px)
 
-    ``uv_true`` (18, 2) exact projections, ``visible`` / ``in_image`` (18,) bool.
+
+def keypoint_labels(uv_true: np.ndarray, visible: np.ndarray, in_image: np.ndarray, config: LabelConfig,
+                    rng: np.random.Generator, image_size: tuple[int, int],
+                    v_shift_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Noisy keypoint clicks: ((18, 2) pixels, NaN = not labelled; (18,) ``visible`` flags as written).
+
+    ``uv_true`` (18, 2) exact projections, ``visible`` / ``in_image`` (18,) bool; ``v_shift_px`` is added to
+    every v (a right image's ``-vertical_disparity_px``).  Without ``occlusion_flags`` the flags are True
+    wherever a keypoint is labelled.
     """
     n = len(uv_true)
     unit_noise = rng.normal(size=(n, 2))
     keep_occluded = rng.random(n) < config.occluded_label_prob
-    sigma = np.where(visible, config.visible_noise_px, config.occluded_noise_px)
+    sigma = keypoint_sigma_px(visible, config)
     labelled = in_image & (visible | keep_occluded)
     uv = uv_true + sigma[:, None] * unit_noise
+    if v_shift_px:
+        uv[:, 1] += v_shift_px
     width, height = image_size
-    uv[:, 0] = np.clip(uv[:, 0], 0.0, width - 1e-3)
-    uv[:, 1] = np.clip(uv[:, 1], 0.0, height - 1e-3)
+    if config.integer_clicks:
+        uv = np.round(uv)
+        uv[:, 0] = np.clip(uv[:, 0], 0.0, width - 1.0)
+        uv[:, 1] = np.clip(uv[:, 1], 0.0, height - 1.0)
+    else:
+        uv[:, 0] = np.clip(uv[:, 0], 0.0, width - 1e-3)
+        uv[:, 1] = np.clip(uv[:, 1], 0.0, height - 1e-3)
     uv[~labelled] = np.nan
-    return uv, visible & labelled
+    flags = visible & labelled if config.occlusion_flags else labelled.copy()
+    return uv, flags
 
 
 def noisy_polygon(polygon: np.ndarray, config: LabelConfig, rng: np.random.Generator,
-                  image_size: tuple[int, int]) -> np.ndarray:
-    """(K, 2) polygon with N(0, polygon_noise_px^2) added to every vertex, clipped to the image."""
+                  image_size: tuple[int, int], v_shift_px: float = 0.0) -> np.ndarray:
+    """(K, 2) polygon with N(0, polygon_noise_px^2) added to every vertex (and ``v_shift_px`` to every v),
+    clipped to the image; rounded to whole pixels with ``integer_clicks``."""
     out = polygon + config.polygon_noise_px * rng.normal(size=polygon.shape)
+    if v_shift_px:
+        out[:, 1] += v_shift_px
+    if config.integer_clicks:
+        out = np.round(out)
     width, height = image_size
     out[:, 0] = np.clip(out[:, 0], 0.0, float(width))
     out[:, 1] = np.clip(out[:, 1], 0.0, float(height))
     return out
+
+
+def file_quirks(uv: np.ndarray, flags: np.ndarray, config: LabelConfig,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """Apply the real labels' file quirks to one file's keypoints: ``(uv, flags, quirk)`` copies.
+
+    With probability ``polygon_only_prob`` every keypoint is removed (``quirk = "polygon_only"``, the file is
+    written with ``keypoint: null``); else, with probability ``missing_keypoint_prob`` and at least two
+    keypoints labelled, one labelled keypoint drawn uniformly is removed (``"missing_keypoint"``).  Always
+    three draws from ``rng`` (fixed order), so the stream does not depend on the outcome.
+    """
+    u_polygon, u_missing, u_pick = rng.random(3)
+    uv, flags = uv.copy(), flags.copy()
+    labelled = np.flatnonzero(np.all(np.isfinite(uv), axis=1))
+    if u_polygon < config.polygon_only_prob:
+        uv[:] = np.nan
+        flags[:] = False
+        return uv, flags, "polygon_only"
+    if u_missing < config.missing_keypoint_prob and len(labelled) >= 2:
+        drop = labelled[min(int(u_pick * len(labelled)), len(labelled) - 1)]
+        uv[drop] = np.nan
+        flags[drop] = False
+        return uv, flags, "missing_keypoint"
+    return uv, flags, None
 
 
 def make_view(uv: np.ndarray, visible: np.ndarray, polygon: np.ndarray | None) -> View2D:

@@ -1,7 +1,7 @@
 """Pedestrians: body shapes, motions and their placement on the crosswalks and sidewalks.
 
 Placement of a motion clip (:class:`pedx_graph.motion.clips.MotionClip`, clip world Y up, floor
-``y = floor_y``) in the world (LiDAR frame, z up)::
+``y = floor_y``) in the world (the sim frame: LiDAR at the origin, z up)::
 
     world_R_clip = Rz(psi - phi_clip) @ A,      A = [[0, 0, 1], [1, 0, 0], [0, 1, 0]]
     world_R_pelvis(t) = world_R_clip @ clip_R_pelvis(t)          -> pose[t, :3] = Log(world_R_pelvis(t))
@@ -38,7 +38,7 @@ WORLD_R_CLIPAXES = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 @dataclass
 class Pedestrian:
-    """Ground truth of one simulated pedestrian over the sequence (world = LiDAR frame)."""
+    """Ground truth of one simulated pedestrian over the sequence (world = the sim frame, z up)."""
 
     tracking_id: str
     """32-hex tracking id shared by the 2D, segment and SMPL files."""
@@ -201,13 +201,24 @@ def _walkway_coords(walkway: Walkway, xy: np.ndarray) -> tuple[np.ndarray, np.nd
     return rel @ d, rel @ np.array([-d[1], d[0]])
 
 
-def _in_some_view(xy: np.ndarray, config: SimConfig, margin_deg: float = 3.0) -> bool:
+def _in_some_view(xy: np.ndarray, pair_yaws: list[tuple[float, float]], margin_deg: float = 3.0,
+                  every_pair: bool = False) -> bool:
+    """The bearing of ``xy`` lies within ``half_fov - margin`` of some pair's yaw (``pair_yaws``: (yaw, half
+    horizontal field of view), degrees, sim frame); with ``every_pair``: of every pair's."""
     bearing = np.degrees(np.arctan2(xy[1], xy[0]))
-    for pair in config.cameras.pairs():
-        half_fov = np.degrees(np.arctan2(pair.image_size[0] / 2.0, pair.focal_px)) - margin_deg
-        if abs((bearing - pair.yaw_deg + 180.0) % 360.0 - 180.0) <= half_fov:
-            return True
-    return False
+    inside = [abs((bearing - yaw + 180.0) % 360.0 - 180.0) <= half_fov - margin_deg for yaw, half_fov in pair_yaws]
+    return all(inside) if every_pair else any(inside)
+
+
+def _pair_yaws(config: SimConfig) -> list[tuple[float, float]]:
+    """(yaw, half horizontal field of view) of each pair's left camera, degrees, in the sim frame."""
+    from pedx_graph.sim.cameras import rig_calibrations, sim_yaw_deg
+
+    out = []
+    for pair, calib in zip(config.cameras.pairs(), rig_calibrations(config).values()):
+        yaw = pair.yaw_deg if pair.optical_axis is None else sim_yaw_deg(calib)
+        out.append((yaw, float(np.degrees(np.arctan2(pair.image_size[0] / 2.0, pair.focal_px)))))
+    return out
 
 
 def _random_tracking_id(rng: np.random.Generator) -> str:
@@ -229,6 +240,7 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
     crosswalks = [w for w in walkways if w.kind == "crosswalk"]
     sidewalks = [w for w in walkways if w.kind == "sidewalk"]
     anchor_frame = n_frames // 2
+    pair_yaws = _pair_yaws(config)
     people: list[Pedestrian] = []
     group = -1
     lead = None   # (walkway, sign, along, across, speed) of the current group's first member
@@ -242,6 +254,10 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
         sole_y = float(rest.vertices[:, 1].min())
         hip_height = float(0.5 * (rest_joints[1, 1] + rest_joints[2, 1]) - sole_y)
         new_group = lead is None or n_in_group >= group_size
+        if new_group and sc.all_views_prob > 0:      # no draw when off: the default stream is unchanged
+            every_pair = bool(rng.random() < sc.all_views_prob)
+        elif new_group:
+            every_pair = False
         if new_group:
             group += 1
             n_in_group = 0
@@ -278,7 +294,7 @@ def plan_pedestrians(config: SimConfig, scene: StaticScene, body_model, rng: np.
             if new_group and sc.distance_std_m > 0:
                 accept = np.exp(-0.5 * ((dist - sc.distance_mean_m) / sc.distance_std_m) ** 2)
                 ok_range &= bool(rng.random() < accept)
-            if not (ok_range and _in_some_view(anchor_xy, config)) and attempt < 199:
+            if not (ok_range and _in_some_view(anchor_xy, pair_yaws, every_pair=every_pair)) and attempt < 199:
                 continue
             heading = float(np.arctan2(sign * d[1], sign * d[0]))
             rest_pelvis = rest_joints[0]

@@ -4,15 +4,23 @@ Output layout (``out_dir``; the PedX release layout, see the pedx-format notes, 
 
     calib/calib_cam_to_cam_<left>-<right>.txt, calib/calib_cam_to_range_<left>.txt
     labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json    one per labelled instance per image
-    labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply        polygon-assigned LiDAR points (left image)
-    labels/3d/smpl/<seq>/<seq>_<frame:07d>_<tid>.json          ground-truth SMPL, world (LiDAR) frame
+    labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply        polygon-assigned LiDAR points (left images)
+    labels/3d/smpl/<seq>/<seq>_<frame:07d>_<tid>.json          ground-truth SMPL, output (LiDAR) frame
     pointclouds/<seq>/<seq>_<frame:07d>.ply                    full sweep (lost returns as inf points)
     timestamps/timestamps-{pointclouds,images}-<seq>.txt       ``frame seconds`` lines
-    truth/meta.json                                            objects, walkways, people, seed
+    truth/meta.json                                            objects, walkways, people, seed, frames, ground
     truth/<seq>/<seq>_<frame:07d>.npz                          per-frame exact quantities (below)
     truth/<seq>/<seq>_<frame:07d>.json                         per-frame, per-person visibility summary
     sim_config.yaml                                            resolved config (``# seed: S`` first line)
     summary.json                                               counts (no wall-clock times: byte-stable)
+
+Frames: the simulation runs in the sim frame (z up, LiDAR at the origin); every written 3D quantity (calib
+``world_T_cam``, clouds, segments, SMPL labels, truth points, keypoints and joints) is in the output frame,
+``output_p = output_T_sim @ sim_p`` (:class:`~pedx_graph.sim.config.OutputFrameConfig`; identity for the
+default rig).  ``truth/meta.json`` records ``output_T_sim`` (4x4), ``world_p_lidar`` (the LiDAR's centre) and
+``ground`` = ``{"world_up", "ground_offset_m"}`` (the ground plane ``world_up . p = ground_offset_m``), all in
+the output frame; ``ground_z`` and ``walkways`` are in the sim frame.  SMPL labels are moved as in
+:func:`pedx_graph.data.transform.transform_smpl`.
 
 Per-frame truth NPZ keys (``<tid>`` = tracking id): ``scene_points`` (N, 3) float32 = the finite points of
 the scene PLY in order, ``scene_object_id`` (N,) int32 = object id hit by each point (``truth/meta.json``
@@ -26,18 +34,18 @@ Per-frame truth JSON: ``people.<tid>`` = ``distance_m`` (horizontal, LiDAR to pe
 ``n_lidar_points_on_person`` (sweep points whose ray hit the person), ``labelled``, ``n_segment_points``,
 ``n_segment_points_on_person``, and ``views.<camera>`` = ``in_image`` (keypoints projecting into the
 image), ``visible_area_px`` (visible silhouette area), ``n_visible``, ``labelled`` and ``visible`` (18
-characters ``0``/``1``: true visibility of each PEDX_KEYPOINTS joint) for the images where it was labelled.
+characters ``0``/``1``: true visibility of each PEDX_KEYPOINTS joint) for the images where it was labelled,
+``quirk`` (``polygon_only`` / ``missing_keypoint``) where a file quirk was applied, ``suppressed: true`` where
+a labelable view was left out because the track is labelled in one camera only.
 
 Same seed and config -> byte-identical files (NPZ members carry a fixed timestamp).
 """
 from __future__ import annotations
 
-import io
 import json
 import logging
 import shutil
 import time
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,8 +54,10 @@ import yaml
 
 from pedx_graph.config import to_dict
 from pedx_graph.data.labels2d import Label2D, label2d_path, label2d_to_json
+from pedx_graph.data.npzfile import npz_bytes
 from pedx_graph.data.smpl_labels import smpl_label_path, smpl_label_to_json
 from pedx_graph.data.types import SmplLabel, StereoCalibration
+from pedx_graph.data.transform import transform_points, transform_smpl
 from pedx_graph.data.writer import write_calibration, write_scene_points, write_segment, write_timestamps
 from pedx_graph.sim import cameras, labels, lidar
 from pedx_graph.sim.config import SimConfig
@@ -75,19 +85,6 @@ def write_smpl(root: Path, label: SmplLabel) -> Path:
                               smpl_label_to_json(label))
 
 
-def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    """An uncompressed ``.npz`` (readable by ``np.load``) with fixed member timestamps: byte-reproducible."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
-        for key, value in arrays.items():
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.ascontiguousarray(value), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, member.getvalue())
-    return buf.getvalue()
-
-
 @dataclass
 class _ViewLabel:
     camera: str
@@ -101,8 +98,10 @@ class _ViewLabel:
 
 def _label_person_in_view(ray_scene: RayScene, view: cameras.CameraView, person: Pedestrian,
                           vertices: np.ndarray, keypoints: np.ndarray, config: SimConfig,
-                          rng: np.random.Generator) -> tuple[_ViewLabel | None, dict]:
-    """Label one person in one image, or None when it is not labelable there; plus a truth record."""
+                          rng: np.random.Generator, v_shift_px: float = 0.0) -> tuple[_ViewLabel | None, dict]:
+    """Label one person in one image, or None when it is not labelable there; plus a truth record.
+
+    ``v_shift_px``: added to the v of every click and polygon vertex (a right image's rectification error)."""
     lab = config.labels
     uv_true, depth = view.project(keypoints)
     in_image = view.in_image(uv_true) & (depth > 0.5)
@@ -121,15 +120,15 @@ def _label_person_in_view(ray_scene: RayScene, view: cameras.CameraView, person:
     polygon = cameras.silhouette_polygon(sil, lab.polygon_epsilon_px)
     if polygon is None:
         return None, record
-    uv, vis = labels.keypoint_labels(uv_true, visible, in_image, lab, rng, view.calib.image_size)
-    polygon = labels.noisy_polygon(polygon, lab, rng, view.calib.image_size)
+    uv, vis = labels.keypoint_labels(uv_true, visible, in_image, lab, rng, view.calib.image_size, v_shift_px)
+    polygon = labels.noisy_polygon(polygon, lab, rng, view.calib.image_size, v_shift_px)
     record.update(labelled=True, visible="".join("1" if v else "0" for v in visible))
     return _ViewLabel(view.camera, view.side, uv, vis, polygon, int(visible.sum()), area), record
 
 
 #: Counters of a run (summed over frames).
 COUNT_KEYS = ("labels_2d", "segments", "smpl_labels", "segment_points", "segment_points_on_person",
-              "lidar_points", "person_lidar_points")
+              "lidar_points", "person_lidar_points", "polygon_only_files", "missing_keypoint_files")
 
 
 @dataclass
@@ -147,6 +146,12 @@ class _FrameContext:
     directions: np.ndarray
     views: list
     viewpoints: np.ndarray
+    output_T_sim: np.ndarray
+    """(4, 4) sim frame -> output frame (every written 3D quantity goes through it)."""
+    v_shift_px: dict
+    """Camera name -> shift added to the v of its clicks (right cameras: ``-vertical_disparity_px``)."""
+    label_cameras: dict
+    """Tracking id -> the one camera a one-camera track is labelled in (absent: every camera)."""
 
 
 _WORKER_CONTEXT: _FrameContext | None = None
@@ -166,13 +171,31 @@ def frame_rngs(seed: int, k: int) -> tuple[np.random.Generator, np.random.Genera
     return np.random.default_rng([int(seed), 1, int(k)]), np.random.default_rng([int(seed), 2, int(k)])
 
 
+def quirk_rng(seed: int, k: int) -> np.random.Generator:
+    """The generator of frame index ``k``'s file quirks (separate: quirks never change the other draws)."""
+    return np.random.default_rng([int(seed), 4, int(k)])
+
+
+def _pair_of_camera(calibs: dict) -> dict[str, tuple[str, str]]:
+    """Camera name -> (pair name, side)."""
+    out = {}
+    for name in calibs:
+        left, right = name.split("-")
+        out[left], out[right] = (name, "left"), (name, "right")
+    return out
+
+
 def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
-    """Simulate and write frame index ``k`` (scene PLY, labels, segments, SMPL, truth); returns its counts."""
+    """Simulate and write frame index ``k`` (scene PLY, labels, segments, SMPL, truth); returns its counts and
+    its labelled instances (``instances``: ``[tid, distance_m, [cameras]]``)."""
     config, out, calibs = ctx.config, ctx.out, ctx.calibs
     sc = config.scene
     seq = sc.sequence
     lidar_rng, label_rng = frame_rngs(ctx.seed, k)
+    file_rng = quirk_rng(ctx.seed, k)
+    camera_pair = _pair_of_camera(calibs)
     counts = dict.fromkeys(COUNT_KEYS, 0)
+    instances = []
     time_s = k / sc.fps
     frame = sc.first_frame + k
     meshes = ctx.scene.meshes_at(time_s)
@@ -185,17 +208,18 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
     ray_scene = RayScene(meshes, ctx.viewpoints)
     sweep = lidar.sweep(ray_scene, config.lidar, lidar_rng, ctx.directions)
     scene_points = sweep.world_points
-    ply_points = scene_points
+    out_points = transform_points(ctx.output_T_sim, scene_points)
+    ply_points = out_points
     if config.lidar.write_dropouts_as_inf and sweep.n_dropped:
-        ply_points = np.concatenate([scene_points, np.full((sweep.n_dropped, 3), np.inf)])
+        ply_points = np.concatenate([out_points, np.full((sweep.n_dropped, 3), np.inf)])
     write_scene_points(out, seq, frame, ply_points)
     counts["lidar_points"] += len(scene_points)
 
-    truth_arrays = {"scene_points": scene_points.astype(np.float32),
+    truth_arrays = {"scene_points": out_points.astype(np.float32),
                     "scene_object_id": sweep.object_id.astype(np.int32),
                     "scene_true_range": sweep.true_range_m.astype(np.float32)}
     truth_people = {}
-    pair_projection = {}
+    projection = {}
     for person in present:
         tid = person.tracking_id
         body = bodies[tid]
@@ -205,33 +229,45 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
         counts["person_lidar_points"] += n_person_points
         record = {"distance_m": round(distance, 3), "n_lidar_points_on_person": n_person_points,
                   "views": {}}
-        truth_arrays[f"keypoints__{tid}"] = body.keypoints
-        truth_arrays[f"joints__{tid}"] = body.joints
+        truth_arrays[f"keypoints__{tid}"] = transform_points(ctx.output_T_sim, body.keypoints)
+        truth_arrays[f"joints__{tid}"] = transform_points(ctx.output_T_sim, body.joints)
         labelled_views: list[_ViewLabel] = []
+        only_camera = ctx.label_cameras.get(tid)
         if config.labels.min_distance_m <= distance <= config.labels.max_distance_m:
             for view in ctx.views:
                 vl, vrec = _label_person_in_view(ray_scene, view, person, body.vertices, body.keypoints,
-                                                 config, label_rng)
+                                                 config, label_rng, ctx.v_shift_px.get(view.camera, 0.0))
                 record["views"][view.camera] = vrec
-                if vl is not None:
-                    labelled_views.append(vl)
-                    write_label2d(out, Label2D(sequence=seq, camera=vl.camera, frame=frame, tracking_id=tid,
-                                               category="pedestrian", subtype="adult",
-                                               view=labels.make_view(vl.uv, vl.visible, vl.polygon),
-                                               frame_id=frame))
-                    counts["labels_2d"] += 1
+                if vl is None:
+                    continue
+                if only_camera is not None and view.camera != only_camera:
+                    vrec.pop("labelled", None)
+                    vrec.pop("visible", None)
+                    vrec["suppressed"] = True
+                    continue
+                uv, flags, quirk = labels.file_quirks(vl.uv, vl.visible, config.labels, file_rng)
+                if quirk is not None:
+                    vrec["quirk"] = quirk
+                    counts[f"{quirk}_files"] += 1
+                labelled_views.append(vl)
+                write_label2d(out, Label2D(sequence=seq, camera=vl.camera, frame=frame, tracking_id=tid,
+                                           category="pedestrian", subtype="adult",
+                                           view=labels.make_view(uv, flags, vl.polygon), frame_id=frame))
+                counts["labels_2d"] += 1
         record["labelled"] = bool(labelled_views)
         if labelled_views:
-            # Segment: points inside the polygon of every left image the person is labelled in.
+            # Segment: points inside the polygon of every left image the person is labelled in (with
+            # segment_cameras == "any" and no left image: of every right image).
+            cut_views = [vl for vl in labelled_views if vl.side == "left"]
+            if not cut_views and config.labels.segment_cameras == "any":
+                cut_views = labelled_views
             seg = []
-            for vl in labelled_views:
-                if vl.side != "left":
-                    continue
-                pair_name = next(n for n in calibs if n.startswith(vl.camera + "-"))
-                if pair_name not in pair_projection:
-                    left_view = cameras.CameraView(calibs[pair_name], "left", vl.camera)
-                    pair_projection[pair_name] = left_view.project(scene_points)
-                uv, depth = pair_projection[pair_name]
+            for vl in cut_views:
+                pair_name, side = camera_pair[vl.camera]
+                if (pair_name, side) not in projection:
+                    cut_view = cameras.CameraView(calibs[pair_name], side, vl.camera)
+                    projection[(pair_name, side)] = cut_view.project(scene_points)
+                uv, depth = projection[(pair_name, side)]
                 seg.append(labels.segment_indices_from_projection(uv, depth, vl.polygon))
             index = np.unique(np.concatenate(seg)) if seg else np.zeros(0, dtype=np.int64)
             index = labels.depth_gate(index, scene_points, config.labels.segment_depth_gate_m)
@@ -241,20 +277,22 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
             record["n_segment_points"] = int(len(index))
             record["n_segment_points_on_person"] = int(is_person.sum())
             if len(index):
-                write_segment(out, seq, frame, tid, scene_points[index])
+                write_segment(out, seq, frame, tid, out_points[index])
                 counts["segments"] += 1
                 counts["segment_points"] += int(len(index))
                 counts["segment_points_on_person"] += int(is_person.sum())
+            pose, trans = transform_smpl(ctx.output_T_sim, person.pose[k], person.trans[k], person.rest_pelvis)
             write_smpl(out, SmplLabel(sequence=seq, frame=frame, tracking_id=tid, betas=person.betas,
-                                      pose=person.pose[k], trans=person.trans[k]))
+                                      pose=pose, trans=trans))
             counts["smpl_labels"] += 1
+            instances.append([tid, distance, sorted(vl.camera for vl in labelled_views)])
         truth_people[tid] = record
     truth_dir = out / "truth" / seq
     atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
     write_json_compact(truth_dir / f"{seq}_{frame:07d}.json",
                        {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
                         "n_dropped": sweep.n_dropped, "people": truth_people})
-    return counts
+    return {**counts, "instances": instances}
 
 
 def read_truth_frame(out_dir: str | Path, frame: int, sequence: str | None = None) -> dict:
@@ -283,6 +321,59 @@ def read_truth_frame(out_dir: str | Path, frame: int, sequence: str | None = Non
         people[tid] = person
     return {"scene_points": arrays["scene_points"], "scene_object_id": arrays["scene_object_id"],
             "scene_true_range": arrays["scene_true_range"], "people": people}
+
+
+def one_camera_tracks(people: list[Pedestrian], views: list, config: SimConfig,
+                      rng: np.random.Generator) -> dict[str, str]:
+    """Tracking id -> the one camera of each track labelled in one camera only.
+
+    Per pedestrian (in order, always two draws from ``rng``): with probability
+    ``labels.one_camera_track_prob`` the track gets one camera, drawn among ``views`` with probability
+    proportional to the frames (present, within the labelled distance range) in which its pelvis projects
+    into that image (uniformly when it never does).
+    """
+    lab = config.labels
+    out = {}
+    for person in people:
+        u_track, u_camera = rng.random(2)
+        if not u_track < lab.one_camera_track_prob or not views:
+            continue
+        pelvis = person.trans + person.rest_pelvis
+        distance = np.hypot(pelvis[:, 0], pelvis[:, 1])
+        frames = person.present & (distance >= lab.min_distance_m) & (distance <= lab.max_distance_m)
+        weights = []
+        for view in views:
+            uv, depth = view.project(pelvis[frames])
+            weights.append(float(np.sum(view.in_image(uv) & (depth > 0.5))))
+        weights = np.asarray(weights) if sum(weights) > 0 else np.ones(len(views))
+        index = int(np.searchsorted(np.cumsum(weights) / weights.sum(), u_camera, side="right"))
+        out[person.tracking_id] = views[min(index, len(views) - 1)].camera
+    return out
+
+
+def instance_summary(instances: list, calibs: dict, label_cameras: dict) -> dict:
+    """Counts of labelled instances (``[tid, distance_m, cameras]`` per instance and frame): per pair (labelled
+    in at least one of its images), in both pairs, in one image only; labelled tracks, one-camera tracks
+    among them, and the distance range (horizontal, LiDAR to pelvis, metres)."""
+    camera_pair = _pair_of_camera(calibs)
+    per_pair = dict.fromkeys(calibs, 0)
+    both = one_image = 0
+    for _, _, cams in instances:
+        pairs = {camera_pair[c][0] for c in cams}
+        for pair in pairs:
+            per_pair[pair] += 1
+        both += len(pairs) >= 2
+        one_image += len(cams) == 1
+    tracks = {tid for tid, _, _ in instances}
+    distances = np.array([d for _, d, _ in instances])
+    return {
+        "labelled_instances": len(instances), "labelled_instances_per_pair": per_pair,
+        "labelled_instances_both_pairs": both, "labelled_instances_one_image": one_image,
+        "labelled_tracks": len(tracks), "one_camera_tracks": sum(tid in tracks for tid in label_cameras),
+        "labelled_distance_m": None if not len(distances) else {
+            "min": round(float(distances.min()), 3), "median": round(float(np.median(distances)), 3),
+            "max": round(float(distances.max()), 3)},
+    }
 
 
 #: What :func:`simulate` writes directly under ``out_dir`` (removed first with ``overwrite=True``).
@@ -319,10 +410,10 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     scene_rng, ped_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(2))
 
     scene = build_scene(config, scene_rng)
-    calibs: dict[str, StereoCalibration] = {}
-    for pair in config.cameras.pairs():
-        calibs[pair.name] = cameras.make_calibration(pair)
-        write_calibration(out, calibs[pair.name])
+    output_T_sim = config.output_frame.output_T_sim()
+    calibs: dict[str, StereoCalibration] = cameras.rig_calibrations(config)    # sim frame
+    for calib in calibs.values():
+        write_calibration(out, cameras.output_calibration(calib, output_T_sim))
     people = plan_pedestrians(config, scene, body_model, ped_rng, clip_source)
     for person in people:
         person.object_id = scene.add_object("pedestrian", person.tracking_id)
@@ -332,15 +423,20 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         for view in cameras.camera_views(calib):
             if view.side == "left" or config.cameras.label_right_images:
                 views.append(view)
+    v_shift_px = {pair.name.split("-")[1]: -pair.vertical_disparity_px for pair in config.cameras.pairs()
+                  if pair.vertical_disparity_px}
+    label_cameras = one_camera_tracks(people, views, config, np.random.default_rng([int(seed), 3]))
     ctx = _FrameContext(
         out=out, config=config, seed=int(seed), scene=scene, calibs=calibs, people=people,
         body_model=body_model, faces=outward_faces(rest_vertices, body_model.faces),
         directions=lidar.beam_directions(config.lidar), views=views,
         # every ray starts at the LiDAR or at a camera centre: back-facing triangles are culled (RayScene)
         viewpoints=np.stack([np.zeros(3)] + [v.world_center for calib in calibs.values()
-                                             for v in cameras.camera_views(calib)]))
+                                             for v in cameras.camera_views(calib)]),
+        output_T_sim=output_T_sim, v_shift_px=v_shift_px, label_cameras=label_cameras)
 
     counts = dict.fromkeys(COUNT_KEYS, 0)
+    instances = []
     frame_seconds = {sc.first_frame + k: k / sc.fps for k in range(sc.n_frames)}
     workers = max(1, min(int(workers), sc.n_frames))
     pool = None
@@ -357,6 +453,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
             from tqdm import tqdm
             results = tqdm(results, total=sc.n_frames, desc="simulate", unit="frame")
         for frame_counts in results:
+            instances.extend(frame_counts.pop("instances"))
             for key, value in frame_counts.items():
                 counts[key] += value
     finally:
@@ -366,23 +463,31 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
 
     for kind in ("pointclouds", "images"):
         write_timestamps(out, seq, frame_seconds, kind=kind)
+    output_up = output_T_sim[:3, 2]
     meta = {
         "seed": int(seed), "sequence": seq, "fps": sc.fps, "first_frame": sc.first_frame,
-        "n_frames": sc.n_frames, "ground_z": scene.ground_z, "objects": scene.object_table(),
+        "n_frames": sc.n_frames, "rig": config.rig, "output_T_sim": output_T_sim.tolist(),
+        "world_p_lidar": output_T_sim[:3, 3].tolist(),
+        "ground": {"world_up": output_up.tolist(),
+                   "ground_offset_m": float(scene.ground_z + output_up @ output_T_sim[:3, 3])},
+        "ground_z": scene.ground_z, "objects": scene.object_table(),
         "walkways": [{"name": w.name, "kind": w.kind, "start_xy": w.start_xy, "end_xy": w.end_xy,
                       "half_width_m": w.half_width_m} for w in scene.walkways],
         "pedestrians": [{"tracking_id": p.tracking_id, "object_id": p.object_id, "betas": p.betas,
                          "walkway": p.walkway, "group": p.group, "motion": p.motion,
-                         "present_frames": int(p.present.sum())} for p in people],
+                         "present_frames": int(p.present.sum()),
+                         "label_camera": label_cameras.get(p.tracking_id)} for p in people],
         "pairs": {n: {"focal_px": c.focal_px, "baseline_m": c.baseline_m, "image_size": c.image_size}
                   for n, c in calibs.items()},
     }
     atomic_write_json(out / "truth" / "meta.json", meta)
     atomic_write_text(out / "sim_config.yaml",
                       f"# seed: {int(seed)}\n" + yaml.safe_dump(to_dict(config), sort_keys=False))
-    summary = {"seed": int(seed), "sequence": seq, "frames": sc.n_frames, "pedestrians": len(people), **counts,
+    summary = {"seed": int(seed), "sequence": seq, "rig": config.rig, "frames": sc.n_frames,
+               "pedestrians": len(people), **counts,
                "segment_precision": (counts["segment_points_on_person"] / counts["segment_points"]
-                                     if counts["segment_points"] else None)}
+                                     if counts["segment_points"] else None),
+               **instance_summary(instances, calibs, label_cameras)}
     atomic_write_json(out / "summary.json", summary)
     summary["seconds"] = time.perf_counter() - t_start
     return summary
