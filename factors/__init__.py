@@ -7,7 +7,7 @@ body_pose (69), betas (B)]`` (:class:`FrameKeys`); see docs/factors.md for resid
 =========================  ===============================  ============================================
 term                       module                           factory
 =========================  ===============================  ============================================
-E_J,l + E_J,r              :mod:`factors.stereo_reprojection`  :func:`make_stereo_reprojection_factor`
+E_J (every labelled view)  :mod:`factors.stereo_reprojection`  :func:`make_reprojection_factor`
 E_3d (Eq. 4)               :mod:`factors.lidar_chamfer`        :func:`make_lidar_chamfer_factor`
 E_T (Eq. 2)                :mod:`factors.translation_prior`    :func:`make_translation_prior_factor`
 E_D (Eq. 3)                :mod:`factors.heading_prior`        :func:`make_heading_prior_factor`
@@ -23,14 +23,16 @@ from factors.joint_limits import DEFAULT_JOINT_LIMITS, JointLimit, make_joint_li
 from factors.lidar_chamfer import make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
 from factors.shape_prior import make_shape_prior_factor
-from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
+from factors.stereo_reprojection import (ImageKeypoints, StereoKeypoints, images_from_views,
+                                         make_reprojection_factor, make_stereo_reprojection_factor)
 from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, sequence_differences,
                                     temporal_difference)
 from factors.translation_prior import make_translation_prior_factor
 
 __all__ = [
     "FrameKeys", "FrameState", "MaxMixture", "make_noise", "read_frame_state",
-    "make_stereo_reprojection_factor", "StereoKeypoints",
+    "make_stereo_reprojection_factor", "StereoKeypoints", "make_reprojection_factor", "ImageKeypoints",
+    "images_from_views",
     "make_lidar_chamfer_factor",
     "make_translation_prior_factor",
     "make_heading_prior_factor", "heading_sigma", "trajectory_headings",

@@ -1,33 +1,49 @@
-"""E_J,l + E_J,r (PedX): reprojection of the body model's 18 keypoints into both rectified stereo images.
+"""E_J (PedX): reprojection of the body model's 18 keypoints into every rectified image that labels them.
 
-Measurement model, for each labelled keypoint k of image c in {left, right} (pixels of the rectified image):
+The factor kind is still called ``stereo_reprojection`` (E_J,l + E_J,r of the paper), but one factor holds
+all K >= 1 labelled images of the pedestrian at that frame: the left and right images of the frame's
+primary stereo pair, the images of any other pair that labelled it too (PedX: the two left cameras are
+~0.93 m apart, a baseline 3x the in-pair ones), or a single camera.
 
-    rect_p_k = rect_T_world @ [world_p_k(root, trans, body_pose, betas); 1]      (metres, rectified left frame)
-    [u w, v w, w] = P_rect_c @ [rect_p_k; 1]                                       (KITTI-style P, (3, 4))
-    r_k,c = [u, v] - z_k,c                                                         (2,) pixels
+Measurement model, for each labelled keypoint k of image c = 1..K (pixels of the rectified image):
 
-``world_p_k`` comes from ``BodyModel.point_jacobians`` (world frame = LiDAR, metres).  Rows: the left
-image's labelled keypoints (u, v each) in PEDX_KEYPOINTS order, then the right image's.  The depth ``w`` is
-clamped to ``min_depth`` metres (its derivative is then dropped) so points behind the camera stay finite.
+    image_P_world_c = P_rect_c @ rect_T_world(pair of c)                          (3, 4): world -> pixels
+    [u w, v w, w]   = image_P_world_c @ [world_p_k(root, trans, body_pose, betas); 1]
+    r_k,c           = [u, v] - z_k,c                                              (2,) pixels
 
-Noise: per-row sigma ``sigma_px`` for keypoints flagged visible, ``sigma_occluded_px`` for labelled but not
-visible ones, divided by ``sqrt(weight_k)`` (``keypoint_weights``: relative weight of each keypoint's
-squared error; 0 drops it; by default the hips get 0.25 because the annotators click the hip surface while
-the model's hip joints sit inside the pelvis).  Optionally robust per row (``factors.common.make_noise``;
-Geman-McClure by default, scale in whitened units).  Jacobians: ``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w``
-with ``M = P_rect[:, :3] @ rect_R_world``, chained with the body-model point Jacobians.
+``P_rect_c`` is the pair's ``left_P_rect`` or ``right_P_rect`` (both act on points of the pair's rectified
+left frame ``rect``), ``rect_T_world`` the pair's world -> rectified-left transform (world = LiDAR frame,
+metres).  ``world_p_k`` comes from ``BodyModel.point_jacobians``.  Rows: image by image in the order given,
+each image's labelled keypoints (u, v) in PEDX_KEYPOINTS order.  The depth ``w`` is clamped to
+``min_depth`` metres (its derivative is then dropped) so points behind a camera stay finite.
+
+Noise: per-row sigma ``sigma_px`` for keypoints flagged visible and ``sigma_occluded_px`` for labelled but
+not visible ones — each a scalar or an (18,) array of pixels per keypoint (e.g. click noise estimated per
+keypoint from the labels) — divided by ``sqrt(weight_k)`` (``keypoint_weights``: relative weight of each
+keypoint's squared error; 0 drops it; by default the hips get 0.25 because the annotators click the hip
+surface while the model's hip joints sit inside the pelvis).  Optionally robust per row
+(``factors.common.make_noise``; Geman-McClure by default, scale in whitened units).  Jacobians:
+``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w`` with ``M = image_P_world[:, :3]``, chained with the
+body-model point Jacobians.
+
+Batched paths (the track's term cache, the batch linearizer, the stream's frame systems) evaluate T frames
+with different K at once by padding every frame to the batch's largest K with images whose projection is
+``[0 0 0 0; 0 0 0 0; 0 0 0 1]`` (pixels 0, derivative 0) and whose rows carry inverse sigma 0
+(:func:`stereo_dense_rows`).  The residual, its whitening and the normal equations of those batches are
+defined here once (:func:`stereo_pixels`, :func:`reprojection_whiten`, :func:`reprojection_normal_equations`)
+and used by :mod:`pedx_graph.graph.batch`, :mod:`pedx_graph.solvers.batched` and
+:mod:`pedx_graph.solvers.frame_system`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Sequence
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping, Sequence
 
 import gtsam
 import numpy as np
 
 from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list,
-                            make_noise, read_frame_state, set_jacobians)
+                            frame_key_list, make_noise, read_frame_state, row_loss_and_weight, set_jacobians)
 from pedx_graph.data.types import StereoCalibration, View2D
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
@@ -36,10 +52,51 @@ NUM_KEYPOINTS = len(PEDX_KEYPOINTS)
 #: Relative weights of the 18 keypoints' squared errors (PEDX_KEYPOINTS order): hips 0.25, others 1.
 DEFAULT_KEYPOINT_WEIGHTS = np.array([0.25 if name in ("lhip", "rhip") else 1.0 for name in PEDX_KEYPOINTS])
 
+#: Projection of a padding image in the batched paths: every point maps to pixel (0, 0) at depth 1.
+_PAD_PROJECTION = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+SIDES = ("left", "right")
+
+
+def image_projection(calibration: StereoCalibration, side: str) -> np.ndarray:
+    """``image_P_world`` (3, 4) of the ``side`` (``"left"``/``"right"``) rectified image of a pair:
+    ``P_rect @ rect_T_world``, world (LiDAR) points in metres -> homogeneous pixels."""
+    if side not in SIDES:
+        raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+    proj = calibration.left_P_rect if side == "left" else calibration.right_P_rect
+    return as_f64(as_f64(proj) @ calibration.rect_T_world)
+
+
+@dataclass(frozen=True)
+class ImageKeypoints:
+    """2D keypoint labels of one pedestrian in one rectified image, with that image's projection."""
+
+    uv: np.ndarray
+    """(18, 2) pixels, NaN where not labelled."""
+    visible: np.ndarray
+    """(18,) bool, the annotator's visible flag."""
+    image_P_world: np.ndarray
+    """(3, 4) projection of world (LiDAR) points in metres to homogeneous pixels (:func:`image_projection`)."""
+    name: str = ""
+    """Which image, e.g. ``"ylw79D0-red707B/left"`` (for messages only)."""
+
+    @staticmethod
+    def from_view(view: View2D, calibration: StereoCalibration, side: str) -> "ImageKeypoints":
+        """The labels ``view`` of the ``side`` image of the pair ``calibration``."""
+        return ImageKeypoints(as_f64(view.keypoints), np.asarray(view.visible, dtype=bool),
+                              image_projection(calibration, side), f"{calibration.name}/{side}")
+
+
+def images_from_views(views: Iterable[tuple[str, str, View2D]],
+                      calibrations: Mapping[str, StereoCalibration]) -> list[ImageKeypoints]:
+    """:class:`ImageKeypoints` of ``(pair name, side, View2D)`` triples (e.g. ``TrackFrame.labelled_views()``),
+    each with the projection of its pair's calibration in ``calibrations``."""
+    return [ImageKeypoints.from_view(view, calibrations[pair], side) for pair, side, view in views]
+
 
 @dataclass(frozen=True)
 class StereoKeypoints:
-    """2D keypoint labels of one pedestrian in both rectified images of a stereo pair."""
+    """2D keypoint labels of one pedestrian in both rectified images of one stereo pair."""
 
     left_uv: np.ndarray
     """(18, 2) pixels in the rectified left image, NaN where not labelled."""
@@ -61,68 +118,107 @@ class StereoKeypoints:
         ruv, rvis = parts(right)
         return StereoKeypoints(luv, ruv, lvis, rvis)
 
+    def images(self, calibration: StereoCalibration) -> list[ImageKeypoints]:
+        """The left and right images of the pair as :class:`ImageKeypoints` (left first)."""
+        return [ImageKeypoints(self.left_uv, self.left_visible, image_projection(calibration, "left"),
+                               f"{calibration.name}/left"),
+                ImageKeypoints(self.right_uv, self.right_visible, image_projection(calibration, "right"),
+                               f"{calibration.name}/right")]
+
 
 @dataclass(frozen=True)
 class _ImageRows:
-    """Pre-selected rows of one image: keypoint indices (n,), measured uv (n, 2), M (3, 3), c (3,)."""
+    """Pre-selected rows of one image: keypoint indices (n,), measured uv (n, 2), projection (3, 4)."""
 
     index: np.ndarray
     uv: np.ndarray
-    proj_m: np.ndarray
-    proj_c: np.ndarray
+    image_P_world: np.ndarray
 
 
 @dataclass(frozen=True)
 class StereoSetup:
-    """Everything fixed at construction: selected rows of both images, their sigmas, the projections."""
+    """Everything fixed at construction: the selected rows of each of the K images that have any, their
+    sigmas and projections."""
 
-    images: tuple[_ImageRows, _ImageRows]
+    images: tuple[_ImageRows, ...]
+    """The K images with at least one row, in the order given."""
     sigmas: np.ndarray
-    """(m,) per-row sigmas in pixels."""
+    """(m,) per-row sigmas in pixels (rows: image by image, (u, v) per keypoint)."""
     min_depth: float
+    projections: np.ndarray = field(default=None, repr=False)
+    """(K, 3, 4) the images' ``image_P_world`` stacked (filled on construction)."""
+
+    def __post_init__(self) -> None:
+        if self.projections is None:
+            stacked = (np.stack([img.image_P_world for img in self.images]) if self.images
+                       else np.zeros((0, 3, 4)))
+            object.__setattr__(self, "projections", stacked)
 
     @property
     def rows(self) -> int:
         return int(self.sigmas.size)
 
+    @property
+    def num_images(self) -> int:
+        """K: the number of images with at least one row."""
+        return len(self.images)
+
 
 @dataclass(frozen=True)
 class StereoTerm:
-    """A stereo factor's fixed setup and its noise: per-row sigmas ``setup.sigmas`` (pixels) and the robust
-    kernel (per row, scale in whitened units) of :func:`factors.common.make_noise`."""
+    """A reprojection factor's fixed setup and its noise: per-row sigmas ``setup.sigmas`` (pixels) and the
+    robust kernel (per row, scale in whitened units) of :func:`factors.common.make_noise`."""
 
     setup: StereoSetup
     robust: str
     robust_scale: float
 
 
-def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px: float = 2.0,
-                       sigma_occluded_px: float = 6.0, keypoint_weights: np.ndarray | None = None,
-                       min_depth: float = 0.1) -> StereoSetup:
-    """Select the rows (labelled, finite, weight > 0) and their sigmas; precompute ``M``, ``c`` per image."""
-    if not (sigma_px > 0 and sigma_occluded_px > 0 and min_depth > 0):
-        raise ValueError("stereo reprojection: sigma_px, sigma_occluded_px and min_depth must be > 0")
+def _per_keypoint(value, what: str) -> np.ndarray:
+    """A scalar or an (18,) array of pixels as an (18,) array; every entry finite and > 0."""
+    arr = np.broadcast_to(as_f64(value), (NUM_KEYPOINTS,)) if np.ndim(value) == 0 else as_f64(value)
+    if arr.shape != (NUM_KEYPOINTS,) or not np.all(np.isfinite(arr) & (arr > 0)):
+        raise ValueError(f"reprojection: {what} must be a positive scalar or ({NUM_KEYPOINTS},) array of "
+                         f"positive pixels, got {value!r}")
+    return arr
+
+
+def build_reprojection_setup(images: Sequence[ImageKeypoints], sigma_px=2.0, sigma_occluded_px=6.0,
+                             keypoint_weights: np.ndarray | None = None, min_depth: float = 0.1) -> StereoSetup:
+    """Select each image's rows (labelled, finite, weight > 0) and their sigmas; images without any row are
+    left out.  ``sigma_px`` / ``sigma_occluded_px``: pixels, scalar or (18,) per keypoint."""
+    sigma_vis = _per_keypoint(sigma_px, "sigma_px")
+    sigma_occ = _per_keypoint(sigma_occluded_px, "sigma_occluded_px")
+    if not min_depth > 0:
+        raise ValueError(f"reprojection: min_depth must be > 0, got {min_depth}")
     weights = DEFAULT_KEYPOINT_WEIGHTS if keypoint_weights is None else as_f64(keypoint_weights)
     if weights.shape != (NUM_KEYPOINTS,) or np.any(weights < 0):
         raise ValueError(f"keypoint_weights must be ({NUM_KEYPOINTS},) and >= 0, got {weights}")
-    rect_T_world = calibration.rect_T_world
-    images, sigmas = [], []
-    for uv, vis, proj in ((measurement.left_uv, measurement.left_visible, calibration.left_P_rect),
-                          (measurement.right_uv, measurement.right_visible, calibration.right_P_rect)):
-        uv = as_f64(uv)
-        vis = np.asarray(vis, dtype=bool)
-        if uv.shape != (NUM_KEYPOINTS, 2) or vis.shape != (NUM_KEYPOINTS,):
-            raise ValueError(f"stereo keypoints must be ({NUM_KEYPOINTS}, 2) with ({NUM_KEYPOINTS},) visible "
-                             f"flags, got {uv.shape} and {vis.shape}")
-        proj = as_f64(proj)
-        use = np.all(np.isfinite(uv), axis=1) & (weights > 0)
-        idx = np.flatnonzero(use)
-        sig = np.where(vis[idx], sigma_px, sigma_occluded_px) / np.sqrt(weights[idx])
+    rows, sigmas = [], []
+    for image in images:
+        uv = as_f64(image.uv)
+        vis = np.asarray(image.visible, dtype=bool)
+        proj = as_f64(image.image_P_world)
+        if uv.shape != (NUM_KEYPOINTS, 2) or vis.shape != (NUM_KEYPOINTS,) or proj.shape != (3, 4):
+            raise ValueError(f"image {image.name or len(rows)}: keypoints must be ({NUM_KEYPOINTS}, 2) with "
+                             f"({NUM_KEYPOINTS},) visible flags and a (3, 4) projection, got {uv.shape}, "
+                             f"{vis.shape} and {proj.shape}")
+        idx = np.flatnonzero(np.all(np.isfinite(uv), axis=1) & (weights > 0))
+        if idx.size == 0:
+            continue
+        sig = np.where(vis[idx], sigma_vis[idx], sigma_occ[idx]) / np.sqrt(weights[idx])
         sigmas.append(np.repeat(sig, 2))
-        images.append(_ImageRows(index=idx, uv=uv[idx],
-                                 proj_m=as_f64(proj[:, :3] @ rect_T_world[:3, :3]),
-                                 proj_c=as_f64(proj[:, :3] @ rect_T_world[:3, 3] + proj[:, 3])))
-    return StereoSetup(images=(images[0], images[1]), sigmas=np.concatenate(sigmas), min_depth=float(min_depth))
+        rows.append(_ImageRows(index=idx, uv=uv[idx], image_P_world=proj))
+    return StereoSetup(images=tuple(rows), sigmas=np.concatenate(sigmas) if sigmas else np.zeros(0),
+                       min_depth=float(min_depth))
+
+
+def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px=2.0,
+                       sigma_occluded_px=6.0, keypoint_weights: np.ndarray | None = None,
+                       min_depth: float = 0.1) -> StereoSetup:
+    """:func:`build_reprojection_setup` of one pair's left and right images."""
+    return build_reprojection_setup(measurement.images(calibration), sigma_px, sigma_occluded_px,
+                                    keypoint_weights, min_depth)
 
 
 def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
@@ -132,29 +228,45 @@ def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
     return model.forward(state.full_pose, state.betas, state.trans).keypoints
 
 
+def batch_images(setups: Sequence[StereoSetup]) -> int:
+    """K of a batch: the largest number of images of ``setups`` (at least 1)."""
+    return max([1] + [su.num_images for su in setups])
+
+
+def _stacked_projections(setups: Sequence[StereoSetup], num_images: int) -> np.ndarray:
+    """(T, K, 3, 4) projections of every frame's images, padded with :data:`_PAD_PROJECTION`."""
+    if all(su.num_images == num_images for su in setups):
+        return np.stack([su.projections for su in setups])
+    out = np.broadcast_to(_PAD_PROJECTION, (len(setups), num_images, 3, 4)).copy()
+    for t, su in enumerate(setups):
+        out[t, :su.num_images] = su.projections
+    return out
+
+
 def stereo_pixels(points: np.ndarray, setups: Sequence[StereoSetup], derivatives: bool = False
                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Pixels of all 18 keypoints of T frames (T, 18, 3) in both images, ``uv`` (T, 2, 18, 2), every frame
-    with its own setup's projections, and (when ``derivatives``) ``d uv / d point`` (T, 2, 18, 2, 3)."""
+    """Pixels of all 18 keypoints of T frames (T, 18, 3) in each frame's images, ``uv`` (T, K, 18, 2) with
+    K = :func:`batch_images` (frames with fewer images padded: pixels 0), and (when ``derivatives``)
+    ``d uv / d point`` (T, K, 18, 2, 3) (0 on padding images)."""
     points = as_f64(points)
-    proj_m = np.stack([[img.proj_m for img in su.images] for su in setups])          # (T, 2, 3, 3)
-    proj_c = np.stack([[img.proj_c for img in su.images] for su in setups])          # (T, 2, 3)
+    proj = _stacked_projections(setups, batch_images(setups))                         # (T, K, 3, 4)
+    proj_m, proj_c = proj[..., :3], proj[..., 3]
     min_depth = np.array([su.min_depth for su in setups])[:, None, None]
-    hom = points[:, None] @ np.swapaxes(proj_m, 2, 3) + proj_c[:, :, None]          # (T, 2, 18, 3)
+    hom = points[:, None] @ np.swapaxes(proj_m, 2, 3) + proj_c[:, :, None]          # (T, K, 18, 3)
     depth = hom[..., 2]
     clamped = depth < min_depth
     w = np.where(clamped, min_depth, depth)
-    uv = hom[..., :2] / w[..., None]                                                 # (T, 2, 18, 2)
+    uv = hom[..., :2] / w[..., None]                                                 # (T, K, 18, 2)
     if not derivatives:
         return uv, None
     keep = np.where(clamped, 0.0, 1.0)[..., None, None]
     d_uv = (proj_m[:, :, None, :2, :] - keep * uv[..., :, None] * proj_m[:, :, None, 2:3, :]) \
-        / w[..., None, None]                                                         # (T, 2, 18, 2, 3)
+        / w[..., None, None]                                                         # (T, K, 18, 2, 3)
     return uv, d_uv
 
 
 def stereo_blocks(d_uv: np.ndarray, jac) -> list[np.ndarray]:
-    """``[d uv / d root, trans, body_pose, betas]``, each (T, 2, 18, 2, k), from :func:`stereo_pixels`'
+    """``[d uv / d root, trans, body_pose, betas]``, each (T, K, 18, 2, k), from :func:`stereo_pixels`'
     ``d_uv`` and the keypoints' ``PointJacobians`` with leading dimension T."""
     return [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]
             for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
@@ -162,9 +274,9 @@ def stereo_blocks(d_uv: np.ndarray, jac) -> list[np.ndarray]:
 
 def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
                    ) -> tuple[np.ndarray, list[np.ndarray] | None]:
-    """Pixels of all 18 keypoints of T frames in both images, ``uv`` (T, 2, 18, 2), and (when ``jac``, the
+    """Pixels of all 18 keypoints of T frames in their images, ``uv`` (T, K, 18, 2), and (when ``jac``, the
     keypoints' ``PointJacobians`` with leading dimension T, is given) ``[d uv / d root, trans, body_pose,
-    betas]``, each (T, 2, 18, 2, k) — every frame with its own setup's projections, in batched products."""
+    betas]``, each (T, K, 18, 2, k) — every frame with its own setup's projections, in batched products."""
     uv, d_uv = stereo_pixels(points, setups, jac is not None)
     return uv, None if jac is None else stereo_blocks(d_uv, jac)
 
@@ -172,13 +284,14 @@ def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
 def stereo_select(uv: np.ndarray, full: list[np.ndarray] | None, setup: StereoSetup, frame: int
                   ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """One frame's factor rows out of :func:`stereo_project`: residual (m,) and blocks (m, k) or None."""
-    left, right = setup.images
-    r = np.concatenate([(uv[frame, 0, left.index] - left.uv).reshape(-1),
-                        (uv[frame, 1, right.index] - right.uv).reshape(-1)])
+    images = setup.images
+    r = np.concatenate([(uv[frame, c, img.index] - img.uv).reshape(-1) for c, img in enumerate(images)]
+                       + [np.zeros(0)])
     if full is None:
         return r, None
-    return r, [as_f64(np.concatenate([b[frame, 0, left.index].reshape(-1, b.shape[-1]),
-                                      b[frame, 1, right.index].reshape(-1, b.shape[-1])])) for b in full]
+    return r, [as_f64(np.concatenate([b[frame, c, img.index].reshape(-1, b.shape[-1])
+                                      for c, img in enumerate(images)] + [np.zeros((0, b.shape[-1]))]))
+               for b in full]
 
 
 def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
@@ -193,11 +306,13 @@ def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup],
     return [stereo_select(uv, full, su, f) for f, su in enumerate(setups)]
 
 
-def stereo_dense_rows(setup: StereoSetup) -> tuple[np.ndarray, np.ndarray]:
-    """The setup's measurements and inverse sigmas laid out like :func:`stereo_project`'s ``uv`` rows:
-    (2, 18, 2) each, with inverse sigma 0 (and measurement 0) on the rows the factor does not use."""
-    meas = np.zeros((2, NUM_KEYPOINTS, 2))
-    inv_sigma = np.zeros((2, NUM_KEYPOINTS, 2))
+def stereo_dense_rows(setup: StereoSetup, num_images: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The setup's measurements and inverse sigmas laid out like one frame of :func:`stereo_pixels`' ``uv``:
+    (K, 18, 2) each (K = ``num_images``, default the setup's own), with inverse sigma 0 (and measurement 0)
+    on the rows the factor does not use and on padding images."""
+    k = setup.num_images if num_images is None else int(num_images)
+    meas = np.zeros((k, NUM_KEYPOINTS, 2))
+    inv_sigma = np.zeros((k, NUM_KEYPOINTS, 2))
     start = 0
     for c, img in enumerate(setup.images):
         n = len(img.index)
@@ -205,6 +320,51 @@ def stereo_dense_rows(setup: StereoSetup) -> tuple[np.ndarray, np.ndarray]:
         inv_sigma[c, img.index] = 1.0 / setup.sigmas[start:start + 2 * n].reshape(n, 2)
         start += 2 * n
     return meas, inv_sigma
+
+
+def reprojection_rows(setups: Sequence[StereoSetup], num_images: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`stereo_dense_rows` of G factors stacked: measurements and inverse sigmas (G, K, 18, 2)."""
+    dense = [stereo_dense_rows(su, num_images) for su in setups]
+    return np.stack([m for m, _ in dense]), np.stack([i for _, i in dense])
+
+
+def reprojection_whiten(uv: np.ndarray, meas: np.ndarray, inv_sigma: np.ndarray,
+                        kernels: Sequence[tuple[str, float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """G factors' whitened rows ``e`` (G, R) (R = K * 36), per-row losses ``rho(e)`` (0 on unused rows) and
+    IRLS weights (:func:`factors.common.row_loss_and_weight`), and inverse sigmas (G, R), from the batched
+    pixels ``uv`` and :func:`reprojection_rows`; ``kernels``: each factor's ``(robust, robust_scale)``."""
+    num = len(kernels)
+    white = ((uv - meas) * inv_sigma).reshape(num, -1)
+    inv = inv_sigma.reshape(num, -1)
+    if len(set(kernels)) == 1:
+        loss, weight = row_loss_and_weight(white, *kernels[0])
+    else:
+        pairs = [row_loss_and_weight(white[n], *kernels[n]) for n in range(num)]
+        loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
+    return white, loss * (inv > 0), weight, inv
+
+
+def reprojection_normal_equations(d_uv: np.ndarray, jac, white: np.ndarray, weight: np.ndarray,
+                                  inv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened normal equations of G reprojection factors as GTSAM linearises them (rows scaled by the
+    square root of their IRLS weights): ``A^T A`` (G, D, D), ``A^T b`` (G, D) and ``b^T b`` (G,), columns
+    ``[root (3), trans (3), body_pose (69), betas (B)]`` (D = 75 + B).
+
+    Formed through the keypoints: the rows of keypoint k in all images are ``D_k J_k`` (D_k: the whitened,
+    weighted pixel derivatives (2K, 3) from ``d_uv`` (G, K, 18, 2, 3), J_k: the keypoint's Jacobian
+    (3, D) from ``jac``, ``PointJacobians`` with leading dimension G), so ``A^T A = sum_k J_k^T (D_k^T D_k)
+    J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` — 54 keypoint rows per frame whatever K.  ``white``,
+    ``weight``, ``inv`` from :func:`reprojection_whiten` (unused and padding rows: ``inv`` 0)."""
+    num = white.shape[0]
+    row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                  # (G, K, 18, 2); unused rows: 0
+    info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)         # D_k^T D_k, (G, 18, 3, 3)
+    pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)   # (G, 18, 3)
+    jk = np.concatenate([jac.d_root, np.broadcast_to(jac.d_trans, jac.d_root.shape), jac.d_body_pose,
+                         jac.d_betas], axis=3)                            # (G, 18, 3, D)
+    rows = jk.reshape(num, -1, jk.shape[3])
+    rows_t = np.swapaxes(rows, 1, 2)
+    return (rows_t @ (info @ jk).reshape(rows.shape), (rows_t @ pull.reshape(num, -1, 1))[:, :, 0],
+            np.sum(weight * white * white * (inv > 0), axis=1))
 
 
 def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: StereoSetup,
@@ -228,17 +388,17 @@ class _Leading:
             setattr(self, name, np.asarray(getattr(jac, name))[None])
 
 
-def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, measurement: StereoKeypoints,
-                                    calibration: StereoCalibration, sigma_px: float = 2.0,
-                                    sigma_occluded_px: float = 6.0, keypoint_weights: np.ndarray | None = None,
-                                    robust: str = "gemanmcclure", robust_scale: float = 3.0,
-                                    min_depth: float = 0.1) -> gtsam.CustomFactor | None:
-    """Stereo keypoint reprojection factor on ``keys = [root, trans, body_pose, betas]``.
+def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
+                             images: Sequence[ImageKeypoints], sigma_px=2.0, sigma_occluded_px=6.0,
+                             keypoint_weights: np.ndarray | None = None, robust: str = "gemanmcclure",
+                             robust_scale: float = 3.0, min_depth: float = 0.1) -> gtsam.CustomFactor | None:
+    """Keypoint reprojection factor over K >= 1 labelled images on ``keys = [root, trans, body_pose, betas]``
+    (kind ``stereo_reprojection``).
 
-    Returns ``None`` when no keypoint is labelled (with weight > 0) in either image.  ``sigma_px`` /
-    ``sigma_occluded_px`` in pixels; ``robust_scale`` in whitened units (sigmas).
+    Returns ``None`` when no keypoint is labelled (with weight > 0) in any image.  ``sigma_px`` /
+    ``sigma_occluded_px`` in pixels (scalar or (18,) per keypoint); ``robust_scale`` in whitened units.
     """
-    setup = build_stereo_setup(measurement, calibration, sigma_px, sigma_occluded_px, keypoint_weights, min_depth)
+    setup = build_reprojection_setup(images, sigma_px, sigma_occluded_px, keypoint_weights, min_depth)
     if setup.rows == 0:
         return None
     rows = setup.rows
@@ -259,3 +419,13 @@ def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: Body
 
     noise = make_noise(setup.sigmas, robust=robust, robust_scale=robust_scale)
     return gtsam.CustomFactor(noise, frame_key_list(keys), error)
+
+
+def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
+                                    measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px=2.0,
+                                    sigma_occluded_px=6.0, keypoint_weights: np.ndarray | None = None,
+                                    robust: str = "gemanmcclure", robust_scale: float = 3.0,
+                                    min_depth: float = 0.1) -> gtsam.CustomFactor | None:
+    """:func:`make_reprojection_factor` of one stereo pair's left and right images."""
+    return make_reprojection_factor(keys, model, measurement.images(calibration), sigma_px, sigma_occluded_px,
+                                    keypoint_weights, robust, robust_scale, min_depth)

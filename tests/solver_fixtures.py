@@ -93,3 +93,37 @@ def synthetic_track(ctx: EstimatorContext, num_frames: int = 4, seed: int = 0, p
     truth["keypoints"] = np.stack(keypoints)
     return Track(sequence="synthetic", tracking_id=f"ped{seed}", frames=frames,
                  calibrations={calib.name: calib}), truth
+
+
+def second_test_calibration(yaw_deg: float = 20.0, offset_m: float = 0.9):
+    """Another stereo pair (``"test-pair-b"``, the test pair's intrinsics): its left camera ``offset_m`` to the
+    side of the test pair's (world +y), turned by ``yaw_deg`` about world z."""
+    import dataclasses
+
+    base = make_test_calibration()
+    yaw = np.deg2rad(yaw_deg)
+    turn = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    world_T_cam = base.world_T_cam.copy()
+    world_T_cam[:3, :3] = turn @ world_T_cam[:3, :3]
+    world_T_cam[:3, 3] += [0.0, offset_m, 0.0]
+    return dataclasses.replace(base, name="test-pair-b", world_T_cam=world_T_cam)
+
+
+def with_views(track: Track, truth: dict, patterns, pixel_noise: float = 1.0, seed: int = 0) -> Track:
+    """``track`` with, per frame, the images named in ``patterns[i]`` (a string of ``l``/``r``: the test pair's
+    left/right, ``L``/``R``: :func:`second_test_calibration`'s), relabelled from the truth with pixel noise.
+    The test pair is the frame's primary pair when it labels the frame (the second pair's views go to
+    ``TrackFrame.other_views``), else the second pair is."""
+    rng = np.random.default_rng(seed + 2000)
+    first = track.calibrations[track.frames[0].pair]
+    second = second_test_calibration()
+    for fr, kps, pattern in zip(track.frames, truth["keypoints"], patterns):
+        views = {}
+        for names, calib in (("lr", first), ("LR", second)):
+            for name, uv in zip(names, calib.project(kps)):
+                views[name] = View2D(uv + rng.normal(scale=pixel_noise, size=uv.shape), np.ones(18, bool))
+        pairs = [(calib.name, tuple(views[n] if n in pattern else None for n in names))
+                 for names, calib in (("lr", first), ("LR", second)) if set(names) & set(pattern)]
+        (fr.pair, (fr.left, fr.right)), fr.other_views = pairs[0], dict(pairs[1:])
+    track.calibrations[second.name] = second
+    return track

@@ -98,6 +98,10 @@ def assert_tracks_equal(expected: list[Track], got: list[Track]) -> None:
             assert fg.timestamp == pytest.approx(fe.timestamp, abs=1e-6)
             assert_views_equal(fe.left, fg.left)
             assert_views_equal(fe.right, fg.right)
+            assert sorted(fg.other_views) == sorted(fe.other_views)
+            for name, (left, right) in fe.other_views.items():
+                assert_views_equal(left, fg.other_views[name][0])
+                assert_views_equal(right, fg.other_views[name][1])
             np.testing.assert_array_equal(fg.world_lidar_points, fe.world_lidar_points)
 
 
@@ -169,7 +173,10 @@ def test_bad_timestamps_fall_back_and_missing_frames_interpolate(tmp_path, caplo
     assert path.name in caplog.text and "line 1" in caplog.text
 
 
-def test_instance_in_both_pairs_keeps_more_keypoints(tmp_path):
+def test_instance_in_both_pairs_keeps_both_pairs(tmp_path):
+    """An instance labelled by both pairs at a frame: the pair with more labelled keypoints is the primary
+    ``pair``/``left``/``right``, the other pair's labels are kept in ``other_views``, and both pairs'
+    calibrations are in the track."""
     tracks = build_tracks()
     write_tracks(tmp_path, tracks)
     rng = np.random.default_rng(5)
@@ -178,15 +185,40 @@ def test_instance_in_both_pairs_keeps_more_keypoints(tmp_path):
                   {"blu79CF-grn43E3": tracks[1].calibrations["blu79CF-grn43E3"]})
     write_tracks(tmp_path, [other], timestamps=False)
     got = read_dataset(tmp_path)
-    assert got[0].frames[1].pair == "ylw79D0-red707B"
-    assert list(got[0].calibrations) == ["ylw79D0-red707B"]
+    frame = got[0].frames[1]
+    assert frame.pair == "ylw79D0-red707B"
+    assert_views_equal(frame.left, tracks[0].frames[1].left)
+    assert list(frame.other_views) == ["blu79CF-grn43E3"]
+    assert_views_equal(frame.other_views["blu79CF-grn43E3"][0], other.frames[0].left)
+    assert_views_equal(frame.other_views["blu79CF-grn43E3"][1], other.frames[0].right)
+    assert [(p, s) for p, s, _ in frame.labelled_views()] == [
+        ("ylw79D0-red707B", "left"), ("ylw79D0-red707B", "right"), ("blu79CF-grn43E3", "left"),
+        ("blu79CF-grn43E3", "right")]
+    assert [(p, s) for p, s, _ in frame.labelled_views(all_pairs=False)] == [
+        ("ylw79D0-red707B", "left"), ("ylw79D0-red707B", "right")]
+    assert sorted(got[0].calibrations) == ["blu79CF-grn43E3", "ylw79D0-red707B"]
+    assert got[0].frames[0].other_views == {}                  # frames seen by one pair: nothing else
     other.frames[0].left = view(rng, 18)
+    other.frames[0].right = None                               # the other pair's left camera only
+    write_tracks(tmp_path, [other], timestamps=False)
+    label2d_path(tmp_path, SEQ, "grn43E3", 2, TID_A).unlink()          # the earlier right label
+    frame = read_dataset(tmp_path)[0].frames[1]
+    assert frame.pair == "ylw79D0-red707B"                              # 14 + 14 labelled vs 18
+    assert frame.other_views["blu79CF-grn43E3"][1] is None
+    assert_views_equal(frame.other_views["blu79CF-grn43E3"][0], other.frames[0].left)
     other.frames[0].right = view(rng, 18)
     write_tracks(tmp_path, [other], timestamps=False)
     got = read_dataset(tmp_path)
-    assert got[0].frames[1].pair == "blu79CF-grn43E3"
-    assert_views_equal(got[0].frames[1].left, other.frames[0].left)
-    assert sorted(got[0].calibrations) == ["blu79CF-grn43E3", "ylw79D0-red707B"]
+    frame = got[0].frames[1]
+    assert frame.pair == "blu79CF-grn43E3"
+    assert_views_equal(frame.left, other.frames[0].left)
+    assert_views_equal(frame.other_views["ylw79D0-red707B"][0], tracks[0].frames[1].left)
+    assert_views_equal(frame.other_views["ylw79D0-red707B"][1], tracks[0].frames[1].right)
+    assert len(frame.labelled_views()) == 4
+    # the round trip keeps every pair's labels
+    write_tracks(tmp_path / "again", got)
+    again = read_dataset(tmp_path / "again")
+    assert_tracks_equal(got, again)
 
 
 def corrupt(path, data) -> None:

@@ -4,7 +4,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
+from solver_fixtures import synthetic_config, synthetic_context, synthetic_track, with_views
 from pedx_graph.solvers.frame_system import hessian_factor
 from pedx_graph.solvers.isam import IncrementalTrack
 from pedx_graph.solvers.stream import StreamConfig, StreamingEstimator
@@ -16,7 +16,8 @@ def ctx():
 
 
 def _tracks(ctx):
-    a, _ = synthetic_track(ctx, 4, seed=0)
+    a, truth = synthetic_track(ctx, 4, seed=0)
+    a = with_views(a, truth, ("lrLR", "lr", "L", "lrR"))   # 4, 2, 1 and 3 images (both stereo pairs)
     b, _ = synthetic_track(ctx, 4, seed=3, distance_m=13.0, with_right=False)
     b.tracking_id = "pedB"
     for fr in b.frames:                      # background caught by the polygon: robust chamfer / translation

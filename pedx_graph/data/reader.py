@@ -12,9 +12,10 @@ Assembly rules
 * Stereo pairs are discovered from the ``calib_cam_to_cam_<left>-<right>.txt`` names; a label of camera
   ``<left>`` fills :attr:`TrackFrame.left`, of ``<right>`` :attr:`TrackFrame.right`.  Labels of a camera
   in no readable pair are skipped (one warning per camera).
-* When an instance is labelled in both pairs at one frame, the pair with more labelled keypoints
-  (left + right views) is kept; ties go to the pair whose name sorts first.  The other pair's labels
-  are dropped for that frame (a debug log line names them).
+* When an instance is labelled in several pairs at one frame, every pair's labels are kept: the pair with
+  more labelled keypoints (left + right views; ties: the name that sorts first) is the frame's primary
+  :attr:`TrackFrame.pair` / ``left`` / ``right``, the others go to :attr:`TrackFrame.other_views`.
+  :attr:`Track.calibrations` holds every pair a frame of the track uses.
 * LiDAR points come from the instance's segment PLY (empty when absent).  Frames that have a segment
   but no 2D label are not assembled (their pair is unknown).
 * Timestamps come from ``timestamps/timestamps-pointclouds-<seq>.txt`` when present
@@ -274,7 +275,7 @@ def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[t
         views = by_frame[frame]
         pair = _choose_pair(views)
         if len(views) > 1:
-            logger.debug("%s %s frame %d: labelled in pairs %s; kept %s (more labelled keypoints)",
+            logger.debug("%s %s frame %d: labelled in pairs %s; primary %s (more labelled keypoints)",
                          sequence, tracking_id, frame, sorted(views), pair)
         points = np.zeros((0, 3))
         if config.read_segments:
@@ -284,15 +285,16 @@ def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[t
                     points = read_ply_points(seg)
                 except DataFormatError as exc:
                     logger.warning("%s; LiDAR points of this instance skipped", exc)
-        left = views[pair].get("left")
-        right = views[pair].get("right")
-        frames.append(TrackFrame(frame=frame, timestamp=times[frame], pair=pair,
-                                 left=None if left is None else left.view,
-                                 right=None if right is None else right.view,
-                                 world_lidar_points=points))
+        def side_views(name: str) -> tuple:
+            return tuple(None if views[name].get(side) is None else views[name][side].view
+                         for side in ("left", "right"))
+        left, right = side_views(pair)
+        frames.append(TrackFrame(frame=frame, timestamp=times[frame], pair=pair, left=left, right=right,
+                                 world_lidar_points=points,
+                                 other_views={name: side_views(name) for name in sorted(views) if name != pair}))
     if not frames:
         return None
-    used = sorted({f.pair for f in frames})
+    used = sorted({name for f in frames for name in f.pairs})
     return Track(sequence=sequence, tracking_id=tracking_id, frames=frames,
                  calibrations={pair: calibrations[pair] for pair in used})
 

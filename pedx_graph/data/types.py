@@ -111,20 +111,47 @@ class View2D:
 
 @dataclass
 class TrackFrame:
-    """Everything observed of one pedestrian at one synchronised stereo + LiDAR sample."""
+    """Everything observed of one pedestrian at one synchronised stereo + LiDAR sample.
+
+    ``pair`` / ``left`` / ``right`` are the *primary* stereo pair (the one with the most labelled keypoints);
+    the labels of any other pair that saw the pedestrian at this frame are in :attr:`other_views`.
+    :meth:`labelled_views` lists them all.  A frame labelled in one camera only has one of ``left`` /
+    ``right`` None.
+    """
 
     frame: int
     """Frame number as in the release file names."""
     timestamp: float
     """Seconds (from the timestamps file, or ``frame / fps`` when it is absent)."""
     pair: str
-    """Name of the stereo pair (key into :attr:`Track.calibrations`) that saw this instance."""
+    """Name of the primary stereo pair (key into :attr:`Track.calibrations`) that saw this instance."""
     left: View2D | None
-    """Labels in the rectified left image, or None when the instance is not labelled there."""
+    """Labels in the primary pair's rectified left image, or None when the instance is not labelled there."""
     right: View2D | None
-    """Labels in the rectified right image, or None."""
+    """Labels in the primary pair's rectified right image, or None."""
     world_lidar_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     """(M, 3) LiDAR points assigned to this instance (segment PLY), world frame, metres."""
+    other_views: dict[str, tuple[View2D | None, View2D | None]] = field(default_factory=dict)
+    """Labels of the same instance at this frame in other stereo pairs: pair name (a key into
+    :attr:`Track.calibrations`, never :attr:`pair`) -> (left, right) views, either None when not labelled
+    there.  Empty when only the primary pair saw it."""
+
+    @property
+    def pairs(self) -> list[str]:
+        """The primary pair, then the other pairs in name order."""
+        return [self.pair] + sorted(p for p in self.other_views if p != self.pair)
+
+    def labelled_views(self, all_pairs: bool = True) -> list[tuple[str, str, View2D]]:
+        """``(pair name, side, view)`` of every image labelling the instance at this frame (side ``"left"`` or
+        ``"right"``): the primary pair's left and right first, then the other pairs' (name order, left
+        before right); views that are None are left out.  ``all_pairs=False``: the primary pair only."""
+        out = []
+        for pair in (self.pairs if all_pairs else [self.pair]):
+            left, right = (self.left, self.right) if pair == self.pair else self.other_views[pair]
+            for side, view in (("left", left), ("right", right)):
+                if view is not None:
+                    out.append((pair, side, view))
+        return out
 
 
 @dataclass
@@ -138,7 +165,7 @@ class Track:
     frames: list[TrackFrame]
     """Observed frames in increasing frame order (gaps allowed)."""
     calibrations: dict[str, StereoCalibration]
-    """Stereo pairs by name; every ``TrackFrame.pair`` is a key."""
+    """Stereo pairs by name; every ``TrackFrame.pair`` and every key of ``TrackFrame.other_views`` is a key."""
     ground: GroundFrame | None = None
     """The sequence's up axis, ground plane and viewpoint (the reader derives it per sequence from the
     calibration and point clouds); None here = derived from ``calibrations`` alone on construction."""

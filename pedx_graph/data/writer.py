@@ -81,8 +81,9 @@ def write_tracks(root: str | os.PathLike, tracks: Iterable[Track], flat: bool = 
                  timestamps: bool = True, category: str = "pedestrian") -> list[Path]:
     """Write tracks in the release layout: calibration, 2D labels, segments and (optionally) timestamps.
 
-    Each view becomes a 2D label of the pair's left or right camera (``flat``: no camera folder); a
-    frame's LiDAR points become its segment PLY (none written when empty).  Timestamps of all tracks of
+    Each view of every pair (``TrackFrame.labelled_views``) becomes a 2D label of its pair's left or right
+    camera (``flat``: no camera folder); a frame's LiDAR points become its segment PLY (none written when
+    empty).  Timestamps of all tracks of
     a sequence are merged into one file; two tracks disagreeing on a frame's time raise ``ValueError``.
     Returns the written paths.
     """
@@ -96,12 +97,11 @@ def write_tracks(root: str | os.PathLike, tracks: Iterable[Track], flat: bool = 
                 calibrations[name] = calib
                 written.extend(write_calibration(root, calib))
         for tf in track.frames:
-            if tf.pair not in track.calibrations:
-                raise ValueError(f"track {track.tracking_id} frame {tf.frame}: pair {tf.pair!r} has no calibration")
-            left_cam, right_cam = split_pair(tf.pair)
-            for camera, view in ((left_cam, tf.left), (right_cam, tf.right)):
-                if view is None:
-                    continue
+            for pair in tf.pairs:
+                if pair not in track.calibrations:
+                    raise ValueError(f"track {track.tracking_id} frame {tf.frame}: pair {pair!r} has no calibration")
+            for pair, side, view in tf.labelled_views():
+                camera = split_pair(pair)[0 if side == "left" else 1]
                 label = Label2D(sequence=track.sequence, camera=camera, frame=tf.frame,
                                 tracking_id=track.tracking_id, category=category, view=view)
                 written.append(write_label2d(root, label, flat=flat))

@@ -43,8 +43,10 @@ class AblationRow:
     terms: dict
 
     def fit_terms(self) -> dict:
-        """All ``TermsConfig`` switches of the row (heading follows the translation prior; priors on)."""
-        return {**self.terms, "heading_prior": self.terms["translation_prior"], "pose_prior": True}
+        """All ``TermsConfig`` switches of the row (heading follows the translation prior; priors on; a row
+        without the right image uses the primary pair's left camera only, not another pair's too)."""
+        return {**self.terms, "heading_prior": self.terms["translation_prior"], "pose_prior": True,
+                "all_views": self.terms["right_reprojection"]}
 
 
 def _row(label: str, left: bool, right: bool, trans: bool, chamfer: bool, temporal: bool) -> AblationRow:

@@ -6,7 +6,8 @@ shared node replaces the paper's ADMM consensus.
 
 Factors, one per frame per term (few, vectorised callbacks):
 
-* ``stereo_reprojection`` — E_J,l + E_J,r (left and right images in one factor; either can be switched off);
+* ``stereo_reprojection`` — E_J,l + E_J,r: every image labelling the pedestrian at the frame in one factor
+  (both pairs' when both labelled it, ``terms.all_views``; left or right images can be switched off);
 * ``lidar_chamfer`` — E_3d, Eq. 4; ``translation_prior`` — E_T, Eq. 2; ``heading_prior`` — E_D, Eq. 3;
 * ``pose_prior`` + ``joint_limits`` — E_P; ``temporal_prior`` — E_tp, Eq. 10, between consecutive observed
   frames (a gap of k frame periods weakens it); ``shape_prior`` once.
@@ -14,6 +15,7 @@ Factors, one per frame per term (few, vectorised callbacks):
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import gtsam
@@ -25,7 +27,7 @@ from factors.joint_limits import make_joint_limit_factor
 from factors.lidar_chamfer import make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
 from factors.shape_prior import make_shape_prior_factor
-from factors.stereo_reprojection import StereoKeypoints, make_stereo_reprojection_factor
+from factors.stereo_reprojection import images_from_views, make_reprojection_factor
 from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.body import BodyModel
@@ -197,10 +199,11 @@ def core_points(world_points: np.ndarray, world_up: np.ndarray, radius_m: float 
 
 
 def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.ndarray,
-                          world_p_centre: np.ndarray, clip_px: float = 40.0) -> np.ndarray:
+                          world_p_centre: np.ndarray, clip_px: float = 40.0, all_views: bool = True) -> np.ndarray:
     """Per frame, the candidate body pose (``ctx.template_candidates``) whose keypoints, placed at the
-    initial orientation and centre, best reproject onto the frame's 2D labels (left and right; squared
-    pixel residuals clipped at ``clip_px``).  Returns (T, 69)."""
+    initial orientation and centre, best reproject onto the frame's 2D labels (every labelled image of every
+    pair, ``TrackFrame.labelled_views``; the primary pair's only when not ``all_views``; squared pixel
+    residuals clipped at ``clip_px``).  Returns (T, 69)."""
     from pedx_graph.body.rotation import log_so3
 
     cands = ctx.template_candidates
@@ -218,12 +221,10 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
     all_kps = model.keypoints(pose, np.zeros((n * num_c, nb)), trans).reshape(n, num_c, -1, 3)
     for i, fr in enumerate(track.frames):
         kps = all_kps[i]
-        calib = track.calibrations[fr.pair]
-        left_uv, right_uv = calib.project(kps)
+        projected = {pair: track.calibrations[pair].project(kps) for pair in fr.pairs}
         cost = np.zeros(len(cands))
-        for view, uv in ((fr.left, left_uv), (fr.right, right_uv)):
-            if view is None:
-                continue
+        for pair, side, view in fr.labelled_views(all_views):
+            uv = projected[pair][0 if side == "left" else 1]
             ok = view.labelled
             d2 = np.sum((uv[:, ok] - view.keypoints[ok]) ** 2, axis=-1)
             cost += np.minimum(d2, clip_px ** 2).sum(axis=1)
@@ -231,14 +232,16 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
     return out
 
 
-def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
+def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration | Mapping[str, StereoCalibration],
                   previous: tuple[FrameKeys, float] | None, heading_yaw: float, speed_mps: float,
                   model, ctx: EstimatorContext, config: FitConfig,
                   rng: np.random.Generator, heading_sigma_rad: float = 0.0, *,
                   ground: GroundFrame) -> list[tuple[gtsam.NonlinearFactor, str]]:
     """The factors of one frame (every term but the track's shape prior), as ``(factor, kind)`` pairs.
 
-    ``k``: the frame's keys; ``previous``: (keys, timestamp) of the track's previous observed frame for the
+    ``k``: the frame's keys; ``calibration``: the stereo pairs by name (``Track.calibrations``; a single
+    :class:`StereoCalibration` stands for the frame's primary pair and only its views are used);
+    ``previous``: (keys, timestamp) of the track's previous observed frame for the
     temporal prior, or None; ``heading_yaw``/``speed_mps``: the trajectory heading (NaN: unknown) and
     speed; ``model``: the body model the factors evaluate (a :class:`BatchedBodyModel` in batch fits);
     ``rng``: draws the LiDAR subsample; ``heading_sigma_rad``: the trajectory heading's own uncertainty
@@ -253,11 +256,13 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration,
         if factor is not None:
             out.append((factor, kind))
 
-    left = fr.left if terms.left_reprojection else None
-    right = fr.right if terms.right_reprojection else None
-    if left is not None or right is not None:
-        add(make_stereo_reprojection_factor(
-            k, model, StereoKeypoints.from_views(left, right), calibration,
+    calibrations = {fr.pair: calibration} if isinstance(calibration, StereoCalibration) else calibration
+    sides = {"left": terms.left_reprojection, "right": terms.right_reprojection}
+    views = [v for v in fr.labelled_views(terms.all_views and not isinstance(calibration, StereoCalibration))
+             if sides[v[1]]]
+    if views:
+        add(make_reprojection_factor(
+            k, model, images_from_views(views, calibrations),
             sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
             keypoint_weights=_hip_weights(config), robust=_robust(noise.reprojection_loss),
             robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
@@ -339,14 +344,15 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     if initial is None:
         values.insert(keys[0].betas, betas0)
     body_pose0 = None if initial is not None else select_template_poses(track, ctx, world_R_body,
-                                                                         init.world_p_centre)
+                                                                         init.world_p_centre,
+                                                                         all_views=config.terms.all_views)
     for i, (fr, k) in enumerate(zip(track.frames, keys)):
         if initial is None:
             values.insert(k.root, gtsam.Rot3(world_R_body[i]))
             values.insert(k.trans, np.asarray(init.world_p_centre[i] - pelvis_rest, dtype=float))
             values.insert(k.body_pose, body_pose0[i].copy())
         previous = (keys[i - 1], track.frames[i - 1].timestamp) if i > 0 else None
-        for factor, kind in frame_factors(k, fr, track.calibrations[fr.pair], previous,
+        for factor, kind in frame_factors(k, fr, track.calibrations, previous,
                                           float(init.heading_yaw[i]), float(init.speed_mps[i]),
                                           model, ctx, config, rng, _heading_sigma(init, i), ground=track.ground):
             add(factor, kind, i)

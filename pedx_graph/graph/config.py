@@ -57,9 +57,13 @@ class TermsConfig:
     """Which energy terms enter the graph (the paper's Table IV ablation switches)."""
 
     left_reprojection: bool = True
-    """E_J,l: 2D keypoints in the left image."""
+    """E_J,l: 2D keypoints in the left image (of every stereo pair used)."""
     right_reprojection: bool = True
-    """E_J,r: 2D keypoints in the right image."""
+    """E_J,r: 2D keypoints in the right image (of every stereo pair used)."""
+    all_views: bool = True
+    """Every stereo pair that labels the pedestrian at a frame enters its reprojection term (PedX: the two
+    pairs' left cameras are ~0.93 m apart, 3x the in-pair baselines); False: the frame's primary pair only
+    (the one with the most labelled keypoints)."""
     translation_prior: bool = True
     """E_T: translation prior to the LiDAR points' mean (paper Eq. 2)."""
     lidar_chamfer: bool = True

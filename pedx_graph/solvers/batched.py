@@ -27,7 +27,7 @@ from factors.common import row_loss_and_weight
 from factors.heading_prior import heading_prior_batch
 from factors.joint_limits import joint_limit_batch
 from factors.translation_prior import translation_prior_batch
-from factors.stereo_reprojection import stereo_dense_rows
+from factors.stereo_reprojection import reprojection_normal_equations, reprojection_rows, reprojection_whiten
 from pedx_graph.solvers.chain import ChainLayout, ChainSystem
 
 #: Factor kinds served from the batched cache.
@@ -75,28 +75,21 @@ class BatchedLinearizer:
         return hit
 
     def _stereo_rows(self, group: dict) -> tuple[np.ndarray, np.ndarray, list[tuple[str, float]]]:
-        """Dense measurements and inverse sigmas (G, 2, 18, 2) of a stereo group, and its kernels (cached)."""
+        """Dense measurements and inverse sigmas (G, K, 18, 2) of a reprojection group (K: its largest number
+        of images; padding rows have inverse sigma 0), and its kernels (cached)."""
         tag = tuple(group["keys"])
         hit = self._dense.get(tag)
         if hit is None:
             specs = self.body._specs["stereo_reprojection"]
-            rows = [stereo_dense_rows(specs[keys].setup) for keys in group["keys"]]
+            meas, inv_sigma = reprojection_rows([specs[keys].setup for keys in group["keys"]], group["uv"].shape[1])
             kernels = [(specs[keys].robust, specs[keys].robust_scale) for keys in group["keys"]]
-            hit = self._dense[tag] = (np.stack([m for m, _ in rows]), np.stack([i for _, i in rows]), kernels)
+            hit = self._dense[tag] = (meas, inv_sigma, kernels)
         return hit
 
     def _stereo_white(self, group: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Whitened residual rows ``e`` (G, 72), per-row losses and IRLS weights, and inverse sigmas."""
-        meas, inv_sigma, kernels = self._stereo_rows(group)
-        num = len(kernels)
-        white = ((group["uv"] - meas) * inv_sigma).reshape(num, -1)
-        inv = inv_sigma.reshape(num, -1)
-        if len(set(kernels)) == 1:
-            loss, weight = row_loss_and_weight(white, *kernels[0])
-        else:
-            pairs = [row_loss_and_weight(white[n], *kernels[n]) for n in range(num)]
-            loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
-        return white, loss * (inv > 0), weight, inv
+        """Whitened residual rows ``e`` (G, K * 36), per-row losses and IRLS weights, and inverse sigmas
+        (:func:`factors.stereo_reprojection.reprojection_whiten`)."""
+        return reprojection_whiten(group["uv"], *self._stereo_rows(group))
 
     # -- error -----------------------------------------------------------------------------------------
     def error(self, values: gtsam.Values, jacobians: bool = False) -> float:
@@ -266,22 +259,11 @@ class BatchedLinearizer:
         self._scatter(system, group["keys"], hess, grad)
 
     def _add_stereo_reprojection(self, system: ChainSystem, group: dict) -> None:
-        """Stereo factors through their keypoints: the rows of keypoint k in both images are ``D_k J_k`` (D_k:
-        the whitened, IRLS-weighted pixel derivatives (4, 3), J_k: the keypoint's Jacobian (3, 75 + B)), so
-        ``A^T A = sum_k J_k^T (D_k^T D_k) J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` (54 keypoint rows per
-        frame instead of 72 pixel rows)."""
+        """Reprojection factors through their keypoints
+        (:func:`factors.stereo_reprojection.reprojection_normal_equations`: 54 keypoint rows per frame)."""
         white, _, weight, inv = self._stereo_white(group)
-        num = len(group["keys"])
-        d_uv, jac = group["d_uv"], group["jac"]
-        row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                 # (G, 2, 18, 2); unused rows: 0
-        info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)        # D_k^T D_k, (G, 18, 3, 3)
-        pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)   # (G, 18, 3)
-        jk = np.concatenate([jac.d_root, np.broadcast_to(jac.d_trans, jac.d_root.shape), jac.d_body_pose,
-                             jac.d_betas], axis=3)                           # (G, 18, 3, 75 + B)
-        rows = jk.reshape(num, -1, jk.shape[3])
-        rows_t = np.swapaxes(rows, 1, 2)
-        self._scatter(system, group["keys"], rows_t @ (info @ jk).reshape(rows.shape),
-                      (rows_t @ pull.reshape(num, -1, 1))[:, :, 0])
+        hess, grad, _ = reprojection_normal_equations(group["d_uv"], group["jac"], white, weight, inv)
+        self._scatter(system, group["keys"], hess, grad)
 
     def _gram_of(self, mixture, start: int = 0) -> np.ndarray:
         """``J_k^T J_k`` (K, D - start, D - start) of every component's residual Jacobian, rows and columns

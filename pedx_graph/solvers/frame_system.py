@@ -27,7 +27,7 @@ import numpy as np
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, FrameKeys, row_loss_and_weight
 from factors.heading_prior import heading_prior_batch
 from factors.joint_limits import joint_limit_batch
-from factors.stereo_reprojection import stereo_dense_rows
+from factors.stereo_reprojection import reprojection_normal_equations, reprojection_rows, reprojection_whiten
 from factors.temporal_prior import temporal_prior_batch
 from factors.translation_prior import translation_prior_batch
 from pedx_graph.solvers.batched import chamfer_normal_equations
@@ -155,26 +155,11 @@ def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.nd
 
 
 def _stereo(group: dict, specs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stereo factors through their keypoints (as ``BatchedLinearizer._add_stereo_reprojection``): rows of
-    keypoint k in both images ``D_k J_k`` (D_k: whitened, IRLS-weighted pixel derivatives, J_k: the
-    keypoint's Jacobian)."""
-    num = len(specs)
-    dense = [stereo_dense_rows(sp.setup) for sp in specs]
-    meas, inv_sigma = np.stack([m for m, _ in dense]), np.stack([i for _, i in dense])
-    white = ((group["uv"] - meas) * inv_sigma).reshape(num, -1)
-    inv = inv_sigma.reshape(num, -1)
-    weight = _weights(white, _kernels(specs))
-    d_uv, jac = group["d_uv"], group["jac"]
-    row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                  # (G, 2, 18, 2); unused rows: 0
-    info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)         # (G, 18, 3, 3)
-    pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)
-    jk = np.concatenate([jac.d_root, np.broadcast_to(jac.d_trans, jac.d_root.shape), jac.d_body_pose,
-                         jac.d_betas], axis=3)                            # (G, 18, 3, D)
-    rows = jk.reshape(num, -1, jk.shape[3])
-    rows_t = np.swapaxes(rows, 1, 2)
-    used = inv > 0
-    return (rows_t @ (info @ jk).reshape(rows.shape), (rows_t @ pull.reshape(num, -1, 1))[:, :, 0],
-            np.sum(weight * white * white * used, axis=1))
+    """Reprojection factors through their keypoints, by the factor module's own batched normal equations
+    (:func:`factors.stereo_reprojection.reprojection_normal_equations`, as the batch linearizer)."""
+    meas, inv_sigma = reprojection_rows([sp.setup for sp in specs], group["uv"].shape[1])
+    white, _, weight, inv = reprojection_whiten(group["uv"], meas, inv_sigma, _kernels(specs))
+    return reprojection_normal_equations(group["d_uv"], group["jac"], white, weight, inv)
 
 
 _GRAMS: dict[int, tuple] = {}

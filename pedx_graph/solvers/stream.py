@@ -265,7 +265,7 @@ class StreamingEstimator:
 
         init = self._causal_init(state, window)
         previous = (state.keys[i - 1], state.frames[i - 1].timestamp) if i > 0 else None
-        for factor, kind in frame_factors(k, fr, state.calibrations[fr.pair], previous, init.heading_yaw,
+        for factor, kind in frame_factors(k, fr, state.calibrations, previous, init.heading_yaw,
                                           init.speed_mps, model, ctx, self.config, state.rng,
                                           init.heading_sigma_rad, ground=self.ground):
             add(factor, kind)
@@ -314,7 +314,8 @@ class StreamingEstimator:
         from pedx_graph.graph.build import select_template_poses
 
         track = Track(self.sequence, state.tracking_id, state.frames[-1:], state.calibrations, ground=self.ground)
-        return select_template_poses(track, self.ctx, init.world_R_body[None], init.world_p_centre[None])[0].copy()
+        return select_template_poses(track, self.ctx, init.world_R_body[None], init.world_p_centre[None],
+                                     all_views=self.config.terms.all_views)[0].copy()
 
     def _initial_values(self, state: _ActiveTrack, i: int, init) -> gtsam.Values:
         k = state.keys[i]
