@@ -15,10 +15,10 @@ mean and median of its absolute value, and its mean, the bias), global MPJPE ove
 and the root-relative MPJPE, overall and per distance bin.
 
     python benchmarks/bench_views.py [--seed 0] [--scenes 2] [--pedestrians 8] [--frames 12] [--yaw 20]
-                                     [--rig overlap|default] [--out benchmarks/results]
+                                     [--rig overlap|default|pedx] [--out benchmarks/results]
 
-Writes ``bench_views.json`` and ``bench_views.md`` into ``--out`` (``--rig default``: the simulator's own rig,
-``bench_views_default_rig.*``: how often its pairs overlap and what that changes).
+Writes ``bench_views.json`` and ``bench_views.md`` into ``--out`` (``--rig default`` / ``--rig pedx``: the
+simulator's rig presets, ``bench_views_<rig>_rig.*``; the default rig's pairs never overlap).
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ from _common import hardware, public_args  # noqa: E402
 from pedx_graph.data.reader import ReaderConfig, read_dataset, read_smpl_labels  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin, eval_joints, joint_errors  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
-from pedx_graph.sim.config import SimConfig  # noqa: E402
+from pedx_graph.sim.config import SimConfig, rig_config as sim_rig_config  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.solvers.fit import _context, fit_track  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
@@ -48,14 +48,15 @@ SHARED_CMU = ROOT.parent / "shared" / "mocap" / "cmu"
 
 def rig_config(pedestrians: int, frames: int, yaw_deg: float, rig: str = "overlap") -> SimConfig:
     """The simulator's scene with the two pairs overlapping (see the module docstring); ``rig="default"``:
-    the simulator's default rig (pairs 90 degrees apart) unchanged."""
-    cfg = SimConfig()
+    the simulator's default rig (pairs 90 degrees apart) unchanged; ``rig="pedx"``: the simulator's real
+    PedX rig preset (z-down LiDAR frame, the real cameras, real-label quirks and per-keypoint click noise)."""
+    cfg = sim_rig_config(rig) if rig in ("default", "pedx") else SimConfig()
     cfg.scene.n_pedestrians = pedestrians
     cfg.scene.n_frames = frames
     if SHARED_CMU.is_dir():
         cfg.motion.motion_dir = str(SHARED_CMU)
         cfg.motion.split = "holdout"
-    if rig == "default":
+    if rig in ("default", "pedx"):
         return cfg
     fwd, side = cfg.cameras.forward, cfg.cameras.left
     fwd.focal_px, fwd.baseline_m = 3266.7, 0.329
@@ -156,9 +157,11 @@ def markdown(result: dict, command: str) -> str:
     lines = ["# bench_views: every labelled view vs the primary stereo pair", "",
              f"Command: `{command}`", "",
              f"Scenes: {result['scenes']} x {result['pedestrians']} pedestrians x {result['frames']} frames, "
-             + (f"second pair turned {result['yaw_deg']:g} deg and 0.93 m beside the first (real PedX focal "
-                "lengths and baselines)" if result["rig"] == "overlap" else
-                "the simulator's default rig (pairs 90 deg apart)")
+             + {"overlap": f"second pair turned {result['yaw_deg']:g} deg and 0.93 m beside the first (real "
+                           "PedX focal lengths and baselines)",
+                "default": "the simulator's default rig (pairs 90 deg apart)",
+                "pedx": "the simulator's pedx rig (the real cameras, z-down LiDAR frame, real-label quirks: "
+                        "no occlusion flags, per-keypoint click noise, one-camera tracks)"}[result["rig"]]
              + f", {result['motion']}.  {c['tracks']} tracks, {c['tracks_with_both_pairs']} seen by both pairs at some "
              f"frame; {c['frames_both_pairs']} of {c['frames']} labelled frames seen by both pairs.  Only the "
              "tracks with such frames are fitted (the others fit identically either way).", "",
@@ -188,8 +191,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pedestrians", type=int, default=8)
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--yaw", type=float, default=20.0, help="second pair's yaw, degrees (real PedX: ~17)")
-    parser.add_argument("--rig", choices=("overlap", "default"), default="overlap",
-                        help="overlap: the second pair beside the first (default); default: the simulator's rig")
+    parser.add_argument("--rig", choices=("overlap", "default", "pedx"), default="overlap",
+                        help="overlap: the second pair beside the first (default); default / pedx: the "
+                             "simulator's rig presets")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench_views_") as tmp:
@@ -200,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     result["command"] = command
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    stem = "bench_views" if args.rig == "overlap" else "bench_views_default_rig"
+    stem = "bench_views" if args.rig == "overlap" else f"bench_views_{args.rig}_rig"
     atomic_write_json(out / f"{stem}.json", result)
     atomic_write_text(out / f"{stem}.md", markdown(result, command))
     print(markdown(result, command))
