@@ -111,6 +111,13 @@ class GroundFrame:
         up = np.asarray(world_p, dtype=float) @ self.world_up
         return up - (np.nan if self.ground_offset_m is None else self.ground_offset_m)
 
+    def median_point(self, world_p: np.ndarray) -> np.ndarray:
+        """(3,) per-axis median of (N, 3) points taken in the level frame, mapped back to the world: a robust
+        centre that moves rigidly with the data (a per-axis median in the world frame would not: it depends
+        on how the world's axes are turned)."""
+        level = np.median(self.to_level(world_p), axis=0)
+        return self.world_p_sensor + self.world_R_level @ level
+
     def world_R_body_from_yaw(self, yaw: float | np.ndarray) -> np.ndarray:
         """(..., 3, 3) upright SMPL body orientations: body +Y -> ``world_up``, body +Z (forward) -> the level
         direction of heading ``yaw`` (radians); body +X (the body's left) completes the right-handed frame."""

@@ -88,11 +88,12 @@ class TrackInit:
     (LiDAR or stereo depth), radians (inf where unknown); None: not estimated."""
 
 
-def _lidar_centroid(frame: TrackFrame) -> np.ndarray:
-    """Median of the frame's finite instance LiDAR points (3,), NaN when it has fewer than 3."""
+def _lidar_centroid(frame: TrackFrame, ground: GroundFrame) -> np.ndarray:
+    """Median (in the level frame, :meth:`GroundFrame.median_point`) of the frame's finite instance LiDAR
+    points (3,), NaN when it has fewer than 3."""
     pts = np.asarray(frame.world_lidar_points, dtype=float).reshape(-1, 3)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
-    return np.median(pts, axis=0) if len(pts) >= 3 else np.full(3, np.nan)
+    return ground.median_point(pts) if len(pts) >= 3 else np.full(3, np.nan)
 
 
 def _smoothed_velocity(times: np.ndarray, points: np.ndarray, half_window_s: float) -> np.ndarray:
@@ -205,7 +206,7 @@ class FrameMeasurements:
 def measure_frame(calib, frame: TrackFrame, ground: GroundFrame, surface_offset_m: float = 0.10,
                   stereo_px: float = 3.0) -> FrameMeasurements:
     """The per-frame measurements of :func:`initialise_track` (see its docstring for the parameters)."""
-    centroid = _lidar_centroid(frame)
+    centroid = _lidar_centroid(frame, ground)
     lidar_depth = float(calib.world_to_rect(centroid)[2] + surface_offset_m) if np.all(np.isfinite(centroid)) \
         else float("nan")
     tri = _triangulate(calib, frame)
