@@ -14,6 +14,7 @@ E_D (Eq. 3)                :mod:`factors.heading_prior`        :func:`make_headi
 E_P (GMM)                  :mod:`factors.pose_prior`           :func:`make_pose_prior_factor`
 E_P (joint limits)         :mod:`factors.joint_limits`         :func:`make_joint_limit_factor`
 shape                      :mod:`factors.shape_prior`          :func:`make_shape_prior_factor`
+shape support (hinge)      :mod:`factors.shape_prior`          :func:`make_shape_support_factor`
 E_tp (Eq. 10)              :mod:`factors.temporal_prior`       :func:`make_temporal_prior_factor`
 =========================  ===============================  ============================================
 """
@@ -22,7 +23,7 @@ from factors.heading_prior import heading_sigma, make_heading_prior_factor, traj
 from factors.joint_limits import DEFAULT_JOINT_LIMITS, JointLimit, make_joint_limit_factor
 from factors.lidar_chamfer import make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
-from factors.shape_prior import make_shape_prior_factor
+from factors.shape_prior import make_shape_prior_factor, make_shape_support_factor
 from factors.stereo_reprojection import (ImageKeypoints, StereoKeypoints, images_from_views,
                                          make_reprojection_factor, make_stereo_reprojection_factor)
 from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, sequence_differences,
@@ -38,6 +39,6 @@ __all__ = [
     "make_heading_prior_factor", "heading_sigma", "trajectory_headings",
     "make_pose_prior_factor",
     "make_joint_limit_factor", "JointLimit", "DEFAULT_JOINT_LIMITS",
-    "make_shape_prior_factor",
+    "make_shape_prior_factor", "make_shape_support_factor",
     "make_temporal_prior_factor", "temporal_difference", "sequence_differences", "TEMPORAL_DIM",
 ]

@@ -10,7 +10,8 @@ Factors, one per frame per term (few, vectorised callbacks):
   (both pairs' when both labelled it, ``terms.all_views``; left or right images can be switched off);
 * ``lidar_chamfer`` — E_3d, Eq. 4; ``translation_prior`` — E_T, Eq. 2; ``heading_prior`` — E_D, Eq. 3;
 * ``pose_prior`` + ``joint_limits`` — E_P; ``temporal_prior`` — E_tp, Eq. 10, between consecutive observed
-  frames (a gap of k frame periods weakens it); ``shape_prior`` once.
+  frames (a gap of k frame periods weakens it); ``shape_prior`` once (the Gaussian prior and its support hinge,
+  two factors of that kind).
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from factors.heading_prior import make_heading_prior_factor
 from factors.joint_limits import make_joint_limit_factor
 from factors.lidar_chamfer import make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
-from factors.shape_prior import make_shape_prior_factor
+from factors.shape_prior import shape_factors
 from factors.stereo_reprojection import images_from_views, make_reprojection_factor
 from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
@@ -356,7 +357,9 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
                                           float(init.heading_yaw[i]), float(init.speed_mps[i]),
                                           model, ctx, config, rng, _heading_sigma(init, i), ground=track.ground):
             add(factor, kind, i)
-    add(make_shape_prior_factor(keys[0].betas, num_betas=nb, sigma=noise.shape_sigma), "shape_prior", -1)
+    for factor in shape_factors(keys[0].betas, nb, noise.shape_sigma, noise.shape_support_sd,
+                                noise.shape_support_sigma):      # the Gaussian prior and its support hinge
+        add(factor, "shape_prior", -1)
     if initial is not None:
         values = gtsam.Values(initial)
     return TrackProblem(graph=graph, initial=values, keys=keys, init=init, factor_kinds=kinds,

@@ -50,6 +50,16 @@ class NoiseConfig:
     """Joint-limit hinge (knees, elbows do not bend backwards), radians."""
     shape_sigma: float = 1.0
     """Shape prior: betas ~ N(0, shape_sigma^2 I)."""
+    shape_support_sd: float = 3.5
+    """Support of the shape prior, in its standard deviations: a one-sided hinge holds every
+    ``|beta_i| <= shape_support_sd * shape_sigma`` (``factors.shape_prior``).  The shape is shared by every
+    frame of a track, so without it T frames of reprojection rows outweigh the single Gaussian prior where
+    the data cannot fix size against depth (one camera, stereo at range).  0 or inf: no support term."""
+    shape_support_sigma: float = 0.02
+    """Width of the support hinge, betas units: a coefficient this far beyond the bound costs as much as one
+    standard deviation of a Gaussian term (a stiff wall, continuously differentiable energy).  A data pull
+    of gradient g (whitened, per unit of beta) ends ``g * shape_support_sigma^2`` past the bound: 0.04 for
+    g = 100 (tests/test_shape_support_solvers.py: four frames pulling beta_0 to -30 end 0.055 past it)."""
 
 
 @dataclass

@@ -12,7 +12,9 @@ consensus shape ``beta``; scaled duals ``u_k``.  One ADMM iteration t:
    colours (even, then odd): frames of one colour share no factor, so they are independent (a process pool
    solves them in parallel) and the temporal coupling is a block Gauss-Seidel sweep;
 2. consensus step: ``beta <- argmin 0.5 ||beta / sigma_shape||^2 + sum_k rho/2 ||beta_k - beta + u_k||^2
-   = rho sum_k (beta_k + u_k) / (1 / sigma_shape^2 + N rho)`` (the shape prior lives on the consensus);
+   = rho sum_k (beta_k + u_k) / (1 / sigma_shape^2 + N rho)`` (the shape prior lives on the consensus;
+   with its support hinge, ``noise.shape_support_sd``, the per-coefficient closed form of
+   :func:`factors.shape_prior.consensus_shape`);
 3. dual step: ``u_k <- u_k + beta_k - beta``.
 
 Stop when ``max_k ||beta_k - beta|| < primal_tol`` and ``rho ||beta^t - beta^{t+1}|| < dual_tol``
@@ -30,6 +32,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
+from factors.shape_prior import consensus_shape
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.solvers.isam import local_lm
 
@@ -154,6 +157,8 @@ def admm_solve(problem, config: FitConfig, admm: AdmmConfig | None = None, track
     beta_k = np.tile(beta, (n, 1))
     duals = np.zeros((n, nb))
     sigma_shape = config.noise.shape_sigma
+    support_sd = config.noise.shape_support_sd
+    support = support_sd * sigma_shape if support_sd and np.isfinite(support_sd) and support_sd > 0 else None
     report = AdmmReport(iterations=0, converged=False, seconds=0.0,
                         initial_error=float(problem.graph.error(init)), final_error=float("nan"))
     pool = None
@@ -173,7 +178,8 @@ def admm_solve(problem, config: FitConfig, admm: AdmmConfig | None = None, track
                 for k, state, new_beta, _ in results:
                     states[k] = state
                     beta_k[k] = new_beta
-            new_beta = admm.rho * (beta_k + duals).sum(axis=0) / (1.0 / sigma_shape ** 2 + n * admm.rho)
+            new_beta = consensus_shape((beta_k + duals).mean(axis=0), n * admm.rho, sigma_shape, support,
+                                       config.noise.shape_support_sigma)
             dual_res = float(admm.rho * np.linalg.norm(new_beta - beta))
             beta = new_beta
             duals += beta_k - beta
@@ -227,11 +233,11 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     values, report = admm_solve(problem, config, admm, track=track, ctx=ctx)
     report.iterations += stage_iterations
     est = extract_estimate(problem, values, ctx)
-    extra_frames, extra_track = [], {}
-    if marginals or diagnostics:
-        from pedx_graph.solvers.diagnostics import track_extras
+    from pedx_graph.solvers.diagnostics import track_extras
 
-        extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics, fit_config=config)
+    # the body plausibility fields always, covariances / diagnostics when asked
+    extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics, fit_config=config,
+                                             frames=track.frames)
     extra_track.update({"admm_iterations": report.iterations, "admm_converged": report.converged,
                         "admm_primal_residual": report.primal_residuals[-1] if report.primal_residuals else None,
                         "admm_dual_residual": report.dual_residuals[-1] if report.dual_residuals else None})

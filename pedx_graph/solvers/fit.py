@@ -102,14 +102,12 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
         problem, values, report = solve_staged(track, ctx, config)
     est = extract_estimate(problem, values, ctx)
     seconds = time.perf_counter() - t0
-    per_frame, per_track = [], {}
-    if config.covariances or config.diagnostics:
-        from pedx_graph.solvers.diagnostics import track_extras
+    from pedx_graph.solvers.diagnostics import track_extras
 
-        t1 = time.perf_counter()
-        per_frame, per_track = track_extras(problem, values, ctx, marginals=config.covariances,
-                                            diagnostics=config.diagnostics, fit_config=config)
-        per_track["extras_seconds"] = time.perf_counter() - t1
+    t1 = time.perf_counter()       # the body plausibility fields always, covariances / diagnostics if asked
+    per_frame, per_track = track_extras(problem, values, ctx, marginals=config.covariances,
+                                        diagnostics=config.diagnostics, fit_config=config, frames=track.frames)
+    per_track["extras_seconds"] = time.perf_counter() - t1
     if report.flips:
         per_track["flips"] = report.flips
     return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,

@@ -40,7 +40,7 @@ import gtsam
 import numpy as np
 
 from factors.common import FrameKeys
-from factors.shape_prior import make_shape_prior_factor
+from factors.shape_prior import shape_factors
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.build import frame_factors
@@ -270,8 +270,9 @@ class StreamingEstimator:
                                           init.heading_sigma_rad, ground=self.ground):
             add(factor, kind)
         if i == 0:
-            add(make_shape_prior_factor(k.betas, num_betas=model.num_betas, sigma=noise.shape_sigma),
-                "shape_prior")
+            for factor in shape_factors(k.betas, model.num_betas, noise.shape_sigma, noise.shape_support_sd,
+                                        noise.shape_support_sigma):
+                add(factor, "shape_prior")
         return graph, init
 
     def _presolve_factors(self, graph: gtsam.NonlinearFactorGraph, kinds: list[str]):
@@ -656,12 +657,13 @@ class StreamingEstimator:
             "stream_finalize_seconds": finalize_s,
             "stream_final_from": final_from,
         }
-        if self.stream_config.marginals or self.stream_config.diagnostics:
-            from pedx_graph.solvers.diagnostics import track_extras
+        from pedx_graph.solvers.diagnostics import track_extras
 
-            extra_frames, track_fields = track_extras(problem, values, self.ctx, self.stream_config.marginals,
-                                                      self.stream_config.diagnostics, fit_config=self.config)
-            extra_track.update(track_fields)
+        # the body plausibility fields always, covariances / diagnostics when asked
+        extra_frames, track_fields = track_extras(problem, values, self.ctx, self.stream_config.marginals,
+                                                  self.stream_config.diagnostics, fit_config=self.config,
+                                                  frames=state.frames)
+        extra_track.update(track_fields)
         graph_error = float(problem.graph.error(values))
         return TrackResult(sequence=state.sequence, tracking_id=state.tracking_id,
                            frames=[fr.frame for fr in state.frames], pose=est.pose, betas=est.betas,
