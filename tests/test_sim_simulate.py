@@ -250,3 +250,18 @@ def test_default_body_model_smoke(tmp_path):
     assert summary["labels_2d"] > 0 and summary["smpl_labels"] > 0
     tracks = read_dataset(tmp_path / "out")
     assert tracks and all(len(t.tracking_id) == 32 for t in tracks)
+
+
+def test_default_rig_writes_in_the_sim_frame(sim_run):
+    """Default rig: output frame = sim frame (z up, LiDAR at the origin); meta's ground record says so."""
+    out, cfg, summary = sim_run
+    meta = json.loads((out / "truth" / "meta.json").read_text())
+    assert meta["rig"] == "default" and summary["rig"] == "default"
+    np.testing.assert_array_equal(meta["output_T_sim"], np.eye(4))
+    assert meta["ground"] == {"world_up": [0.0, 0.0, 1.0], "ground_offset_m": -cfg.lidar.height_m}
+    truth = np.load(out / "truth" / meta["sequence"] / f"{meta['sequence']}_0000000.npz")
+    ground = truth["scene_points"][truth["scene_object_id"] == 0]
+    assert np.percentile(np.abs(ground[:, 2] + cfg.lidar.height_m), 95) < 4 * cfg.lidar.range_noise_m
+    assert summary["labelled_instances"] == summary["smpl_labels"]
+    assert sum(summary["labelled_instances_per_pair"].values()) >= summary["labelled_instances"]
+    assert summary["labelled_instances_both_pairs"] == 0          # forward and left pairs do not overlap

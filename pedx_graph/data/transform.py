@@ -148,7 +148,8 @@ def _ply_bytes(path: Path, dst_T_src: np.ndarray) -> bytes:
     data = path.read_bytes()
     end = data.find(b"end_header")
     header = data[:max(end, 0)].decode("ascii", errors="replace")
-    elements = [line.split()[1] for line in header.splitlines() if line.startswith("element ") and len(line.split()) > 1]
+    elements = [line.split()[1] for line in header.splitlines()
+                if line.startswith("element ") and len(line.split()) > 1]
     if any(name != "vertex" for name in elements):
         logger.warning("%s: only the vertex element is kept (file has %s)", path, elements)
     props = read_ply_vertices(path)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -359,7 +360,8 @@ class SimConfig:
                 pair.image_down is not None and _unit_ok(pair.optical_axis)
                 and _unit_ok(np.cross(pair.optical_axis, pair.image_down)))
             checks.append((f"cameras.{slot}.optical_axis", axis_ok))
-            checks.append((f"cameras.{slot}.optical_axis", self.cameras.frame == "sim" or pair.optical_axis is not None))
+            checks.append((f"cameras.{slot}.optical_axis",
+                           self.cameras.frame == "sim" or pair.optical_axis is not None))
         for key, ok in checks:
             if not ok:
                 raise ConfigError(f"{source}: config key '{key}' is out of range")
@@ -484,7 +486,7 @@ def load_sim_config(path: str | os.PathLike | None = None, rig: str | None = Non
     data: dict = {}
     if path is not None:
         try:
-            data = yaml.safe_load(open(path).read()) or {}
+            data = yaml.safe_load(Path(path).read_text()) or {}
         except FileNotFoundError as exc:
             raise ConfigError(f"{path}: config file not found") from exc
         except yaml.YAMLError as exc:
