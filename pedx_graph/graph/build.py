@@ -33,6 +33,7 @@ from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.body import BodyModel
 from pedx_graph.data.ground import GroundFrame
+from pedx_graph.data.noise_estimate import chamfer_sigma_m, keypoint_row_sigmas_px
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.config import FitConfig
@@ -264,12 +265,12 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
     if views:
         add(make_reprojection_factor(
             k, model, images_from_views(views, calibrations),
-            sigma_px=noise.keypoint_sigma_px, sigma_occluded_px=noise.occluded_keypoint_sigma_px,
+            sigma_px=keypoint_row_sigmas_px(noise), sigma_occluded_px=noise.occluded_keypoint_sigma_px,
             keypoint_weights=_hip_weights(config), robust=_robust(noise.reprojection_loss),
             robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
     points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
     if terms.lidar_chamfer and len(points):
-        add(make_lidar_chamfer_factor(k, model, points, sigma_m=noise.lidar_sigma_m,
+        add(make_lidar_chamfer_factor(k, model, points, sigma_m=chamfer_sigma_m(noise),
                                       robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
                                       candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
     if terms.translation_prior and len(points):

@@ -285,6 +285,12 @@ def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitC
     t0 = time.perf_counter()
     tracks = read_dataset(dataset, sequences=sequences)
     summary = {"dataset": str(dataset), "solver": solver, "tracks": [], "failed": [], "workers": workers}
+    # click noise per keypoint and LiDAR range noise from the data, once per dataset, into the config the
+    # workers get (fit_config.yaml keeps the config as given); what was used goes into summary.json
+    from pedx_graph.data.noise_estimate import resolve_noise
+    resolved = resolve_noise(tracks, config.noise)
+    config = dataclasses.replace(config, noise=resolved.noise)
+    summary["noise"] = resolved.record
     return write_outcomes(fit_tracks(tracks, config, workers, solver), out, summary, t0)
 
 
