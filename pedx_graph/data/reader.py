@@ -31,12 +31,13 @@ import os
 import re
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from pedx_graph.data.calib import read_calibrations, split_pair
+from pedx_graph.data.ground import GroundConfig, GroundFrame, estimate_ground
 from pedx_graph.data.labels2d import Label2D, iter_label2d_files, read_label2d
 from pedx_graph.data.ply import pointcloud_path, read_ply_points, segment_path
 from pedx_graph.data.smpl_labels import N_BETAS, parse_smpl_label_name, read_smpl_label
@@ -57,6 +58,8 @@ class ReaderConfig:
     """Read the LiDAR segment PLY of every instance (False: empty point arrays)."""
     timestamps_kind: str = "pointclouds"
     """Which timestamps file gives frame times: ``timestamps-<kind>-<seq>.txt``."""
+    ground: GroundConfig = field(default_factory=GroundConfig)
+    """How each sequence's up axis, ground plane and viewpoint are derived (:mod:`pedx_graph.data.ground`)."""
 
 
 def resolve_root(root: str | os.PathLike) -> Path:
@@ -258,7 +261,8 @@ def _choose_pair(frame_views: dict[str, dict[str, Label2D]]) -> str:
 
 def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[tuple[int, str, Path]],
                     calibrations: dict[str, StereoCalibration], sides: dict[str, tuple[str, str]],
-                    times: dict[int, float], config: ReaderConfig) -> Track | None:
+                    times: dict[int, float], config: ReaderConfig, ground: GroundFrame | None = None
+                    ) -> Track | None:
     by_frame: dict[int, dict[str, dict[str, Label2D]]] = defaultdict(lambda: defaultdict(dict))
     for frame, camera, path in sorted(entries):
         try:
@@ -296,7 +300,7 @@ def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[t
         return None
     used = sorted({name for f in frames for name in f.pairs})
     return Track(sequence=sequence, tracking_id=tracking_id, frames=frames,
-                 calibrations={pair: calibrations[pair] for pair in used})
+                 calibrations={pair: calibrations[pair] for pair in used}, ground=ground)
 
 
 def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
@@ -325,9 +329,10 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
         table = _sequence_timestamps(root, sequence, config)
         all_frames = {frame for entries in index.values() for frame, _, _ in entries}
         times = frame_times(all_frames, table, config.fps, where=sequence)
+        ground = sequence_ground(root, sequence, calibrations, config.ground)
         order = sorted(index, key=lambda tid: (min(f for f, _, _ in index[tid]), tid))
         for tid in order:
-            track = _assemble_track(root, sequence, tid, index[tid], calibrations, sides, times, config)
+            track = _assemble_track(root, sequence, tid, index[tid], calibrations, sides, times, config, ground)
             if track is not None:
                 n_tracks += 1
                 yield track
@@ -335,6 +340,44 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
         raise DataFormatError(root / "labels" / "2d", None,
                               f"no track could be read (sequences {chosen or available or 'none'}, "
                               f"{n_files} label files of calibrated cameras, categories {list(config.categories)})")
+
+
+def _evenly(items: list, count: int) -> list:
+    """At most ``count`` of ``items``, evenly spaced (first and last included)."""
+    if len(items) <= count:
+        return list(items)
+    return [items[int(round(i))] for i in np.linspace(0, len(items) - 1, count)]
+
+
+def sequence_ground(root: str | os.PathLike, sequence: str, calibrations: dict[str, StereoCalibration],
+                    config: GroundConfig | None = None) -> GroundFrame:
+    """The :class:`~pedx_graph.data.ground.GroundFrame` of one sequence: the calibration's up, refined by a
+    ground-plane fit of up to ``config.max_pointcloud_frames`` scene clouds (``pointclouds/<seq>/``, evenly
+    spaced), else of the lowest points of up to 400 pedestrian segments (``labels/3d/segment/<seq>/``).
+    Unreadable files are skipped with a warning naming them; too few points: a warning naming the
+    sequence and the calibration's up (:func:`~pedx_graph.data.ground.estimate_ground`)."""
+    config = config or GroundConfig()
+    root = resolve_root(root)
+
+    def read_some(paths: list[Path]) -> list[np.ndarray]:
+        out = []
+        for path in paths:
+            try:
+                out.append(read_ply_points(path))
+            except DataFormatError as exc:
+                logger.warning("%s; not used for the ground fit", exc)
+        return out
+
+    clouds = segments = None
+    if config.source in ("auto", "pointclouds"):
+        paths = sorted((root / "pointclouds" / sequence).glob(f"{sequence}_*.ply"))
+        if paths:
+            clouds = read_some(_evenly(paths, config.max_pointcloud_frames))
+    if config.source in ("auto", "segments"):
+        paths = sorted((root / "labels" / "3d" / "segment" / sequence).glob(f"{sequence}_*.ply"))
+        if paths:
+            segments = read_some(_evenly(paths, 400))
+    return estimate_ground(calibrations, clouds, segments, sequence=sequence, config=config)
 
 
 def read_dataset(root: str | os.PathLike, sequences: Iterable[str] | None = None,

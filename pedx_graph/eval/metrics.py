@@ -80,18 +80,20 @@ def weighted_mean(errors: np.ndarray, weights: np.ndarray) -> float:
     return float((np.asarray(errors) * w).sum() / total) if total > 0 else float("nan")
 
 
-def distance_bin(distance_m: float) -> str | None:
+def distance_bin(distance_m: float, bins: tuple[tuple[float, float], ...] = DISTANCE_BINS) -> str | None:
     """Label of the distance bin of a distance, e.g. ``"5-15"``; None outside every bin."""
-    for lo, hi in DISTANCE_BINS:
+    for lo, hi in bins:
         if lo <= distance_m < hi:
             return f"{lo:g}-{hi:g}"
     return None
 
 
-def summarise(glob: np.ndarray, rel: np.ndarray, weights: np.ndarray, distances: np.ndarray) -> dict:
+def summarise(glob: np.ndarray, rel: np.ndarray, weights: np.ndarray, distances: np.ndarray,
+              bins: tuple[tuple[float, float], ...] = DISTANCE_BINS) -> dict:
     """Tables of MPJPE (millimetres) from per-frame per-joint errors.
 
-    ``glob``, ``rel``, ``weights``: (N, 13); ``distances``: (N,) metres.  Returns a dict with ``overall``
+    ``glob``, ``rel``, ``weights``: (N, 13); ``distances``: (N,) metres; ``bins``: the distance bins, metres.
+    Returns a dict with ``overall``
     (global/root-relative, visibility-weighted and all joints), ``per_joint`` and ``per_distance``.
     """
     glob = np.asarray(glob) * 1000.0
@@ -113,8 +115,8 @@ def summarise(glob: np.ndarray, rel: np.ndarray, weights: np.ndarray, distances:
         },
         "per_distance": {},
     }
-    labels = np.array([distance_bin(float(d)) for d in distances], dtype=object)
-    for lo, hi in DISTANCE_BINS:
+    labels = np.array([distance_bin(float(d), bins) for d in distances], dtype=object)
+    for lo, hi in bins:
         key = f"{lo:g}-{hi:g}"
         sel = labels == key
         out["per_distance"][key] = {

@@ -319,7 +319,8 @@ def run_covariances(results: str | os.PathLike, truth: str | os.PathLike) -> dic
     return out
 
 
-def calibration(results: str | os.PathLike, truth: str | os.PathLike, model=None) -> dict:
+def calibration(results: str | os.PathLike, truth: str | os.PathLike, model=None,
+                bins: tuple[tuple[float, float], ...] = DISTANCE_BINS) -> dict:
     """NEES of the fitted keypoints under their covariances: per distance bin mean NEES / 3 and the fraction
     inside the 95 % ellipsoid (calibrated: 1 and 0.95), plus the coverage curve over
     :data:`CALIBRATION_LEVELS` (fraction with ``NEES <= chi2_3^-1(p)``) for all and for visible joints."""
@@ -370,15 +371,15 @@ def calibration(results: str | os.PathLike, truth: str | os.PathLike, model=None
                 "median_nees_over_dof": float(np.median(values) / 3),
                 "coverage95": float(np.mean(values <= CHI2_3_95))}
 
-    bins = np.array([distance_bin(d) for d in dist], dtype=object)
+    labels = np.array([distance_bin(d, bins) for d in dist], dtype=object)
     out = {"frames": int(len(dist)), "skipped_frames": skipped, "overall": stats(nees_arr),
            "visible": stats(nees_arr[vis_arr]), "occluded": stats(nees_arr[~vis_arr]), "per_distance": {},
            "curve": {"levels": list(CALIBRATION_LEVELS),
                      "all": [float(np.mean(nees_arr <= t)) for t in thresholds],
                      "visible": [float(np.mean(nees_arr[vis_arr] <= t)) for t in thresholds]}}
-    for lo, hi in DISTANCE_BINS:
+    for lo, hi in bins:
         key = f"{lo:g}-{hi:g}"
-        out["per_distance"][key] = stats(nees_arr[bins == key])
+        out["per_distance"][key] = stats(nees_arr[labels == key])
     return out
 
 

@@ -37,6 +37,7 @@ from pedx_graph.data.noise_estimate import chamfer_sigma_m, keypoint_row_sigmas_
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.config import FitConfig
+from pedx_graph.graph.monocular import BodySizePrior, body_size_prior
 from pedx_graph.graph.init import TrackInit, initialise_track, world_R_body_from_yaw
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
@@ -87,6 +88,9 @@ class EstimatorContext:
     template_body_pose: np.ndarray
     template_candidates: np.ndarray | None = None
     """(C, 69) body poses tried per frame as the starting pose (best reprojection of the 2D labels)."""
+    size_prior: BodySizePrior | None = None
+    """The body model's segment heights over walking poses and shapes, for the depth of frames seen by one
+    camera without LiDAR (:mod:`pedx_graph.graph.monocular`); None: such frames stay unplaced."""
 
     @staticmethod
     def create(config: FitConfig) -> "EstimatorContext":
@@ -107,9 +111,11 @@ class EstimatorContext:
         candidates = np.vstack([means, np.zeros((1, means.shape[1]))])
         rest = model.forward(np.zeros(72), np.zeros(model.num_betas), np.zeros(3)).vertices
         ids = farthest_point_subset(rest, config.chamfer_vertices, seed=0)
+        size_prior = body_size_prior(model, pose_prior, shape_sigma=config.noise.shape_sigma)
         return EstimatorContext(model=model, pose_mixture=pose_mixture, temporal_mixture=temporal_mixture,
                                 temporal_dt=float(temporal_prior.dt), chamfer_vertex_ids=ids,
-                                template_body_pose=template, template_candidates=candidates)
+                                template_body_pose=template, template_candidates=candidates,
+                                size_prior=size_prior)
 
 
 @dataclass
@@ -187,15 +193,15 @@ def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.n
     return points
 
 
-def core_points(world_points: np.ndarray, world_up: np.ndarray, radius_m: float = 0.5) -> np.ndarray:
-    """The instance points within ``radius_m`` (measured in the ground plane, ``world_up`` (3,) unit) of their
-    median: the 2D polygons also pick up background and other people's points, which would drag a plain mean
-    (paper Eq. 2) by metres."""
+def core_points(world_points: np.ndarray, ground: GroundFrame, radius_m: float = 0.5) -> np.ndarray:
+    """The instance points within ``radius_m`` (measured in the ground plane of ``ground``) of their median
+    (:meth:`GroundFrame.median_point`): the 2D polygons also pick up background and other people's points,
+    which would drag a plain mean (paper Eq. 2) by metres."""
     if len(world_points) < 3:
         return world_points
-    median = np.median(world_points, axis=0)
+    median = ground.median_point(world_points)
     offset = world_points - median
-    offset = offset - np.outer(offset @ world_up, world_up)
+    offset = offset - np.outer(offset @ ground.world_up, ground.world_up)
     keep = np.linalg.norm(offset, axis=1) <= radius_m
     return world_points[keep] if keep.any() else world_points
 
@@ -274,7 +280,7 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
                                       robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
                                       candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
     if terms.translation_prior and len(points):
-        add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points, ground.world_up),
+        add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points, ground),
                                           world_up=ground.world_up, world_p_sensor=ground.world_p_sensor,
                                           num_betas=model.num_betas,
                                           depth_offset_m=noise.translation_depth_offset_m,
@@ -326,7 +332,9 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     nb = model.num_betas
     if init is None:
         init = initialise_track(track, surface_offset_m=noise.translation_depth_offset_m,
-                                min_speed_mps=noise.heading_min_speed_mps)
+                                min_speed_mps=noise.heading_min_speed_mps, size_prior=ctx.size_prior,
+                                all_views=config.terms.all_views, sigma_px=noise.keypoint_sigma_px,
+                                occluded_sigma_px=noise.occluded_keypoint_sigma_px)
     world_R_body = init.world_R_body if yaw_override is None else world_R_body_from_yaw(yaw_override, track.ground)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()

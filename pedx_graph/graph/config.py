@@ -7,6 +7,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pedx_graph.data.ground import GroundConfig
+from pedx_graph.data.reader import ReaderConfig
+
 
 @dataclass
 class NoiseConfig:
@@ -202,7 +205,10 @@ class FitConfig:
     1 (docs/solvers.md): keypoint NEES/dof 1.33 -> 0.83, translation 1.59 -> 0.95, and MPJPE 50.5 -> 46.2 mm
     on the fit benchmark."""
     fps: float = 10.0
-    """Nominal frame rate of synchronised samples, used when timestamps are missing."""
+    """Frame rate of the synchronised samples (Hz): ``timestamp = frame / fps`` for a sequence without a
+    timestamps file (the reader's; the temporal prior's frame gap follows from the timestamps)."""
+    ground: GroundConfig = field(default_factory=GroundConfig)
+    """How each sequence's up axis, ground plane and viewpoint are derived (overrides, robust-fit settings)."""
     chamfer_vertices: int = 1500
     """Number of model vertices (farthest-point subsample, fixed per model) the chamfer term matches against."""
     noise: NoiseConfig = field(default_factory=NoiseConfig)
@@ -217,3 +223,7 @@ class FitConfig:
     """Write marginal covariances (translation, root, body pose, 18 keypoints per frame; shape per track)."""
     diagnostics: bool = True
     """Write per-track diagnostics (residuals per factor type and frame, outliers, weakest directions)."""
+
+    def reader_config(self) -> ReaderConfig:
+        """The :class:`~pedx_graph.data.reader.ReaderConfig` this fit reads its dataset with (fps, ground)."""
+        return ReaderConfig(fps=self.fps, ground=self.ground)

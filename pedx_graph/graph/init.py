@@ -1,7 +1,9 @@
 """Initial values of a track's graph, as the paper initialises (Sec. IV-B).
 
-* translation from the LiDAR instance points (median, robust to mislabeled points), or from stereo
-  triangulation of the labelled hips/torso when a frame has no LiDAR points;
+* translation from the LiDAR instance points (median, robust to mislabeled points), or from the triangulation
+  of the labelled keypoints over every camera that labels them (both stereo pairs: a ~1 m baseline on the
+  PedX rig) when a frame has no LiDAR points, or — one camera, no LiDAR — from the body's size
+  (:mod:`pedx_graph.graph.monocular`); each frame records which (``TrackInit.depth_source``);
 * heading from the LiDAR (or triangulated) trajectory, smoothed over neighbouring frames; at low speed from
   the triangulated torso (left-right shoulder/hip line); the body stands upright (body +Y = the sequence's
   up axis, :class:`~pedx_graph.data.ground.GroundFrame`: derived from the data, never a fixed world axis);
@@ -13,6 +15,7 @@ A single-frame track (no trajectory) gets a torso-only orientation search in :mo
 """
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 
@@ -20,6 +23,8 @@ import numpy as np
 
 from pedx_graph.data.ground import GroundFrame
 from pedx_graph.data.types import Track, TrackFrame
+from pedx_graph.graph.monocular import frame_monocular_depth
+from pedx_graph.graph.triangulate import triangulate_views
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
 _IDX = {name: i for i, name in enumerate(PEDX_KEYPOINTS)}
@@ -83,6 +88,8 @@ class TrackInit:
     """(T, 3) median of the instance LiDAR points, NaN where a frame has none."""
     times: np.ndarray
     """(T,) seconds."""
+    depth_source: list[str] | None = None
+    """(T,) what placed each frame in depth (:attr:`FrameMeasurements.depth_source`); None: not recorded."""
     heading_sigma_rad: np.ndarray | None = None
     """(T,) standard deviation of ``heading_yaw`` from the uncertainty of the trajectory's depth trend
     (LiDAR or stereo depth), radians (inf where unknown); None: not estimated."""
@@ -200,24 +207,60 @@ class FrameMeasurements:
     """Facing (radians, level frame) from the triangulated shoulders / hips (forward = left x up); NaN when
     unknown."""
     placeable: bool
-    """The frame can place the pedestrian on its own (>= 3 LiDAR points or a triangulated torso joint)."""
+    """The frame can place the pedestrian on its own (>= 3 LiDAR points, a triangulated torso joint or a
+    body-size depth)."""
+    size_depth: float = float("nan")
+    """Rectified depth of the body centre from the body's size in one image (:mod:`pedx_graph.graph.monocular`),
+    metres; NaN when not needed (LiDAR or triangulation place the frame) or not available."""
+    size_sigma: float = float("nan")
+    """Standard deviation of ``size_depth``, metres (mostly the person's unknown size: the same every frame)."""
+    depth_source: str = "none"
+    """What places the frame in depth: ``lidar``, ``stereo`` (one pair), ``multi_view`` (cameras of several
+    pairs), ``body_size`` (one camera, no LiDAR) or ``none``."""
 
 
-def measure_frame(calib, frame: TrackFrame, ground: GroundFrame, surface_offset_m: float = 0.10,
-                  stereo_px: float = 3.0) -> FrameMeasurements:
-    """The per-frame measurements of :func:`initialise_track` (see its docstring for the parameters)."""
+def _effective_baseline(frame: TrackFrame, calibrations, world_p: np.ndarray, all_views: bool) -> float:
+    """The widest separation, across the viewing ray to ``world_p`` (3,), of the optical centres of the cameras
+    labelling ``frame``, metres (the in-pair baseline for one pair; ~1 m for both PedX pairs)."""
+    centres = []
+    for pair, side, _ in frame.labelled_views(all_views):
+        calib = calibrations[pair]
+        world_R_rect = calib.world_T_cam[:3, :3] @ calib.rect_R_cam.T
+        centre = calib.world_T_cam[:3, 3] + (world_R_rect[:, 0] * calib.baseline_m if side == "right" else 0.0)
+        centres.append(centre)
+    centres = np.asarray(centres)
+    ray = world_p - centres.mean(axis=0)
+    ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
+    across = centres - np.outer(centres @ ray, ray)
+    diffs = across[:, None] - across[None]
+    return float(np.max(np.linalg.norm(diffs, axis=-1))) if len(centres) > 1 else 0.0
+
+
+def measure_frame(calibrations, frame: TrackFrame, ground: GroundFrame, surface_offset_m: float = 0.10,
+                  stereo_px: float = 3.0, *, size_prior=None, all_views: bool = True,
+                  sigma_px: float | np.ndarray = 3.0, occluded_sigma_px: float = 12.0) -> FrameMeasurements:
+    """The per-frame measurements of :func:`initialise_track` (see its docstring for the parameters).
+
+    ``calibrations``: the track's stereo pairs by name (``Track.calibrations``); ``size_prior``: a
+    :class:`~pedx_graph.graph.monocular.BodySizePrior` for frames that neither LiDAR nor two cameras place
+    (None: such frames stay unplaced); ``all_views``: triangulate over every labelled camera (else the
+    primary pair's only); ``sigma_px`` / ``occluded_sigma_px``: click noise for the body-size depth.
+    """
+    calib = calibrations[frame.pair]
     centroid = _lidar_centroid(frame, ground)
     lidar_depth = float(calib.world_to_rect(centroid)[2] + surface_offset_m) if np.all(np.isfinite(centroid)) \
         else float("nan")
-    tri = _triangulate(calib, frame)
+    tri = triangulate_views(frame, calibrations, all_pairs=all_views, visible_only=True)
     ok = np.all(np.isfinite(tri), axis=1)
-    if frame.left is not None and frame.right is not None:
-        ok &= frame.left.visible & frame.right.visible
     stereo_depth = stereo_sigma = float("nan")
+    source = "lidar" if np.isfinite(lidar_depth) else "none"
     if ok.any():
         z = float(np.median(calib.world_to_rect(tri[ok])[:, 2]))
         stereo_depth = z
-        stereo_sigma = max(0.2, z * z / (calib.focal_px * calib.baseline_m) * stereo_px / np.sqrt(ok.sum()))
+        baseline = _effective_baseline(frame, calibrations, np.median(tri[ok], axis=0), all_views)
+        stereo_sigma = max(0.2, z * z / (calib.focal_px * max(baseline, 1e-3)) * stereo_px / np.sqrt(ok.sum()))
+        if source == "none":
+            source = "multi_view" if len({p for p, _, _ in frame.labelled_views(all_views)}) > 1 else "stereo"
     with np.errstate(invalid="ignore"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN rows: no torso this frame
@@ -226,14 +269,28 @@ def measure_frame(calib, frame: TrackFrame, ground: GroundFrame, surface_offset_
     torso_yaw = float(np.arctan2(-level_left[0], level_left[1]))   # forward = (l_y, -l_x) for left = (l_x, l_y)
     torso = tri[list(_TORSO_LEFT + _TORSO_RIGHT)]
     placeable = bool(np.all(np.isfinite(centroid)) or np.isfinite(torso).any())
+    centre_pixel = _centre_pixel(frame)
+    size_depth = size_sigma = float("nan")
+    if not placeable and not np.isfinite(stereo_depth) and size_prior is not None:
+        views = frame if all_views else dataclasses.replace(frame, other_views={})
+        est = frame_monocular_depth(views, calibrations, size_prior,
+                                    world_up=ground.world_up, sigma_px=sigma_px,
+                                    occluded_sigma_px=occluded_sigma_px)
+        if est is not None:
+            calib = calibrations[est.pair]
+            size_depth, size_sigma = est.depth_m, est.sigma_m
+            centre_pixel = (est.centre_uv, est.side)
+            placeable, source = True, "body_size"
     return FrameMeasurements(time=float(frame.timestamp), calibration=calib, lidar_centroid=centroid,
                              lidar_depth=lidar_depth, stereo_depth=stereo_depth, stereo_sigma=stereo_sigma,
-                             centre_pixel=_centre_pixel(frame), torso_yaw=torso_yaw, placeable=placeable)
+                             centre_pixel=centre_pixel, torso_yaw=torso_yaw, placeable=placeable,
+                             size_depth=size_depth, size_sigma=size_sigma, depth_source=source)
 
 
 def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
                      min_speed_mps: float = 0.3, lidar_sigma_m: float = 0.15, stereo_px: float = 3.0,
-                     depth_window_s: float = 1.0) -> TrackInit:
+                     depth_window_s: float = 1.0, size_prior=None, all_views: bool = True,
+                     sigma_px: float | np.ndarray = 3.0, occluded_sigma_px: float = 12.0) -> TrackInit:
     """Initial orientation and centre (pelvis) of every frame of ``track``.
 
     Centre: on the camera ray of the labelled hips (so the image position is right), at a depth smoothed
@@ -244,10 +301,14 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
     pixels of independent click noise are metres at 30 m), so LiDAR dominates where it exists, but frames
     without points follow the stereo trend instead of a flat extrapolation (which, through the heading
     taken from the same trajectory, used to lock walking-towards-the-camera tracks at a wrong depth).
+    A frame seen by one camera without LiDAR points takes the body-size depth (``size_prior``,
+    :mod:`pedx_graph.graph.monocular`) with its sigma; a track of such frames only is still placed.
 
     The per-frame part is :func:`measure_frame`, the rest :func:`initialise_from_measurements`.
     """
-    measurements = [measure_frame(track.calibrations[fr.pair], fr, track.ground, surface_offset_m, stereo_px)
+    measurements = [measure_frame(track.calibrations, fr, track.ground, surface_offset_m, stereo_px,
+                                  size_prior=size_prior, all_views=all_views, sigma_px=sigma_px,
+                                  occluded_sigma_px=occluded_sigma_px)
                     for fr in track.frames]
     return initialise_from_measurements(measurements, track.ground, f"{track.sequence}/{track.tracking_id}",
                                         half_window_s=half_window_s, min_speed_mps=min_speed_mps,
@@ -269,11 +330,16 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], ground: 
     lidar_depth = _median_filter_nan(np.array([m.lidar_depth for m in measurements], dtype=float), half_window=2)
     stereo_depth = np.array([m.stereo_depth for m in measurements], dtype=float)
     stereo_sigma = np.array([m.stereo_sigma for m in measurements], dtype=float)
-    depth_obs = np.where(np.isfinite(lidar_depth), lidar_depth, stereo_depth)
-    depth_sigma = np.where(np.isfinite(lidar_depth), lidar_sigma_m, stereo_sigma)
+    size_depth = np.array([m.size_depth for m in measurements], dtype=float)
+    size_sigma = np.array([m.size_sigma for m in measurements], dtype=float)
+    depth_obs = np.where(np.isfinite(lidar_depth), lidar_depth, np.where(np.isfinite(stereo_depth), stereo_depth,
+                                                                         size_depth))
+    depth_sigma = np.where(np.isfinite(lidar_depth), lidar_sigma_m, np.where(np.isfinite(stereo_depth),
+                                                                             stereo_sigma, size_sigma))
     good = np.isfinite(depth_obs)
     if not good.any():
-        raise ValueError(f"track {name}: no LiDAR points and no stereo keypoints to place the pedestrian")
+        raise ValueError(f"track {name}: no LiDAR points, no keypoint seen by two cameras and no body-size "
+                         "depth to place the pedestrian")
     depth, depth_rate_sigma = _local_linear(times, depth_obs, depth_sigma, depth_window_s)
 
     centre = np.full((n, 3), np.nan)
@@ -320,4 +386,5 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], ground: 
         for i in np.flatnonzero(~np.isfinite(yaw)):
             yaw[i] = yaw[known[np.argmin(np.abs(known - i))]]
     return TrackInit(world_R_body=world_R_body_from_yaw(yaw, ground), world_p_centre=centre, heading_yaw=heading,
-                     speed_mps=speed, lidar_centroid=centroids, times=times, heading_sigma_rad=heading_sigma)
+                     speed_mps=speed, lidar_centroid=centroids, times=times, heading_sigma_rad=heading_sigma,
+                     depth_source=[m.depth_source for m in measurements])

@@ -216,7 +216,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     """Fit one track with ADMM (same graph, staging and outputs as :func:`pedx_graph.solvers.fit.fit_track`;
     ``iterations`` counts the ADMM iterations of both stages)."""
     from pedx_graph.graph.build import build_track_graph, extract_estimate
-    from pedx_graph.solvers.fit import TrackResult, _context, coarse_stage_config
+    from pedx_graph.solvers.fit import TrackResult, _context, coarse_stage_config, record_depth_sources
 
     config = config or FitConfig()
     ctx = context or _context(config)
@@ -238,6 +238,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     # the body plausibility fields always, covariances / diagnostics when asked
     extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics, fit_config=config,
                                              frames=track.frames)
+    record_depth_sources(problem.init, extra_frames, extra_track)
     extra_track.update({"admm_iterations": report.iterations, "admm_converged": report.converged,
                         "admm_primal_residual": report.primal_residuals[-1] if report.primal_residuals else None,
                         "admm_dual_residual": report.dual_residuals[-1] if report.dual_residuals else None})

@@ -168,7 +168,8 @@ class BatchedLinearizer:
                 groups.setdefault((spec.limits, spec.sigma_rad), []).append(n)
             setup["groups"] = [(limits, sigma, np.array(members)) for (limits, sigma), members in groups.items()]
         elif kind == "heading_prior":
-            setup["heading"] = np.stack([sp.world_heading for sp in specs])
+            setup["heading"] = np.stack([sp.level_heading for sp in specs])
+            setup["level"] = np.stack([sp.world_R_level for sp in specs])
             setup["sigma"] = np.array([sp.sigma_rad for sp in specs])[:, None]
         else:
             for name in ("world_p_mean", "world_R_ray", "offsets", "sigmas"):
@@ -196,7 +197,7 @@ class BatchedLinearizer:
                     np.add.at(system.grad_frame, (firsts, cols), coef * (-r / sigma))
             return (total,)
         if kind == "heading_prior":
-            r, jac = heading_prior_batch(arrays["world_R_body"][frames], setup["heading"])
+            r, jac = heading_prior_batch(arrays["world_R_body"][frames], setup["heading"], setup["level"])
             jac = jac[:, None, :]
             r = r[:, None]
             sig = setup["sigma"]

@@ -76,7 +76,7 @@ _WORKER: dict = {}
 
 def _context(config: FitConfig):
     key = (config.body_model, config.pose_prior, config.temporal_prior, config.prior_covariance_scale,
-           config.chamfer_vertices)
+           config.chamfer_vertices, config.noise.shape_sigma)
     if "threads" not in _WORKER:
         # Small dense products: BLAS threads only add overhead (measured ~2x on 2 cores); processes
         # over tracks use the cores instead.
@@ -108,6 +108,7 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
     per_frame, per_track = track_extras(problem, values, ctx, marginals=config.covariances,
                                         diagnostics=config.diagnostics, fit_config=config, frames=track.frames)
     per_track["extras_seconds"] = time.perf_counter() - t1
+    record_depth_sources(problem.init, per_frame, per_track)
     if report.flips:
         per_track["flips"] = report.flips
     return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
@@ -116,6 +117,22 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
                        final_error=report.final_error, initial_error=report.initial_error,
                        iterations=report.iterations, seconds=seconds, solver=f"lm-{report.backend}",
                        extra_per_frame=per_frame, extra_track=per_track)
+
+
+def record_depth_sources(init, per_frame: list[dict], per_track: dict) -> None:
+    """What placed each frame in depth (``TrackInit.depth_source``: lidar, stereo, multi_view, body_size) into
+    the per-frame fields, and their counts into the track's (``depth_sources``); a track placed by body size
+    alone is flagged ``depth_from_body_size`` (its depth is as uncertain as the person's size)."""
+    sources = None if init is None else init.depth_source
+    if not sources:
+        return
+    for fields, source in zip(per_frame, sources):
+        fields["depth_source"] = source
+    counts: dict[str, int] = {}
+    for source in sources:
+        counts[source] = counts.get(source, 0) + 1
+    per_track["depth_sources"] = dict(sorted(counts.items()))
+    per_track["depth_from_body_size"] = set(counts) <= {"body_size", "none"} and "body_size" in counts
 
 
 def coarse_stage_config(config: FitConfig) -> FitConfig:
@@ -283,8 +300,9 @@ def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitC
     out.mkdir(parents=True, exist_ok=True)
     save_config(config, out / "fit_config.yaml")
     t0 = time.perf_counter()
-    tracks = read_dataset(dataset, sequences=sequences)
-    summary = {"dataset": str(dataset), "solver": solver, "tracks": [], "failed": [], "workers": workers}
+    tracks = read_dataset(dataset, sequences=sequences, config=config.reader_config())
+    summary = {"dataset": str(dataset), "solver": solver, "tracks": [], "failed": [], "workers": workers,
+               "ground": sequence_grounds(tracks)}
     # click noise per keypoint and LiDAR range noise from the data, once per dataset, into the config the
     # workers get (fit_config.yaml keeps the config as given); what was used goes into summary.json
     from pedx_graph.data.noise_estimate import resolve_noise
@@ -292,6 +310,12 @@ def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitC
     config = dataclasses.replace(config, noise=resolved.noise)
     summary["noise"] = resolved.record
     return write_outcomes(fit_tracks(tracks, config, workers, solver), out, summary, t0)
+
+
+def sequence_grounds(tracks: list[Track]) -> dict:
+    """Sequence -> the up axis, ground plane and viewpoint its tracks were fitted in (for ``summary.json``)."""
+    return {tr.sequence: tr.ground.to_dict() for tr in sorted(tracks, key=lambda t: t.sequence)
+            if tr.ground is not None}
 
 
 def write_outcomes(outcomes, out: Path, summary: dict, t0: float) -> dict:

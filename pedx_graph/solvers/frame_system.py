@@ -200,7 +200,8 @@ def _add_direct(kind: str, specs: list, frames: np.ndarray, arrays: dict, hess: 
             np.add.at(const, rows, np.sum((r / sigma) ** 2, axis=1))
         return
     if kind == "heading_prior":
-        r, jac = heading_prior_batch(arrays["world_R_body"][frames], np.stack([sp.world_heading for sp in specs]))
+        r, jac = heading_prior_batch(arrays["world_R_body"][frames], np.stack([sp.level_heading for sp in specs]),
+                                     np.stack([sp.world_R_level for sp in specs]))
         jac, r = jac[:, None, :], r[:, None]
         sig = np.array([sp.sigma_rad for sp in specs])[:, None]
         cols = np.arange(ROOT_DIM)

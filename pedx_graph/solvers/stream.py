@@ -456,8 +456,13 @@ class StreamingEstimator:
         state.keys.append(FrameKeys.for_frame(i))
         n_kinds = len(state.kinds)
         try:
-            state.measurements.append(measure_frame(state.calibrations[fr.pair], fr, self.ground,
-                                                    self.config.noise.translation_depth_offset_m))
+            noise = self.config.noise
+            state.measurements.append(measure_frame(state.calibrations, fr, self.ground,
+                                                    noise.translation_depth_offset_m,
+                                                    size_prior=self.ctx.size_prior,
+                                                    all_views=self.config.terms.all_views,
+                                                    sigma_px=noise.keypoint_sigma_px,
+                                                    occluded_sigma_px=noise.occluded_keypoint_sigma_px))
             window = [m for m in state.measurements[-16:]
                       if fr.timestamp - m.time <= self.stream_config.heading_half_window_s + 1e-9]
             recorder = None
@@ -699,6 +704,7 @@ def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config:
 
     from pedx_graph.config import save_config
     from pedx_graph.data.reader import read_dataset
+    from pedx_graph.solvers.fit import sequence_grounds
     from pedx_graph.data.writer import write_results
     from pedx_graph.graph.build import EstimatorContext
     from pedx_graph.utils import atomic_write_json
@@ -712,11 +718,12 @@ def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config:
     t0 = time.perf_counter()
     with threadpool_limits(limits=1, user_api="blas"):
         ctx = ctx or EstimatorContext.create(config)
-        tracks = read_dataset(dataset, sequences=sequences)
+        tracks = read_dataset(dataset, sequences=sequences, config=config.reader_config())
         by_sequence: dict[str, list[Track]] = {}
         for tr in tracks:
             by_sequence.setdefault(tr.sequence, []).append(tr)
-        summary = {"dataset": str(dataset), "tracks": [], "failed": [], "solver": "isam2-stream"}
+        summary = {"dataset": str(dataset), "tracks": [], "failed": [], "solver": "isam2-stream",
+                   "ground": sequence_grounds(tracks)}
         latencies, cpu_latencies, isam_latencies = [], [], []
 
         def record(result):
