@@ -32,6 +32,8 @@ update) are formed for all of them in one batched pass without GTSAM callbacks
 """
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import time
 from dataclasses import dataclass, field
@@ -41,11 +43,11 @@ import numpy as np
 
 from factors.common import FrameKeys
 from factors.shape_prior import shape_factors
+from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.build import frame_factors
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements, measure_frame
 from pedx_graph.solvers.frame_system import (OWN_KINDS, RecordingBody, SpecRecorder, add_temporal_new_frame,
                                              frame_systems, register_sample, temporal_terms)
@@ -703,10 +705,11 @@ def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config:
     from threadpoolctl import threadpool_limits
 
     from pedx_graph.config import save_config
+    from pedx_graph.data.noise_estimate import resolve_noise
     from pedx_graph.data.reader import read_dataset
-    from pedx_graph.solvers.fit import sequence_grounds
     from pedx_graph.data.writer import write_results
     from pedx_graph.graph.build import EstimatorContext
+    from pedx_graph.solvers.fit import sequence_grounds
     from pedx_graph.utils import atomic_write_json
 
     config = config or FitConfig()
@@ -724,6 +727,10 @@ def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config:
             by_sequence.setdefault(tr.sequence, []).append(tr)
         summary = {"dataset": str(dataset), "tracks": [], "failed": [], "solver": "isam2-stream",
                    "ground": sequence_grounds(tracks)}
+        # the click and range noise from the data, as the batch fit (pedx_graph.data.noise_estimate)
+        resolved = resolve_noise(tracks, config.noise)
+        config = dataclasses.replace(config, noise=resolved.noise)
+        summary["noise"] = resolved.record
         latencies, cpu_latencies, isam_latencies = [], [], []
 
         def record(result):
