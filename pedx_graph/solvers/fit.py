@@ -149,13 +149,16 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     stereo reprojection's ``solver.coarse_reprojection_loss`` (graduated non-convexity), then with every
     term from that estimate.  Then, for tracks at range walking towards or away from the camera, the limb
     depth-flip search (:mod:`pedx_graph.solvers.flips`, ``solver.flip_*``), which only ever lowers the
-    error.  Returns (problem, values, report) of the final stage; the report's iterations and seconds
+    error; tracks labelled in one camera per frame always get the search.  Returns (problem, values, report) of the final stage; the report's iterations and seconds
     cover every stage and the search, its initial error is the full graph's at the first stage's
     estimate, ``report.flips`` records the search (empty when it did not run)."""
     problem, values, report = _two_stages(track, ctx, config, yaw_override)
-    if config.solver.flip_segments and len(track.frames) > 1 and \
-            track_distance_m(track, problem.init) >= config.solver.flip_min_distance_m and \
-            heading_ray_angle_deg(track, problem.init) <= config.solver.flip_max_heading_angle_deg:
+    # one camera per frame: a limb mirrored across the viewing ray projects the same at any range and
+    # heading, so such tracks always get the search; with stereo only far tracks walking along the ray do
+    one_camera = all(len(fr.labelled_views(config.terms.all_views)) <= 1 for fr in track.frames)
+    if config.solver.flip_segments and len(track.frames) > 1 and (one_camera or (
+            track_distance_m(track, problem.init) >= config.solver.flip_min_distance_m and
+            heading_ray_angle_deg(track, problem.init) <= config.solver.flip_max_heading_angle_deg)):
         from pedx_graph.solvers.flips import flip_search
 
         values, flips = flip_search(problem, values, track, ctx, config, _solver_parts(problem, config))
