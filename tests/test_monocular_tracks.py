@@ -66,3 +66,31 @@ def test_one_camera_tracks_get_results_with_an_honest_depth(scene):
         print(f"distance {distance:.1f} m: median |dz| {np.median(z_errors):.3f} m, median sigma {np.median(sigmas):.3f} m")
         checked += 1
     assert checked >= 2
+
+
+def _polygon_only(view):
+    return None if view is None else dataclasses.replace(view, keypoints=np.full_like(view.keypoints, np.nan),
+                                                         visible=np.zeros_like(view.visible))
+
+
+def test_polygon_only_track_with_lidar_gets_a_result_and_one_with_nothing_fails(scene):
+    """Keypoint-free labels (polygon-only files) plus LiDAR: placed by the points; neither: a clear failure."""
+    truth = read_smpl_labels(scene)
+    config = FitConfig()
+    ctx = _context(config)
+    track = max(read_dataset(scene), key=lambda t: min(len(fr.world_lidar_points) for fr in t.frames))
+    assert min(len(fr.world_lidar_points) for fr in track.frames) >= 20
+    stripped = dataclasses.replace(track, frames=[
+        dataclasses.replace(fr, left=_polygon_only(fr.left), right=_polygon_only(fr.right), other_views={})
+        for fr in track.frames])
+    result = fit_track(stripped, config, ctx)
+    assert result.extra_track["depth_sources"] == {"lidar": len(track.frames)}
+    by_frame = {lab.frame: lab for lab in truth[(track.sequence, track.tracking_id)]}
+    for i, frame in enumerate(result.frames):
+        g = by_frame[frame]
+        true_pelvis = np.asarray(ctx.model.keypoints(g.pose, g.betas, g.trans))[[12, 13]].mean(axis=0)
+        assert np.linalg.norm(result.world_keypoints[i, [12, 13]].mean(axis=0) - true_pelvis) < 0.18   # 0.07-0.12
+    nothing = dataclasses.replace(stripped, frames=[dataclasses.replace(fr, world_lidar_points=np.zeros((0, 3)))
+                                                    for fr in stripped.frames])
+    with pytest.raises(ValueError, match="no LiDAR points"):
+        fit_track(nothing, config, ctx)
