@@ -1,6 +1,7 @@
-"""Helpers shared by the benchmark scripts: the command line as recorded, a hardware note."""
+"""Helpers shared by the benchmark scripts: the command line as recorded, a hardware note, table cells."""
 from __future__ import annotations
 
+import math
 import os
 import platform
 
@@ -26,3 +27,10 @@ def hardware() -> str:
     return (f"{platform.machine()}, {os.cpu_count()} cores, {platform.processor() or 'unknown cpu'}, "
             f"Python {platform.python_version()}, {platform.system()}; load average at the end {load} "
             "(a shared machine: other jobs may have run beside the benchmark)")
+
+
+def cell(value, spec: str = ".1f") -> str:
+    """A markdown table cell: ``value`` formatted with ``spec``, or ``-`` when it is None or not finite."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, spec)

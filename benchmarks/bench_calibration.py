@@ -47,7 +47,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
 from bench_solvers import values_of  # noqa: E402
-from _common import public_args  # noqa: E402
+from _common import cell, public_args  # noqa: E402
 from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin  # noqa: E402
 from pedx_graph.graph.build import extract_estimate  # noqa: E402
@@ -292,8 +292,6 @@ def summarise(data: dict, split_consistent: bool = True) -> dict:
     return out
 
 
-def _f(x, spec=".2f"):
-    return "-" if x is None else format(x, spec)
 
 
 def to_markdown(result: dict) -> str:
@@ -308,7 +306,7 @@ def to_markdown(result: dict) -> str:
         if "consistent_only" in res:
             lines += [f"{res['inconsistent_frames']} frames flagged `fit_consistent = false` by the diagnostics "
                       f"(per distance bin {res['inconsistent_per_distance']}), mean keypoint error "
-                      f"{_f(res['inconsistent_keypoint_error_mm_mean'], '.1f')} mm. Without them:", ""]
+                      f"{cell(res['inconsistent_keypoint_error_mm_mean'], '.1f')} mm. Without them:", ""]
             lines += _tables(res["consistent_only"], "frames judged consistent")
         lines += _group_table(res) + _energy_table(res)
     if result.get("prior_overcount"):
@@ -334,7 +332,7 @@ def _group_table(res: dict) -> list[str]:
              "| distance (m) | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
     for key, row in res["per_distance"].items():
         g = row.get("keypoint_groups", {})
-        lines.append(f"| {key} | " + " | ".join(_f(g.get(name, {}).get("mean_nees_over_dof")) for name in groups) + " |")
+        lines.append(f"| {key} | " + " | ".join(cell(g.get(name, {}).get("mean_nees_over_dof"), '.2f') for name in groups) + " |")
     return lines + [""]
 
 
@@ -352,10 +350,10 @@ def _energy_table(res: dict) -> list[str]:
     for key, row in energy.items():
         pf = row["per_frame"]
         tot_e, tot_t = sum(v["estimate"] for v in pf.values()), sum(v["truth"] for v in pf.values())
-        cell = (lambda k: f"{pf[k]['estimate']:.1f} / {pf[k]['truth']:.1f}" if k in pf else "-")
+        pair = (lambda k: f"{pf[k]['estimate']:.1f} / {pf[k]['truth']:.1f}" if k in pf else "-")
         lines.append(f"| {key} | {row['tracks']} | {row['truth_lower']} | {row.get('truth_basin_lower', '-')} | "
-                     f"{tot_e:.1f} / {tot_t:.1f} | {_f(row.get('truth_solved_per_frame'), '.1f')} | "
-                     f"{cell('pose_prior')} | {cell('temporal_prior')} |")
+                     f"{tot_e:.1f} / {tot_t:.1f} | {cell(row.get('truth_solved_per_frame'), '.1f')} | "
+                     f"{pair('pose_prior')} | {pair('temporal_prior')} |")
     return lines + [""]
 
 
@@ -363,20 +361,20 @@ def _tables(res: dict, title: str) -> list[str]:
     lines = []
     o = res["overall"]
     lines += [f"{title}: {res['frames']} frames, {res['failed_tracks']} tracks failed; mean keypoint error "
-              f"{_f(o['keypoint_error_mm_mean'], '.1f')} mm.", "",
+              f"{cell(o['keypoint_error_mm_mean'], '.1f')} mm.", "",
               "| set | n | mean NEES/dof | median NEES/dof | 95 % coverage |", "|---|---:|---:|---:|---:|"]
     for label, key in (("keypoints (all 18)", "keypoints"), ("keypoints labelled visible", "keypoints_visible"),
                        ("keypoints not visible", "keypoints_occluded"), ("translation", "translation")):
         s = o[key]
-        lines.append(f"| {label} | {s['n']} | {_f(s['mean_nees_over_dof'])} | {_f(s['median_nees_over_dof'])} | "
-                     f"{_f(None if s['coverage95'] is None else 100 * s['coverage95'], '.1f')} % |")
+        lines.append(f"| {label} | {s['n']} | {cell(s['mean_nees_over_dof'], '.2f')} | {cell(s['median_nees_over_dof'], '.2f')} | "
+                     f"{cell(None if s['coverage95'] is None else 100 * s['coverage95'], '.1f')} % |")
     lines += ["", "| distance (m) | frames | keypoints NEES/dof | keypoints coverage | translation NEES/dof | "
               "translation coverage |", "|---|---:|---:|---:|---:|---:|"]
     for key, row in res["per_distance"].items():
         k, t = row["keypoints"], row["translation"]
-        lines.append(f"| {key} | {row['frames']} | {_f(k['mean_nees_over_dof'])} | "
-                     f"{_f(None if k['coverage95'] is None else 100 * k['coverage95'], '.1f')} % | "
-                     f"{_f(t['mean_nees_over_dof'])} | {_f(None if t['coverage95'] is None else 100 * t['coverage95'], '.1f')} % |")
+        lines.append(f"| {key} | {row['frames']} | {cell(k['mean_nees_over_dof'], '.2f')} | "
+                     f"{cell(None if k['coverage95'] is None else 100 * k['coverage95'], '.1f')} % | "
+                     f"{cell(t['mean_nees_over_dof'], '.2f')} | {cell(None if t['coverage95'] is None else 100 * t['coverage95'], '.1f')} % |")
     lines.append("")
     return lines
 

@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import hardware, public_args  # noqa: E402
+from _common import cell, hardware, public_args  # noqa: E402
 from bench_calibration import collect, summarise  # noqa: E402
 from bench_fit import SHARED_CMU  # noqa: E402
 from pedx_graph.data.noise_estimate import (QUANTISATION_PX, estimate_noise, resolve_noise,  # noqa: E402
@@ -178,8 +178,6 @@ def run_rig(rig: str, seed: int, pedestrians: int, frames: int, variants, work: 
     return out
 
 
-def _f(x, spec=".2f"):
-    return "-" if x is None else format(x, spec)
 
 
 def to_markdown(result: dict) -> str:
@@ -200,23 +198,23 @@ def to_markdown(result: dict) -> str:
         for name in PEDX_KEYPOINTS:
             pooled = " (pooled)" if name in est["keypoint_pooled"] else ""
             sigma = (est["keypoint_sigma_px"] or {}).get(name)
-            lines.append(f"| {name} | {sim['click_sigma_px'][name]:.2f} | {_f(sigma)}{pooled} | "
-                         f"{est['keypoint_counts'][name]} | {_f(truth['keypoint_px'][name])} |")
+            lines.append(f"| {name} | {sim['click_sigma_px'][name]:.2f} | {cell(sigma, '.2f')}{pooled} | "
+                         f"{est['keypoint_counts'][name]} | {cell(truth['keypoint_px'][name], '.2f')} |")
         lines += ["", "Pair offsets (v_left - v_right): " + ", ".join(
             f"{p['sequence']} {p['pair']} {p['offset_px']:+.2f} px ({p['count']})" for p in est["pair_offsets"])
             + ".", "",
             f"LiDAR: simulator range noise {sim['range_sigma_m']:.3f} m; estimate "
-            f"{_f(est['lidar_range_sigma_m'], '.4f')} m from {est['lidar_count']} local fits; the chamfer residual "
+            f"{cell(est['lidar_range_sigma_m'], '.4f')} m from {est['lidar_count']} local fits; the chamfer residual "
             f"at the truth (segment points to the nearest chamfer vertex of the true body, per coordinate from "
             f"the median squared offset, background points included): "
-            f"{_f(truth['chamfer_per_coordinate_m'], '.4f')} m.", "",
+            f"{cell(truth['chamfer_per_coordinate_m'], '.4f')} m.", "",
             "| variant | keypoints NEES/dof | keypoints coverage | translation NEES/dof | translation coverage | "
             "mean keypoint error mm | frames |", "|---|---:|---:|---:|---:|---:|---:|"]
         for name, v in res["variants"].items():
             k, t = v["overall"]["keypoints"], v["overall"]["translation"]
-            lines.append(f"| {name} | {_f(k['mean_nees_over_dof'])} | {_f(100 * k['coverage95'], '.1f')} % | "
-                         f"{_f(t['mean_nees_over_dof'])} | {_f(100 * t['coverage95'], '.1f')} % | "
-                         f"{_f(v['keypoint_error_mm_mean'], '.1f')} | {v['frames']} |")
+            lines.append(f"| {name} | {cell(k['mean_nees_over_dof'], '.2f')} | {cell(100 * k['coverage95'], '.1f')} % | "
+                         f"{cell(t['mean_nees_over_dof'], '.2f')} | {cell(100 * t['coverage95'], '.1f')} % | "
+                         f"{cell(v['keypoint_error_mm_mean'], '.1f')} | {v['frames']} |")
         lines.append("")
     if result.get("notes"):
         lines += ["## Findings", ""] + [f"- {n}" for n in result["notes"]]

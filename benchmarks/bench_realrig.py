@@ -39,7 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _common import hardware, public_args  # noqa: E402
+from _common import cell, hardware, public_args  # noqa: E402
 from pedx_graph.body import BodyModel  # noqa: E402
 from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
 from pedx_graph.eval.evaluate import evaluate_arrays  # noqa: E402
@@ -233,8 +233,6 @@ def _both_pair_table(variants: dict) -> dict:
     return out
 
 
-def _f(value, fmt: str = ".1f") -> str:
-    return "-" if value is None or (isinstance(value, float) and not np.isfinite(value)) else format(value, fmt)
 
 
 def to_markdown(result: dict) -> str:
@@ -255,9 +253,9 @@ def to_markdown(result: dict) -> str:
         cells = []
         for lo, hi in BINS:
             d = v["eval"]["per_distance"][f"{lo:g}-{hi:g}"]
-            cells.append(f"{_f(d['global_mm'])} / {_f(d['root_relative_mm'])} ({d['frames']})")
-        lines.append(f"| {name} | {_f(o['global_mm'])} | {_f(o['root_relative_mm'])} | " + " | ".join(cells)
-                     + f" | {_f(v['com_median_m'], '.3f')} | {c['in_data']} / {c['fitted']} / {c['missing']} | "
+            cells.append(f"{cell(d['global_mm'])} / {cell(d['root_relative_mm'])} ({d['frames']})")
+        lines.append(f"| {name} | {cell(o['global_mm'])} | {cell(o['root_relative_mm'])} | " + " | ".join(cells)
+                     + f" | {cell(v['com_median_m'], '.3f')} | {c['in_data']} / {c['fitted']} / {c['missing']} | "
                        f"{c['one_camera_tracks']} ({c['placed_by_body_size']}) | {c['inside_out_frames']} | "
                        f"{c['max_abs_beta']:.2f} | {v['fit_wall_seconds']:.0f} |")
     lines += ["", "Per-bin cells: global / root-relative (frames).  CoM: distance between the fitted and true "
@@ -268,12 +266,12 @@ def to_markdown(result: dict) -> str:
               "|---|---|" + "---|" * len(BINS)]
     for name, v in result["variants"].items():
         cal = v["calibration"]
-        cells = [f"{_f(cal['overall']['mean_nees_over_dof'], '.2f')}, "
-                 f"{_f(None if cal['overall']['coverage95'] is None else 100 * cal['overall']['coverage95'])} %"]
+        cells = [f"{cell(cal['overall']['mean_nees_over_dof'], '.2f')}, "
+                 f"{cell(None if cal['overall']['coverage95'] is None else 100 * cal['overall']['coverage95'])} %"]
         for lo, hi in BINS:
             d = cal["per_distance"][f"{lo:g}-{hi:g}"]
-            cells.append(f"{_f(d['mean_nees_over_dof'], '.2f')}, "
-                         f"{_f(None if d['coverage95'] is None else 100 * d['coverage95'])} % ({d['n']})")
+            cells.append(f"{cell(d['mean_nees_over_dof'], '.2f')}, "
+                         f"{cell(None if d['coverage95'] is None else 100 * d['coverage95'])} % ({d['n']})")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "Calibrated: NEES/dof 1 and 95 % inside the 95 % ellipsoid (per keypoint, 3 dof).", "",
               "## Instances labelled by both pairs: pelvis depth error (m)", "",
@@ -282,14 +280,14 @@ def to_markdown(result: dict) -> str:
               "| variant | " + " | ".join(["all"] + [f"{lo:g}-{hi:g} m" for lo, hi in BINS]) + " |",
               "|---|" + "---|" * (len(BINS) + 1)]
     for name, rows in result["both_pairs"].items():
-        cells = [f"{_f(r['mean_abs_m'], '.3f')} mean, {_f(r['median_abs_m'], '.3f')} median ({r['frames']})"
+        cells = [f"{cell(r['mean_abs_m'], '.3f')} mean, {cell(r['median_abs_m'], '.3f')} median ({r['frames']})"
                  for r in rows.values()]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "## Derived up axis and ground", "", "| scene | variant | source | up error (deg) | "
               "ground offset (m) | true (m) |", "|---:|---|---|---:|---:|---:|"]
     for g in result["grounds"]:
         lines.append(f"| {g['scene']} | {g['variant']} | {g['source']} | {g['up_error_deg']:.2f} | "
-                     f"{_f(g['ground_offset_m'], '.3f')} | {_f(g['true_ground_offset_m'], '.3f')} |")
+                     f"{cell(g['ground_offset_m'], '.3f')} | {cell(g['true_ground_offset_m'], '.3f')} |")
     return "\n".join(lines) + "\n"
 
 

@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
-from _common import public_args  # noqa: E402
+from _common import cell, public_args  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.data.writer import write_results  # noqa: E402
 from pedx_graph.eval.evaluate import evaluate  # noqa: E402
@@ -234,8 +234,6 @@ def main(argv=None) -> int:
     return 0
 
 
-def _fmt(x, spec=".1f"):
-    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
 
 
 def to_markdown(result: dict) -> str:
@@ -259,9 +257,9 @@ def to_markdown(result: dict) -> str:
         for r in rows:
             if r is None:
                 continue
-            out.append(f"| {r['solver']} | {r['tracks']} | {r['frames']} | {_fmt(r['global_mm'])} | "
-                       f"{_fmt(r['root_relative_mm'])} | {_fmt(r['objective_sum'])} | {_fmt(r['seconds_per_track'], '.2f')} | "
-                       f"{_fmt(r['ms_per_frame'])} |")
+            out.append(f"| {r['solver']} | {r['tracks']} | {r['frames']} | {cell(r['global_mm'])} | "
+                       f"{cell(r['root_relative_mm'])} | {cell(r['objective_sum'])} | {cell(r['seconds_per_track'], '.2f')} | "
+                       f"{cell(r['ms_per_frame'])} |")
         return out
 
     lines += ["## All tracks", ""] + table(result["all_tracks"])
@@ -270,29 +268,29 @@ def to_markdown(result: dict) -> str:
     g = result["goals"]
     lines += ["", "## Goals", "", "| goal | measured | met |", "|---|---|---|",
               f"| graph >= 10x faster than ADMM at equal or lower MPJPE | speed-up "
-              f"{_fmt(g['graph_10x_faster_than_admm']['speedup'])}x; MPJPE LM {_fmt(g['graph_10x_faster_than_admm']['lm_global_mm'])} "
-              f"vs ADMM {_fmt(g['graph_10x_faster_than_admm']['admm_global_mm'])} mm (LM without the flip search "
-              f"{_fmt(g['graph_10x_faster_than_admm'].get('lm_without_flip_search_global_mm'))} mm) | "
+              f"{cell(g['graph_10x_faster_than_admm']['speedup'])}x; MPJPE LM {cell(g['graph_10x_faster_than_admm']['lm_global_mm'])} "
+              f"vs ADMM {cell(g['graph_10x_faster_than_admm']['admm_global_mm'])} mm (LM without the flip search "
+              f"{cell(g['graph_10x_faster_than_admm'].get('lm_without_flip_search_global_mm'))} mm) | "
               f"{g['graph_10x_faster_than_admm']['met']} |",
               f"| iSAM2 update <= 10 ms median per pedestrian-frame | whole per-frame update (causal initialisation, "
               f"factors, presolve, iSAM2, estimate and keypoints, plus an equal share of the sample's batched "
               f"body-model calls): "
-              f"median {_fmt(g['isam_update_median_ms_le_10']['median_ms'])} ms "
-              f"(CPU {_fmt(g['isam_update_median_ms_le_10']['cpu_median_ms'])} ms), p90 {_fmt(g['isam_update_median_ms_le_10']['p90_ms'])} ms "
-              f"(CPU {_fmt(g['isam_update_median_ms_le_10'].get('cpu_p90_ms'))} ms); "
+              f"median {cell(g['isam_update_median_ms_le_10']['median_ms'])} ms "
+              f"(CPU {cell(g['isam_update_median_ms_le_10']['cpu_median_ms'])} ms), p90 {cell(g['isam_update_median_ms_le_10']['p90_ms'])} ms "
+              f"(CPU {cell(g['isam_update_median_ms_le_10'].get('cpu_p90_ms'))} ms); "
               f"`ISAM2.update` with the linearisation of the frame's own factors: median "
-              f"{_fmt(g['isam_update_median_ms_le_10']['isam_only_median_ms'])} ms, "
-              f"p90 {_fmt(g['isam_update_median_ms_le_10']['isam_only_p90_ms'])} ms "
+              f"{cell(g['isam_update_median_ms_le_10']['isam_only_median_ms'])} ms, "
+              f"p90 {cell(g['isam_update_median_ms_le_10']['isam_only_p90_ms'])} ms "
               f"| {g['isam_update_median_ms_le_10']['met']} |",
-              f"| final streamed estimate within 5 % of batch MPJPE | {_fmt(g['streamed_final_within_5pct_of_batch']['streamed_global_mm'])} vs "
-              f"{_fmt(g['streamed_final_within_5pct_of_batch']['batch_global_mm'])} mm (ratio {_fmt(g['streamed_final_within_5pct_of_batch']['ratio'], '.3f')}); "
-              f"causal (per-frame, before smoothing) {_fmt(g['streamed_final_within_5pct_of_batch']['causal_global_mm'])} mm global, "
-              f"{_fmt(g['streamed_final_within_5pct_of_batch']['causal_root_relative_mm'])} mm root-rel. | "
+              f"| final streamed estimate within 5 % of batch MPJPE | {cell(g['streamed_final_within_5pct_of_batch']['streamed_global_mm'])} vs "
+              f"{cell(g['streamed_final_within_5pct_of_batch']['batch_global_mm'])} mm (ratio {cell(g['streamed_final_within_5pct_of_batch']['ratio'], '.3f')}); "
+              f"causal (per-frame, before smoothing) {cell(g['streamed_final_within_5pct_of_batch']['causal_global_mm'])} mm global, "
+              f"{cell(g['streamed_final_within_5pct_of_batch']['causal_root_relative_mm'])} mm root-rel. | "
               f"{g['streamed_final_within_5pct_of_batch']['met']} |",
-              f"| marginals <= 5 ms per frame | chain {_fmt(g['marginals_le_5ms_per_frame']['chain_ms_per_frame'], '.2f')} ms/frame "
-              f"including {_fmt(g['marginals_le_5ms_per_frame']['linearize_ms_per_frame'], '.2f')} ms/frame to form the information (batched linearisation, point-to-plane chamfer) at "
+              f"| marginals <= 5 ms per frame | chain {cell(g['marginals_le_5ms_per_frame']['chain_ms_per_frame'], '.2f')} ms/frame "
+              f"including {cell(g['marginals_le_5ms_per_frame']['linearize_ms_per_frame'], '.2f')} ms/frame to form the information (batched linearisation, point-to-plane chamfer) at "
               "the estimate and the keypoint propagation "
-              f"(gtsam.Marginals {_fmt(g['marginals_le_5ms_per_frame']['gtsam_ms_per_frame'], '.1f')} ms/frame on a "
+              f"(gtsam.Marginals {cell(g['marginals_le_5ms_per_frame']['gtsam_ms_per_frame'], '.1f')} ms/frame on a "
               f"{g['marginals_le_5ms_per_frame']['gtsam_reference_track_frames']}-frame track) | {g['marginals_le_5ms_per_frame']['met']} |"]
     return "\n".join(lines) + "\n"
 
