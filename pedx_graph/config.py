@@ -81,9 +81,12 @@ def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
 
 
 def load_config(cls: type[T], path: str | os.PathLike | None = None) -> T:
-    """Load ``cls`` from a YAML file (``None``: all defaults)."""
+    """Load ``cls`` from a YAML file (``None``: all defaults), every value's range checked
+    (:func:`pedx_graph.config_ranges.check_config`: :class:`ConfigError` naming the file and the key)."""
+    from pedx_graph.config_ranges import check_config
+
     if path is None:
-        return cls()
+        return check_config(cls(), "<defaults>")
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text()) or {}
@@ -91,7 +94,7 @@ def load_config(cls: type[T], path: str | os.PathLike | None = None) -> T:
         raise ConfigError(f"{path}: config file not found") from exc
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-    return from_dict(cls, data, source=str(path))
+    return check_config(from_dict(cls, data, source=str(path)), str(path))
 
 
 def to_dict(cfg: Any) -> dict:

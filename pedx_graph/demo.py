@@ -33,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from pedx_graph.sim.simulate import simulate
     from pedx_graph.solvers.fit import fit_dataset
 
+    config = load_config(FitConfig, args.config)            # a bad preset stops the demo before it simulates
     out = Path(args.out)
     scene, results = out / "scene", out / "results"
     t0 = time.perf_counter()
@@ -42,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     simulate(scene, sim_config, seed=args.seed)
     t1 = time.perf_counter()
     print(f"simulated {args.pedestrians} pedestrians x {args.frames} frames in {t1 - t0:.1f} s -> {scene}")
-    summary = fit_dataset(scene, results, load_config(FitConfig, args.config), workers=args.workers)
+    summary = fit_dataset(scene, results, config, workers=args.workers)
     t2 = time.perf_counter()
     print(f"fitted {len(summary['tracks'])} tracks ({summary['total_frames']} frames) in {t2 - t1:.1f} s "
           f"({1000 * (t2 - t1) / max(summary['total_frames'], 1):.0f} ms per frame, {args.workers} workers); "

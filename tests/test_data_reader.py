@@ -48,11 +48,12 @@ def make_calib(name: str, yaw: float = 0.0, focal: float = 2000.0, baseline: flo
 
 
 def view(rng, n_labelled: int = 14, polygon: bool = True) -> View2D:
-    keypoints = rng.uniform(100, 3000, size=(18, 2))
+    inside = ([100, 100], [3000, 2500])            # pixels inside the 3678x2668 image (the reader drops others)
+    keypoints = rng.uniform(*inside, size=(18, 2))
     keypoints[n_labelled:] = np.nan
     visible = np.arange(18) < n_labelled - 1
     return View2D(keypoints=keypoints, visible=visible,
-                  polygon=rng.uniform(100, 3000, size=(6, 2)) if polygon else None)
+                  polygon=rng.uniform(*inside, size=(6, 2)) if polygon else None)
 
 
 def build_tracks(seed: int = 0) -> list[Track]:

@@ -11,13 +11,18 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pedx_graph.data import read_smpl_labels
-from pedx_graph.data.calib import read_calibrations, read_cam_to_range
+from pedx_graph.data.calib import CalibrationLimits, read_calibrations, read_cam_to_range
 from pedx_graph.data.npzfile import read_npz
 from pedx_graph.data.ply import read_ply_points
 from pedx_graph.data.transform import (check_rigid, transform_dataset, transform_ground, transform_points,
                                        transform_smpl)
 from pedx_graph.sim import rig_config, simulate
 from test_sim_standin import standin_body_model
+
+
+#: A moved world frame puts the cameras tens of metres from its origin, beyond the calibration sanity limit
+#: for a LiDAR frame (20 m): read moved calibrations without that limit.
+MOVED_FRAME = CalibrationLimits(max_camera_distance_m=None)
 
 
 def random_motion(rng: np.random.Generator, shift_m: float = 20.0) -> np.ndarray:
@@ -115,7 +120,8 @@ def test_everything_moves_rigidly_together(sim_folder, body, tmp_path):
     meta = json.loads((moved / "truth" / "meta.json").read_text())
     seq = meta["sequence"]
     up, offset = np.array(meta["ground"]["world_up"]), meta["ground"]["ground_offset_m"]
-    calib_src, calib_moved = read_calibrations(src / "calib"), read_calibrations(moved / "calib")
+    calib_src = read_calibrations(src / "calib")
+    calib_moved = read_calibrations(moved / "calib", MOVED_FRAME)
     n_checked = 0
     for key, labels in smpl_src.items():
         for lab, lab_moved in zip(labels, smpl_moved[key]):
@@ -168,7 +174,7 @@ def test_calibration_text_keeps_comments_and_tr_key(tmp_path, body):
     transform_dataset(src, tmp_path / "dst", motion, body)
     lines = (tmp_path / "dst" / "calib" / "calib_cam_to_range_blu79CF.txt").read_text().splitlines()
     assert lines[:3] == text.splitlines()[:3]
-    moved = read_cam_to_range(tmp_path / "dst" / "calib" / "calib_cam_to_range_blu79CF.txt")
+    moved = read_cam_to_range(tmp_path / "dst" / "calib" / "calib_cam_to_range_blu79CF.txt", MOVED_FRAME)
     world_T_cam = np.eye(4)
     world_T_cam[:3] = tr
     np.testing.assert_allclose(moved, motion @ world_T_cam, atol=1e-12)

@@ -30,6 +30,8 @@ def _run(args: argparse.Namespace) -> int:
     config = load_config(BaselineConfig, args.config)
     if args.model:
         config.body_model = args.model
+    from pedx_graph.preflight import check_baseline_setup
+    check_baseline_setup(config, args.name, args.dataset, args.config or "<command line>")   # before any output
     summary = fit_dataset_baseline(args.dataset, args.out, args.name, workers=args.workers, config=config,
                                    sequences=args.sequence)
     n_ok, n_bad = len(summary["tracks"]), len(summary["failed"])

@@ -14,12 +14,21 @@ Each file holds one ``key: values`` per line.  Two kinds are used per stereo pai
 
 Required keys: ``P_rect_00``, ``P_rect_01``, ``R_rect_00`` and either ``R``+``T`` or ``Tr``.
 ``S_rect_00`` falls back to the known release image size of the left camera (with a warning).
+
+Sanity at load (:class:`CalibrationLimits`): every value finite; ``P_rect_0x`` a rectified projection (third
+row ``0 0 1``, no skew) whose focal lengths give a field of view of 5-170 degrees along each image axis and
+whose principal point lies near the image; the right camera's ``P_rect_01`` with the left's focal lengths and
+image rows (a rectified pair); the baseline 1 cm - 5 m; ``R_rect_0x`` and ``R`` rotations (orthonormal,
+det +1); the left camera within 20 m of the LiDAR origin.  Each failure raises :class:`DataFormatError`
+naming the file and the key, e.g. ``calib/calib_cam_to_cam_ylw79D0-red707B.txt: field 'P_rect_01': ...``.
 """
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +46,42 @@ RELEASE_IMAGE_SIZES: dict[str, tuple[int, int]] = {
 
 #: Tolerance on ``|R^T R - I|`` (max abs entry) and ``|det R - 1|`` for rotations read from text.
 ROTATION_TOL = 1e-4
+
+#: Largest accepted image side, pixels (the release's are 3645-3678 wide).
+MAX_IMAGE_SIDE_PX = 100_000
+
+
+@dataclass
+class CalibrationLimits:
+    """What a calibration file may hold and still be read (:func:`read_cam_to_cam`, :func:`read_cam_to_range`).
+
+    The defaults accept any ordinary rig (the release's cameras have a 57-59 degree horizontal field of view,
+    baselines of 0.27-0.33 m, left cameras 2.3-2.4 m from the LiDAR origin) and refuse the absurd: a focal
+    length of 1e-9 px, a baseline of 100 m, an extrinsic moved 100 m, a rotation that is not one.
+    """
+
+    min_fov_deg: float = 5.0
+    """Smallest field of view along each image axis, degrees (``2 atan(size / 2 f)``; 5 degrees of a 3678 px
+    wide image is a 42,000 px focal length, a long telephoto)."""
+    max_fov_deg: float = 170.0
+    """Largest field of view along each image axis, degrees (a pinhole model past ~170 degrees is no model)."""
+    principal_point_margin: float = 0.5
+    """The principal point may lie outside the image by at most this fraction of the image size."""
+    rectified_focal_rel_tol: float = 1e-3
+    """``P_rect_01``'s focal lengths may differ from ``P_rect_00``'s by this fraction (rounding in the file)."""
+    rectified_row_tol_px: float = 2.0
+    """``P_rect_01``'s principal row may differ from ``P_rect_00``'s by this many pixels; more and the rows of
+    the two images do not correspond (not a rectified pair).  The principal columns may differ (a disparity
+    offset, which ``P_rect_01`` carries)."""
+    min_baseline_m: float = 0.01
+    """Shortest stereo baseline ``-P_rect_01[0, 3] / P_rect_01[0, 0]``, metres."""
+    max_baseline_m: float = 5.0
+    """Longest stereo baseline, metres (two cameras of one pair on one vehicle)."""
+    max_camera_distance_m: float | None = 20.0
+    """Largest distance of a left camera from the origin of the LiDAR (world) frame, metres: the frame is the
+    LiDAR's, on the same vehicle.  None: no limit (a dataset moved into another world frame on purpose)."""
+    rotation_tol: float = ROTATION_TOL
+    """Tolerance on ``max |R^T R - I|`` and ``|det R - 1|`` of every rotation read (``R_rect_0x``, ``R``)."""
 
 _CAM_TO_CAM_RE = re.compile(r"^calib_cam_to_cam_(?P<left>[^-]+)-(?P<right>[^-]+)\.txt$")
 
@@ -114,43 +159,70 @@ def get_floats(entries: dict[str, str], key: str, count: int, path: str | os.Pat
     return values.reshape(shape) if shape is not None else values
 
 
-def _check_rotation(rot: np.ndarray, path, key: str) -> np.ndarray:
+def _check_rotation(rot: np.ndarray, path, key: str, tol: float = ROTATION_TOL) -> np.ndarray:
     err = np.abs(rot.T @ rot - np.eye(3)).max()
     det = np.linalg.det(rot)
-    if err > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+    if not (err <= tol and abs(det - 1.0) <= tol):
         raise DataFormatError(path, key, f"not a rotation (max |R^T R - I| = {err:.2e}, det = {det:.6f})")
     # Remove the rounding of the text file: nearest rotation (polar decomposition).
     u, _, vt = np.linalg.svd(rot)
     return u @ vt
 
 
-def read_cam_to_cam(path: str | os.PathLike, left_camera: str | None = None) -> dict:
-    """Parse a ``calib_cam_to_cam_<left>-<right>.txt`` file.
+def _fov_deg(size_px: float, focal_px: float) -> float:
+    return math.degrees(2.0 * math.atan2(size_px / 2.0, focal_px))
+
+
+def check_rectified_projection(P: np.ndarray, image_size: tuple[int, int], path, key: str,
+                               limits: CalibrationLimits) -> None:
+    """A rectified KITTI projection ``[[fx, 0, cx, *], [0, fy, cy, *], [0, 0, 1, *]]`` whose focal lengths give a
+    field of view within the limits and whose principal point lies near the ``(width, height)`` image;
+    :class:`DataFormatError` naming ``path`` and ``key`` otherwise."""
+    width, height = image_size
+    fx, fy, cx, cy = P[0, 0], P[1, 1], P[0, 2], P[1, 2]
+    if np.max(np.abs(P[2, :3] - [0.0, 0.0, 1.0])) > 1e-6:
+        raise DataFormatError(path, key, f"third row must start with 0 0 1 (a rectified projection), "
+                                         f"got {P[2, 0]:g} {P[2, 1]:g} {P[2, 2]:g}")
+    if not (fx > 0 and fy > 0):
+        raise DataFormatError(path, key, f"focal lengths must be positive, got fx = {fx:g}, fy = {fy:g} px")
+    if abs(P[1, 0]) > 1e-6 * fy or abs(P[0, 1]) > 1e-3 * fx:
+        raise DataFormatError(path, key, f"not a rectified projection (skew {P[0, 1]:g}, P[1, 0] = {P[1, 0]:g})")
+    for axis, size, focal in (("horizontal", width, fx), ("vertical", height, fy)):
+        fov = _fov_deg(size, focal)
+        if not limits.min_fov_deg <= fov <= limits.max_fov_deg:
+            raise DataFormatError(path, key, f"focal length {focal:g} px gives a {axis} field of view of "
+                                             f"{fov:.3g} degrees over {size} px, outside "
+                                             f"{limits.min_fov_deg:g}-{limits.max_fov_deg:g} degrees")
+    margin = limits.principal_point_margin
+    if not (-margin * width <= cx <= (1 + margin) * width and -margin * height <= cy <= (1 + margin) * height):
+        raise DataFormatError(path, key, f"principal point ({cx:g}, {cy:g}) px lies far outside the "
+                                         f"{width}x{height} image")
+
+
+def read_cam_to_cam(path: str | os.PathLike, left_camera: str | None = None,
+                    limits: CalibrationLimits | None = None) -> dict:
+    """Parse and check a ``calib_cam_to_cam_<left>-<right>.txt`` file (module docstring: sanity at load).
 
     Returns a dict with ``left_P_rect`` (3, 4), ``right_P_rect`` (3, 4), ``rect_R_cam`` (3, 3, the left
     camera's ``R_rect_00``), ``right_rect_R_cam`` (3, 3 or None) and ``image_size`` (width, height).
     ``left_camera`` names the camera for the ``S_rect_00`` fallback.
     """
+    limits = limits or CalibrationLimits()
     path = Path(path)
     entries = read_kitti_text(path)
     left_P = get_floats(entries, "P_rect_00", 12, path, (3, 4))
     right_P = get_floats(entries, "P_rect_01", 12, path, (3, 4))
-    rect_R = _check_rotation(get_floats(entries, "R_rect_00", 9, path, (3, 3)), path, "R_rect_00")
+    rect_R = _check_rotation(get_floats(entries, "R_rect_00", 9, path, (3, 3)), path, "R_rect_00",
+                             limits.rotation_tol)
     right_rect_R = None
     if "R_rect_01" in entries:
-        right_rect_R = _check_rotation(get_floats(entries, "R_rect_01", 9, path, (3, 3)), path, "R_rect_01")
-    if left_P[0, 0] <= 0 or left_P[1, 1] <= 0 or left_P[2, 2] == 0:
-        raise DataFormatError(path, "P_rect_00", "focal lengths must be positive and P[2, 2] non-zero")
-    if not np.allclose(right_P[:, :3], left_P[:, :3], rtol=1e-6, atol=1e-6):
-        logger.warning("%s: field 'P_rect_01': intrinsic part differs from P_rect_00 (not a rectified pair?)",
-                       path)
-    baseline = -(right_P[0, 3] - left_P[0, 3]) / right_P[0, 0]
-    if not baseline > 0:
-        raise DataFormatError(path, "P_rect_01", f"baseline -P[0,3]/P[0,0] must be positive, got {baseline:g} m")
+        right_rect_R = _check_rotation(get_floats(entries, "R_rect_01", 9, path, (3, 3)), path, "R_rect_01",
+                                       limits.rotation_tol)
     if "S_rect_00" in entries:
         size = get_floats(entries, "S_rect_00", 2, path)
-        if np.any(size <= 0) or np.any(size != np.round(size)):
-            raise DataFormatError(path, "S_rect_00", f"image size must be two positive integers, got {size}")
+        if np.any(size <= 0) or np.any(size > MAX_IMAGE_SIDE_PX) or np.any(size != np.round(size)):
+            raise DataFormatError(path, "S_rect_00", f"image size must be two positive integers up to "
+                                                     f"{MAX_IMAGE_SIDE_PX}, got {size}")
         image_size = (int(size[0]), int(size[1]))
     elif left_camera in RELEASE_IMAGE_SIZES:
         image_size = RELEASE_IMAGE_SIZES[left_camera]
@@ -160,15 +232,34 @@ def read_cam_to_cam(path: str | os.PathLike, left_camera: str | None = None) -> 
         raise DataFormatError(path, "S_rect_00", "required key missing (and the camera's size is not known)")
     if "S_rect_01" in entries:
         size_right = get_floats(entries, "S_rect_01", 2, path)
-        if tuple(int(v) for v in size_right) != image_size:
+        if tuple(float(v) for v in size_right) != tuple(float(v) for v in image_size):
             logger.warning("%s: field 'S_rect_01' %s differs from S_rect_00 %s; using S_rect_00",
                            path, size_right, image_size)
+    check_rectified_projection(left_P, image_size, path, "P_rect_00", limits)
+    check_rectified_projection(right_P, image_size, path, "P_rect_01", limits)
+    for index, name in ((0, "fx"), (1, "fy")):
+        left_f, right_f = left_P[index, index], right_P[index, index]
+        if abs(right_f - left_f) > limits.rectified_focal_rel_tol * left_f:
+            raise DataFormatError(path, "P_rect_01", f"{name} = {right_f:g} px differs from P_rect_00's "
+                                                     f"{left_f:g} px: not a rectified pair")
+    if abs(right_P[1, 2] - left_P[1, 2]) > limits.rectified_row_tol_px:
+        raise DataFormatError(path, "P_rect_01", f"principal row cy = {right_P[1, 2]:g} px differs from "
+                                                 f"P_rect_00's {left_P[1, 2]:g} px: not a rectified pair")
+    if abs(right_P[0, 2] - left_P[0, 2]) > 1e-6 * left_P[0, 0]:
+        logger.warning("%s: field 'P_rect_01': principal column %g px differs from P_rect_00's %g px "
+                       "(a disparity offset; used as written)", path, right_P[0, 2], left_P[0, 2])
+    baseline = -(right_P[0, 3] - left_P[0, 3]) / right_P[0, 0]
+    if not limits.min_baseline_m <= baseline <= limits.max_baseline_m:
+        raise DataFormatError(path, "P_rect_01", f"baseline -P[0,3]/P[0,0] = {baseline:g} m, outside "
+                                                 f"{limits.min_baseline_m:g}-{limits.max_baseline_m:g} m")
     return {"left_P_rect": left_P, "right_P_rect": right_P, "rect_R_cam": rect_R,
             "right_rect_R_cam": right_rect_R, "image_size": image_size}
 
 
-def read_cam_to_range(path: str | os.PathLike) -> np.ndarray:
-    """(4, 4) ``world_T_cam`` from a ``calib_cam_to_range_<left>.txt`` (``R`` + ``T``, or ``Tr``)."""
+def read_cam_to_range(path: str | os.PathLike, limits: CalibrationLimits | None = None) -> np.ndarray:
+    """(4, 4) ``world_T_cam`` from a ``calib_cam_to_range_<left>.txt`` (``R`` + ``T``, or ``Tr``): ``R`` a
+    rotation, the camera within ``limits.max_camera_distance_m`` of the LiDAR origin."""
+    limits = limits or CalibrationLimits()
     path = Path(path)
     entries = read_kitti_text(path)
     if "R" in entries or "T" in entries:
@@ -181,41 +272,58 @@ def read_cam_to_range(path: str | os.PathLike) -> np.ndarray:
     else:
         raise DataFormatError(path, "R", "required key missing (need 'R' and 'T', or 'Tr')")
     world_T_cam = np.eye(4)
-    world_T_cam[:3, :3] = _check_rotation(rot, path, rot_key)
+    world_T_cam[:3, :3] = _check_rotation(rot, path, rot_key, limits.rotation_tol)
+    distance = float(np.linalg.norm(trans))
+    if limits.max_camera_distance_m is not None and distance > limits.max_camera_distance_m:
+        raise DataFormatError(path, "T" if rot_key == "R" else "Tr",
+                              f"the camera is {distance:.4g} m from the LiDAR origin (at most "
+                              f"{limits.max_camera_distance_m:g} m on one vehicle)")
     world_T_cam[:3, 3] = trans
     return world_T_cam
 
 
-def read_stereo_calibration(calib_dir: str | os.PathLike, pair: str) -> StereoCalibration:
-    """The :class:`StereoCalibration` of pair ``<left>-<right>`` from the two files in ``calib_dir``."""
+def read_stereo_calibration(calib_dir: str | os.PathLike, pair: str,
+                            limits: CalibrationLimits | None = None) -> StereoCalibration:
+    """The :class:`StereoCalibration` of pair ``<left>-<right>`` from the two files in ``calib_dir`` (a missing
+    file is a :class:`DataFormatError` naming it)."""
     left, _ = split_pair(pair)
-    parsed = read_cam_to_cam(cam_to_cam_path(calib_dir, pair), left_camera=left)
-    world_T_cam = read_cam_to_range(cam_to_range_path(calib_dir, pair))
+    for path in (cam_to_cam_path(calib_dir, pair), cam_to_range_path(calib_dir, pair)):
+        if not path.is_file():
+            raise DataFormatError(path, None, f"missing: stereo pair {pair} needs it")
+    parsed = read_cam_to_cam(cam_to_cam_path(calib_dir, pair), left_camera=left, limits=limits)
+    world_T_cam = read_cam_to_range(cam_to_range_path(calib_dir, pair), limits=limits)
     return StereoCalibration(name=pair, left_P_rect=parsed["left_P_rect"], right_P_rect=parsed["right_P_rect"],
                              rect_R_cam=parsed["rect_R_cam"], world_T_cam=world_T_cam,
                              image_size=parsed["image_size"])
 
 
-def read_calibrations(calib_dir: str | os.PathLike) -> dict[str, StereoCalibration]:
+def read_calibrations(calib_dir: str | os.PathLike, limits: CalibrationLimits | None = None,
+                      errors: dict[str, str] | None = None) -> dict[str, StereoCalibration]:
     """Every stereo pair found in ``calib_dir`` (see :func:`discover_pairs`).
 
-    A pair whose files are malformed is skipped with a warning naming file and field; raises
+    A pair whose files are missing, malformed or fail the sanity checks (``limits``) is skipped with a warning
+    naming file and field, and its message is put into ``errors`` (pair name -> message) when given; raises
     :class:`DataFormatError` when no pair at all can be read.
     """
     calib_dir = Path(calib_dir)
+    if not calib_dir.is_dir():
+        raise DataFormatError(calib_dir, None, "calibration folder missing (it holds the "
+                                               "'calib_cam_to_cam_<left>-<right>.txt' files)")
     pairs = discover_pairs(calib_dir)
     if not pairs:
         raise DataFormatError(calib_dir, None, "no 'calib_cam_to_cam_<left>-<right>.txt' file found")
     calibrations: dict[str, StereoCalibration] = {}
-    errors = []
+    failed: dict[str, str] = {}
     for pair in pairs:
         try:
-            calibrations[pair] = read_stereo_calibration(calib_dir, pair)
+            calibrations[pair] = read_stereo_calibration(calib_dir, pair, limits)
         except DataFormatError as exc:
             logger.warning("skipping stereo pair %s: %s", pair, exc)
-            errors.append(str(exc))
+            failed[pair] = str(exc)
+    if errors is not None:
+        errors.update(failed)
     if not calibrations:
-        raise DataFormatError(calib_dir, None, "no stereo pair could be read: " + "; ".join(errors))
+        raise DataFormatError(calib_dir, None, "no stereo pair could be read: " + "; ".join(failed.values()))
     return calibrations
 
 

@@ -15,9 +15,15 @@ SMPL files.  Fields of the JSON object:
 A missing name = not labelled; an entry that is null, or whose ``x`` and ``y`` are both null, is not
 labelled either.  ``visible`` defaults to true when absent.  Unknown keypoint names are warned about and
 ignored.  Any other malformation raises :class:`DataFormatError` naming the file and the field.
+
+Against the image (:func:`screen_label`, applied by the reader, which knows the camera's image size): a keypoint
+outside the image by more than a margin is dropped with a warning naming the file and the field; a label with
+more than half of its keypoints outside (a 1e9 px click, every coordinate multiplied by 1e6) is skipped
+whole with a warning; polygon vertices outside drop the polygon.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import re
@@ -218,6 +224,55 @@ def read_label2d(path: str | os.PathLike, sequence: str, camera: str, frame: int
     return Label2D(sequence=sequence, camera=camera, frame=int(frame), tracking_id=tracking_id,
                    category=category, view=View2D(keypoints=keypoints, visible=visible, polygon=polygon),
                    subtype=None if subtype is None else str(subtype), frame_id=data.get("frame_id"))
+
+
+def _outside(points: np.ndarray, image_size: tuple[int, int], margin: float) -> np.ndarray:
+    """(N,) bool: the (N, 2) pixel points lie outside the image widened by ``margin`` of its size per side."""
+    width, height = image_size
+    x, y = points[:, 0], points[:, 1]
+    return ((x < -margin * width) | (x > (1.0 + margin) * width)
+            | (y < -margin * height) | (y > (1.0 + margin) * height))
+
+
+def screen_label(label: Label2D, image_size: tuple[int, int], margin: float = 0.05,
+                 path: str | os.PathLike | None = None) -> Label2D | None:
+    """``label`` without what cannot be in its ``(width, height)`` image, or None when the whole label is absurd.
+
+    A keypoint more than ``margin`` (a fraction of the image width / height) outside the image is dropped (NaN,
+    not visible); the warning names ``path`` and the fields.  When more than half of the labelled keypoints are
+    outside, the rest are not to be trusted either (a label scaled or shifted wholesale): None, with a warning.
+    Polygon vertices outside drop the polygon (it is not used by the fit).
+    """
+    where = path if path is not None else f"{label.sequence}/{label.camera}/{label.frame}/{label.tracking_id}"
+    size_text = f"{image_size[0]}x{image_size[1]}"
+    view = label.view
+    labelled = view.labelled
+    outside = np.zeros(len(labelled), dtype=bool)
+    outside[labelled] = _outside(view.keypoints[labelled], image_size, margin)
+    polygon = view.polygon
+    if polygon is not None and np.any(_outside(np.asarray(polygon, dtype=float), image_size, margin)):
+        logger.warning("%s: field 'polygon': vertices outside the %s image by more than %g %%; polygon dropped",
+                       where, size_text, 100 * margin)
+        polygon = None
+    n_out, n_labelled = int(outside.sum()), int(labelled.sum())
+    if n_out and 2 * n_out > n_labelled:
+        first = int(np.flatnonzero(outside)[0])
+        logger.warning("%s: field 'keypoint': %d of %d keypoints outside the %s image by more than %g %% (e.g. "
+                       "%s at (%.4g, %.4g) px); instance skipped", where, n_out, n_labelled, size_text,
+                       100 * margin, PEDX_KEYPOINTS[first], *view.keypoints[first])
+        return None
+    if n_out:
+        fields = ", ".join(f"'keypoint.{PEDX_KEYPOINTS[i]}' ({view.keypoints[i, 0]:.4g}, {view.keypoints[i, 1]:.4g})"
+                           for i in np.flatnonzero(outside))
+        logger.warning("%s: field %s: outside the %s image by more than %g %%; dropped", where, fields, size_text,
+                       100 * margin)
+    if not n_out and polygon is view.polygon:
+        return label
+    keypoints = view.keypoints.copy()
+    visible = view.visible.copy()
+    keypoints[outside] = np.nan
+    visible[outside] = False
+    return dataclasses.replace(label, view=View2D(keypoints=keypoints, visible=visible, polygon=polygon))
 
 
 def label2d_to_json(label: Label2D) -> dict:

@@ -26,6 +26,8 @@ def _run_noise(args: argparse.Namespace) -> int:
     from pedx_graph.graph.config import FitConfig
 
     config = load_config(FitConfig, args.config)
+    from pedx_graph.preflight import check_dataset
+    check_dataset(args.dataset)
     reader_config = getattr(config, "reader_config", None)        # the fit's reader settings (fps, ground)
     tracks = read_dataset(args.dataset, sequences=args.sequence,
                           config=reader_config() if callable(reader_config) else None)

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pedx_graph.data.calib import read_calibrations, split_pair
+from pedx_graph.data.calib import CalibrationLimits, cam_to_cam_path, read_calibrations, split_pair
 from pedx_graph.data.ground import GroundConfig, GroundFrame, estimate_ground
-from pedx_graph.data.labels2d import Label2D, iter_label2d_files, read_label2d
+from pedx_graph.data.labels2d import Label2D, iter_label2d_files, read_label2d, screen_label
 from pedx_graph.data.ply import pointcloud_path, read_ply_points, segment_path
 from pedx_graph.data.smpl_labels import N_BETAS, parse_smpl_label_name, read_smpl_label
 from pedx_graph.data.types import DataFormatError, SmplLabel, StereoCalibration, Track, TrackFrame
@@ -60,6 +60,12 @@ class ReaderConfig:
     """Which timestamps file gives frame times: ``timestamps-<kind>-<seq>.txt``."""
     ground: GroundConfig = field(default_factory=GroundConfig)
     """How each sequence's up axis, ground plane and viewpoint are derived (:mod:`pedx_graph.data.ground`)."""
+    calibration_limits: CalibrationLimits = field(default_factory=CalibrationLimits)
+    """Sanity limits of the calibration files (:class:`~pedx_graph.data.calib.CalibrationLimits`)."""
+    keypoint_margin: float = 0.05
+    """A 2D keypoint more than this fraction of the image width / height outside the image is dropped with a
+    warning; a label with more than half of its keypoints outside is skipped (:func:`screen_label`).  Clicks
+    just past the border are kept: annotators click a foot or hand cut by the image edge where they guess it."""
 
 
 def resolve_root(root: str | os.PathLike) -> Path:
@@ -231,17 +237,31 @@ def camera_sides(calibrations: dict[str, StereoCalibration]) -> dict[str, tuple[
     return sides
 
 
+def uncalibrated_reason(calib_dir: Path, camera: str, calib_errors: dict[str, str]) -> str:
+    """Why ``camera`` has no usable calibration: its pair's error (a missing or malformed file, named), or the
+    ``calib_cam_to_cam`` file names that would have given it one."""
+    for pair, message in sorted(calib_errors.items()):
+        if camera in split_pair(pair):
+            return message
+    return (f"{calib_dir}: no calibration of camera {camera} (missing: "
+            f"{cam_to_cam_path(calib_dir, f'{camera}-<right>').name} or "
+            f"{cam_to_cam_path(calib_dir, f'<left>-{camera}').name})")
+
+
 def _index_sequence(root: Path, sequence: str, sides: dict[str, tuple[str, str]],
-                    warned_cameras: set[str]) -> dict[str, list[tuple[int, str, Path]]]:
-    """tracking id -> [(frame, camera, path)] of a sequence's 2D label files (names only, nothing read)."""
+                    uncalibrated: dict[str, str], calib_errors: dict[str, str] | None = None
+                    ) -> dict[str, list[tuple[int, str, Path]]]:
+    """tracking id -> [(frame, camera, path)] of a sequence's 2D label files (names only, nothing read).
+    Labels of a camera in no readable stereo pair are skipped: one warning per camera naming the calibration
+    file that is missing or malformed, recorded in ``uncalibrated`` (camera -> reason)."""
     index: dict[str, list[tuple[int, str, Path]]] = defaultdict(list)
     seen: dict[tuple[int, str, str], Path] = {}
     for path, camera, frame, tid in iter_label2d_files(root, sequence):
         if camera not in sides:
-            if camera not in warned_cameras:
-                warned_cameras.add(camera)
-                logger.warning("%s: camera %s is in no calibrated stereo pair; its labels are skipped",
-                               path.parent, camera)
+            if camera not in uncalibrated:
+                uncalibrated[camera] = uncalibrated_reason(root / "calib", camera, calib_errors or {})
+                logger.warning("%s: camera %s is in no calibrated stereo pair (%s); its labels are skipped",
+                               path.parent, camera, uncalibrated[camera])
             continue
         key = (frame, camera, tid)
         if key in seen:
@@ -261,18 +281,24 @@ def _choose_pair(frame_views: dict[str, dict[str, Label2D]]) -> str:
 
 def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[tuple[int, str, Path]],
                     calibrations: dict[str, StereoCalibration], sides: dict[str, tuple[str, str]],
-                    times: dict[int, float], config: ReaderConfig, ground: GroundFrame | None = None
-                    ) -> Track | None:
+                    times: dict[int, float], config: ReaderConfig, ground: GroundFrame | None = None,
+                    skipped: dict[str, int] | None = None) -> Track | None:
+    skipped = skipped if skipped is not None else {"labels": 0}
     by_frame: dict[int, dict[str, dict[str, Label2D]]] = defaultdict(lambda: defaultdict(dict))
     for frame, camera, path in sorted(entries):
         try:
             label = read_label2d(path, sequence, camera, frame, tracking_id)
         except DataFormatError as exc:
             logger.warning("%s; instance skipped", exc)
+            skipped["labels"] += 1
             continue
         if label.category not in config.categories:
             continue
         pair, side = sides[camera]
+        label = screen_label(label, calibrations[pair].image_size, config.keypoint_margin, path)
+        if label is None:
+            skipped["labels"] += 1
+            continue
         by_frame[frame][pair][side] = label
     frames: list[TrackFrame] = []
     for frame in sorted(by_frame):
@@ -313,15 +339,17 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
     """
     config = config or ReaderConfig()
     root = resolve_root(root)
-    calibrations = read_calibrations(root / "calib")
+    calib_errors: dict[str, str] = {}
+    calibrations = read_calibrations(root / "calib", config.calibration_limits, calib_errors)
     sides = camera_sides(calibrations)
     available = list_sequences(root, "2d")
     chosen = _select_sequences(available, sequences, root / "labels" / "2d")
-    warned_cameras: set[str] = set()
+    uncalibrated: dict[str, str] = {}
+    skipped = {"labels": 0}
     n_tracks = 0
     n_files = 0
     for sequence in chosen:
-        index = _index_sequence(root, sequence, sides, warned_cameras)
+        index = _index_sequence(root, sequence, sides, uncalibrated, calib_errors)
         n_files += sum(len(v) for v in index.values())
         if not index:
             logger.warning("%s: no 2D label file of a calibrated camera", root / "labels" / "2d" / sequence)
@@ -332,14 +360,22 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
         ground = sequence_ground(root, sequence, calibrations, config.ground)
         order = sorted(index, key=lambda tid: (min(f for f, _, _ in index[tid]), tid))
         for tid in order:
-            track = _assemble_track(root, sequence, tid, index[tid], calibrations, sides, times, config, ground)
+            track = _assemble_track(root, sequence, tid, index[tid], calibrations, sides, times, config, ground,
+                                    skipped)
             if track is not None:
                 n_tracks += 1
                 yield track
     if n_tracks == 0:
+        by_reason: dict[str, list[str]] = defaultdict(list)
+        for camera, reason in sorted(uncalibrated.items()):
+            by_reason[reason].append(camera)
+        why = "".join(f"; labels of {', '.join(cams)} skipped: {reason}" for reason, cams in by_reason.items())
+        if skipped["labels"]:
+            why += f"; {skipped['labels']} label files skipped as unreadable or outside the image (see the warnings)"
         raise DataFormatError(root / "labels" / "2d", None,
                               f"no track could be read (sequences {chosen or available or 'none'}, "
-                              f"{n_files} label files of calibrated cameras, categories {list(config.categories)})")
+                              f"{n_files} label files of calibrated cameras, categories {list(config.categories)})"
+                              + why)
 
 
 def _evenly(items: list, count: int) -> list:

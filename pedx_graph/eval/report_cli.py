@@ -87,6 +87,12 @@ def _run_experiments(args: argparse.Namespace) -> int:
     from pedx_graph.eval.report import render_markdown
 
     config = load_config(ExperimentConfig, args.config)
+    if config.fit_config:                                   # the presets it names, checked before anything runs
+        from pedx_graph.graph.config import FitConfig
+        load_config(FitConfig, config.fit_config)
+    if config.detector_config:
+        from pedx_graph.eval.detector_noise import DetectorNoiseConfig
+        load_config(DetectorNoiseConfig, config.detector_config)
     record = run_experiments(args.out, config, seed=args.seed, workers=args.workers)
     report_dir = Path(args.out) / "report"
     print(f"experiment written to {args.out} in {record['total_seconds'] / 60:.1f} min; "

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pedx_graph.data.calib import CalibrationLimits
 from pedx_graph.data.ground import GroundConfig
 from pedx_graph.data.reader import ReaderConfig
+from pedx_graph.solvers.plausibility import PlausibilityConfig
 
 
 @dataclass
@@ -223,7 +225,18 @@ class FitConfig:
     """Write marginal covariances (translation, root, body pose, 18 keypoints per frame; shape per track)."""
     diagnostics: bool = True
     """Write per-track diagnostics (residuals per factor type and frame, outliers, weakest directions)."""
+    calibration_limits: CalibrationLimits = field(default_factory=CalibrationLimits)
+    """Sanity limits of the calibration files (field of view, baseline, rotations, camera distance from the
+    LiDAR origin); a pair outside them is refused with an error naming the file and key."""
+    keypoint_margin: float = 0.05
+    """2D keypoints more than this fraction of the image size outside the image are dropped with a warning; a
+    label with more than half of its keypoints outside is skipped (``ReaderConfig.keypoint_margin``)."""
+    plausibility: PlausibilityConfig = field(default_factory=PlausibilityConfig)
+    """Limits of a plausible fitted track; a track outside them is recorded as failed with the reason and not
+    written (:mod:`pedx_graph.solvers.plausibility`)."""
 
     def reader_config(self) -> ReaderConfig:
-        """The :class:`~pedx_graph.data.reader.ReaderConfig` this fit reads its dataset with (fps, ground)."""
-        return ReaderConfig(fps=self.fps, ground=self.ground)
+        """The :class:`~pedx_graph.data.reader.ReaderConfig` this fit reads its dataset with (fps, ground,
+        calibration limits, keypoint margin)."""
+        return ReaderConfig(fps=self.fps, ground=self.ground, calibration_limits=self.calibration_limits,
+                            keypoint_margin=self.keypoint_margin)

@@ -32,11 +32,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     cfg = TrainConfig(fps=args.fps, seed=args.seed, mirror=not args.no_mirror, n_init=args.n_init,
                       clips=tuple(args.clips))
-    try:
-        result = train_priors(motion_dir, args.out, cfg)
-    except (ValueError, FileNotFoundError) as exc:      # hold-out requested, unknown clip, bad files
-        log.error("%s", exc)
-        return 2
+    from pedx_graph.config_ranges import check_config
+    check_config(cfg, "<command line>")
+    result = train_priors(motion_dir, args.out, cfg)       # errors: one line from pedx_graph.cli (exit 1)
     ll = result.provenance["log_likelihood"]
     print(json.dumps({"out": str(args.out), "clips_train": len(result.provenance["clips_train"]),
                       "log_likelihood": {k: v for k, v in ll.items() if k != "holdout_per_clip"}}, indent=1))

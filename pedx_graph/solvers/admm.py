@@ -242,9 +242,11 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     extra_track.update({"admm_iterations": report.iterations, "admm_converged": report.converged,
                         "admm_primal_residual": report.primal_residuals[-1] if report.primal_residuals else None,
                         "admm_dual_residual": report.dual_residuals[-1] if report.dual_residuals else None})
-    return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
-                       frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
-                       trans=est.trans, world_keypoints=est.world_keypoints, final_error=report.final_error,
-                       initial_error=report.initial_error, iterations=report.iterations,
-                       seconds=time.perf_counter() - t0, solver="admm", extra_per_frame=extra_frames,
-                       extra_track=extra_track)
+    result = TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
+                         frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
+                         trans=est.trans, world_keypoints=est.world_keypoints, final_error=report.final_error,
+                         initial_error=report.initial_error, iterations=report.iterations,
+                         seconds=time.perf_counter() - t0, solver="admm", extra_per_frame=extra_frames,
+                         extra_track=extra_track)
+    from pedx_graph.solvers.plausibility import check_track_result
+    return check_track_result(result, track, config, problem, values)    # ImplausibleEstimateError: a failed track

@@ -7,6 +7,7 @@ import logging
 
 from pedx_graph.config import load_config
 from pedx_graph.graph.config import FitConfig
+from pedx_graph.preflight import check_fit_setup
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +30,7 @@ def _run_fit(args: argparse.Namespace) -> int:
     from pedx_graph.solvers.fit import fit_dataset
 
     config = load_config(FitConfig, args.config)
+    check_fit_setup(config, args.dataset, args.config or "<defaults>")    # one line before any output
     summary = fit_dataset(args.dataset, args.out, config, workers=args.workers, sequences=args.sequence,
                           solver=args.solver)
     n_ok, n_bad = len(summary["tracks"]), len(summary["failed"])

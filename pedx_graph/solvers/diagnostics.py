@@ -302,6 +302,24 @@ def _signed_volumes(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return (np.einsum("nf,nf->n", z.sum(axis=1), n_z) / 6.0).reshape(lead)
 
 
+def mesh_is_closed(faces: np.ndarray) -> bool:
+    """Every edge of the triangle mesh ``faces`` (F, 3) is shared by exactly two faces: a closed surface, whose
+    signed volume tells inside from outside (SMPL-format bodies are; a test model of random triangles is not)."""
+    cached = _CLOSED_MESHES.get(id(faces))
+    if cached is not None and cached[0] is faces:          # a model's faces, checked once per process
+        return cached[1]
+    key = faces
+    faces = np.asarray(faces, dtype=np.int64)
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    closed = bool(len(counts)) and bool(np.all(counts == 2))
+    _CLOSED_MESHES[id(key)] = (key, closed)
+    return closed
+
+
+_CLOSED_MESHES: dict[int, tuple[np.ndarray, bool]] = {}
+
+
 def _rest_orientation(model) -> tuple[float, float]:
     """``(sign, volume)``: the sign that makes the mean shape's rest mesh positive, and its volume, m^3."""
     rest = _signed_volumes(model.forward(np.zeros(72), np.zeros(model.num_betas)).vertices, model.faces)
@@ -350,6 +368,7 @@ def body_plausibility(model, pose: np.ndarray, betas: np.ndarray, per_frame: boo
                                             inside_out, len(volumes), float(np.max(np.abs(betas))))
     frames = [{"mesh_signed_volume_m3": float(v)} for v in volumes] if per_frame else []
     track = {"mesh_check": "per_frame" if per_frame else "rest_pose", "inside_out_frames": inside_out,
+             "mesh_closed": mesh_is_closed(model.faces),
              "min_mesh_signed_volume_m3": float(volumes.min()) if len(volumes) else float("nan"),
              "mesh_volume_ratio": float(np.median(volumes) / reference) if len(volumes) else float("nan"),
              "max_abs_beta": float(np.max(np.abs(betas))) if betas.size else 0.0}

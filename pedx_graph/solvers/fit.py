@@ -111,12 +111,14 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
     record_depth_sources(problem.init, per_frame, per_track)
     if report.flips:
         per_track["flips"] = report.flips
-    return TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
-                       frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
-                       trans=est.trans, world_keypoints=est.world_keypoints,
-                       final_error=report.final_error, initial_error=report.initial_error,
-                       iterations=report.iterations, seconds=seconds, solver=f"lm-{report.backend}",
-                       extra_per_frame=per_frame, extra_track=per_track)
+    result = TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
+                         frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
+                         trans=est.trans, world_keypoints=est.world_keypoints,
+                         final_error=report.final_error, initial_error=report.initial_error,
+                         iterations=report.iterations, seconds=seconds, solver=f"lm-{report.backend}",
+                         extra_per_frame=per_frame, extra_track=per_track)
+    from pedx_graph.solvers.plausibility import check_track_result
+    return check_track_result(result, track, config, problem, values)    # ImplausibleEstimateError: a failed track
 
 
 def record_depth_sources(init, per_frame: list[dict], per_track: dict) -> None:

@@ -244,6 +244,7 @@ class StreamingEstimator:
         self.sequence = sequence
         self.active: dict[str, _ActiveTrack] = {}
         self.finished: list = []
+        self.failed_tracks: list[dict] = []
         self._pelvis_rest0 = ctx.model.rest_joints(np.zeros(ctx.model.num_betas))[0]
         self.body = _StreamBody(ctx.model, ctx.chamfer_vertex_ids)
         """The body model the streamed factors evaluate (batched over each sample's pedestrians)."""
@@ -604,11 +605,25 @@ class StreamingEstimator:
 
     def end_track(self, tracking_id: str):
         """Finalise one track now: smoothed estimate, marginals, diagnostics -> :class:`TrackResult`."""
+        from pedx_graph.solvers.plausibility import ImplausibleEstimateError
+
         state = self.active.pop(tracking_id)
-        result = self._finalise(state)
+        try:
+            result = self._finalise(state)
+        except ImplausibleEstimateError as exc:     # recorded as a failed track (pop_failed), not written
+            log.warning("stream: %s", exc)
+            self.failed_tracks.append({"sequence": state.sequence, "tracking_id": state.tracking_id,
+                                       "error": f"{type(exc).__name__}: {exc}", "reasons": exc.reasons})
+            return None
         if result is not None:
             self.finished.append(result)
         return result
+
+    def pop_failed(self) -> list[dict]:
+        """Tracks whose smoothed estimate was refused as implausible since the last call
+        (:mod:`pedx_graph.solvers.plausibility`): ``{"sequence", "tracking_id", "error", "reasons"}`` each."""
+        out, self.failed_tracks = self.failed_tracks, []
+        return out
 
     def pop_finished(self) -> list:
         """Track results finalised since the last call."""
@@ -672,12 +687,16 @@ class StreamingEstimator:
                                                   frames=state.frames)
         extra_track.update(track_fields)
         graph_error = float(problem.graph.error(values))
-        return TrackResult(sequence=state.sequence, tracking_id=state.tracking_id,
-                           frames=[fr.frame for fr in state.frames], pose=est.pose, betas=est.betas,
-                           trans=est.trans, world_keypoints=est.world_keypoints, final_error=graph_error,
-                           initial_error=float("nan"), iterations=len(state.smoother.updates),
-                           seconds=float(latencies.sum()) + finalize_s, solver="isam2-stream",
-                           extra_per_frame=extra_frames, extra_track=extra_track)
+        result = TrackResult(sequence=state.sequence, tracking_id=state.tracking_id,
+                             frames=[fr.frame for fr in state.frames], pose=est.pose, betas=est.betas,
+                             trans=est.trans, world_keypoints=est.world_keypoints, final_error=graph_error,
+                             initial_error=float("nan"), iterations=len(state.smoother.updates),
+                             seconds=float(latencies.sum()) + finalize_s, solver="isam2-stream",
+                             extra_per_frame=extra_frames, extra_track=extra_track)
+        from pedx_graph.solvers.plausibility import check_track_result
+        track = Track(state.sequence, state.tracking_id, list(state.frames), dict(state.calibrations),
+                      ground=self.ground)
+        return check_track_result(result, track, self.config, problem, values)   # raises when implausible
 
 
 def _causal_label(sequence: str, est: FrameEstimate):
@@ -762,8 +781,10 @@ def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config:
                 isam_latencies.extend(e.isam_seconds for e in current.values())
                 for result in estimator.pop_finished():
                     record(result)
+                summary["failed"].extend(estimator.pop_failed())        # implausible smoothed tracks
             for result in estimator.finish():
                 record(result)
+            summary["failed"].extend(estimator.pop_failed())
     lat = np.asarray(latencies) * 1e3
     summary["total_frames"] = int(len(lat))
     if len(lat):

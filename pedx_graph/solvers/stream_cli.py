@@ -27,6 +27,7 @@ def register(subparsers) -> None:
 
 def _run_stream(args: argparse.Namespace) -> int:
     from pedx_graph.config import load_config
+    from pedx_graph.config_ranges import check_config
     from pedx_graph.graph.config import FitConfig
     from pedx_graph.solvers.stream import StreamConfig, stream_dataset
 
@@ -38,6 +39,9 @@ def _run_stream(args: argparse.Namespace) -> int:
         stream_config.marginals = False
     if args.track_timeout is not None:
         stream_config.track_timeout_s = args.track_timeout
+    from pedx_graph.preflight import check_fit_setup
+    check_config(stream_config, args.stream_config or "<command line>")       # before any output
+    check_fit_setup(config, args.dataset, args.config or "<defaults>")
     summary = stream_dataset(args.dataset, args.out, config, stream_config, sequences=args.sequence)
     lat = summary.get("update_ms", {})
     print(f"streamed {summary['total_frames']} pedestrian-frames, {len(summary['tracks'])} tracks in "

@@ -1,0 +1,339 @@
+"""The allowed values of every configuration field, checked once at start-up (:func:`check_config`).
+
+:func:`pedx_graph.config.load_config` calls :func:`check_config` on what it loaded, so a run refuses a bad
+value before it creates any output, with one line naming the file and the key
+(``fit.yaml: config key 'noise.keypoint_sigma_px' must be > 0, got -3.0``).  Rules are keyed by
+``"<ClassName>.<field>"`` in :data:`RULES`; every number of every config (also in tuples) must be finite
+unless its rule allows infinity, whether or not it has a rule.  ``None`` passes where the field's type allows
+it.  :data:`CROSS_CHECKS` relate two fields of one class.  The simulator's :class:`~pedx_graph.sim.config.SimConfig`
+keeps its own :meth:`~pedx_graph.sim.config.SimConfig.validate`, which :func:`check_config` also calls.
+"""
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+import numbers
+from dataclasses import dataclass
+from typing import Any, Callable
+
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class Range:
+    """A number (or every number of a tuple) within ``lo``-``hi``."""
+
+    lo: float = -INF
+    hi: float = INF
+    lo_open: bool = False
+    hi_open: bool = False
+    integer: bool = False
+    """Whole numbers only."""
+    allow_inf: bool = False
+    """``inf`` is a value (e.g. "no limit")."""
+    length: int | None = None
+    """A tuple of exactly this many numbers."""
+
+    def problem(self, value) -> str | None:
+        values = list(value) if isinstance(value, (list, tuple)) else [value]
+        if self.length is not None and (not isinstance(value, (list, tuple)) or len(values) != self.length):
+            return f"must be {self.length} numbers"
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                return "must be a number"
+            v = float(v)
+            if math.isnan(v) or (math.isinf(v) and not self.allow_inf):
+                return "must be finite"
+            if self.integer and v != int(v):
+                return "must be a whole number"
+            low_bad = v <= self.lo if self.lo_open else v < self.lo
+            high_bad = v >= self.hi if self.hi_open else v > self.hi
+            if low_bad or high_bad:
+                return f"must be {self.describe()}"
+        return None
+
+    def describe(self) -> str:
+        if self.hi == INF:
+            return f"{'>' if self.lo_open else '>='} {self.lo:g}"
+        if self.lo == -INF:
+            return f"{'<' if self.hi_open else '<='} {self.hi:g}"
+        return f"in {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A string (or every string of a tuple) among ``values``, or among ``module.attribute``'s keys (read when
+    first checked, so this table imports nothing heavy)."""
+
+    values: tuple[str, ...] = ()
+    module: str = ""
+    attribute: str = ""
+
+    def allowed(self) -> list[str]:
+        if self.module:
+            return sorted(getattr(importlib.import_module(self.module), self.attribute))
+        return list(self.values)
+
+    def problem(self, value) -> str | None:
+        values = list(value) if isinstance(value, (list, tuple)) else [value]
+        allowed = self.allowed()
+        for v in values:
+            if not isinstance(v, str) or v not in allowed:
+                return f"must be one of {allowed}"
+        return None
+
+
+POSITIVE = Range(0.0, lo_open=True)
+NON_NEGATIVE = Range(0.0)
+ANY = Range()
+FRACTION = Range(0.0, 1.0)
+OPEN_FRACTION = Range(0.0, 1.0, lo_open=True, hi_open=True)
+COUNT = Range(1.0, integer=True)
+NON_NEGATIVE_INT = Range(0.0, integer=True)
+VECTOR3 = Range(length=3)
+LOSSES = Choice(("geman_mcclure", "gemanmcclure", "huber", "cauchy", "none"))
+
+#: ``"<ClassName>.<field>"`` -> the rule its value must meet (fields of bool or free text have none).
+RULES: dict[str, Range | Choice] = {
+    # pedx_graph.graph.config.FitConfig
+    "FitConfig.prior_covariance_scale": POSITIVE,
+    "FitConfig.fps": POSITIVE,
+    "FitConfig.chamfer_vertices": COUNT,
+    "FitConfig.seed": NON_NEGATIVE_INT,
+    "FitConfig.keypoint_margin": Range(0.0, 10.0),
+    # NoiseConfig
+    "NoiseConfig.keypoint_sigma_px": POSITIVE,
+    "NoiseConfig.keypoint_sigma_px_per_keypoint": Range(0.0, length=18),
+    "NoiseConfig.keypoint_model_sigma_px": NON_NEGATIVE,
+    "NoiseConfig.keypoint_noise_min_samples": COUNT,
+    "NoiseConfig.occluded_keypoint_sigma_px": POSITIVE,
+    "NoiseConfig.reprojection_loss": LOSSES,
+    "NoiseConfig.reprojection_loss_scale": POSITIVE,
+    "NoiseConfig.hip_sigma_factor": POSITIVE,
+    "NoiseConfig.lidar_sigma_m": POSITIVE,
+    "NoiseConfig.lidar_range_sigma_m": NON_NEGATIVE,
+    "NoiseConfig.lidar_model_sigma_m": NON_NEGATIVE,
+    "NoiseConfig.lidar_noise_min_samples": COUNT,
+    "NoiseConfig.lidar_loss": LOSSES,
+    "NoiseConfig.lidar_loss_scale": POSITIVE,
+    "NoiseConfig.lidar_max_points": COUNT,
+    "NoiseConfig.translation_sigma_m": POSITIVE,
+    "NoiseConfig.translation_ray_sigma_m": POSITIVE,
+    "NoiseConfig.translation_vertical_sigma_m": POSITIVE,
+    "NoiseConfig.translation_loss": LOSSES,
+    "NoiseConfig.translation_loss_scale": POSITIVE,
+    "NoiseConfig.translation_depth_offset_m": ANY,
+    "NoiseConfig.heading_sigma_rad": POSITIVE,
+    "NoiseConfig.heading_min_speed_mps": NON_NEGATIVE,
+    "NoiseConfig.joint_limit_sigma_rad": POSITIVE,
+    "NoiseConfig.shape_sigma": POSITIVE,
+    "NoiseConfig.shape_support_sd": Range(0.0, allow_inf=True),
+    "NoiseConfig.shape_support_sigma": POSITIVE,
+    # SolverConfig
+    "SolverConfig.backend": Choice(("python", "gtsam")),
+    "SolverConfig.linearization": Choice(("batched", "graph")),
+    "SolverConfig.linear_solver": Choice(("chain", "gtsam")),
+    "SolverConfig.max_iterations": NON_NEGATIVE_INT,
+    "SolverConfig.relative_error_tol": NON_NEGATIVE,
+    "SolverConfig.lambda_initial": POSITIVE,
+    "SolverConfig.lambda_max": POSITIVE,
+    "SolverConfig.coarse_max_iterations": NON_NEGATIVE_INT,
+    "SolverConfig.coarse_relative_error_tol": NON_NEGATIVE,
+    "SolverConfig.coarse_reprojection_loss": LOSSES,
+    "SolverConfig.flip_segments": Choice(module="pedx_graph.solvers.flips", attribute="SEGMENTS"),
+    "SolverConfig.flip_max_iterations": NON_NEGATIVE_INT,
+    "SolverConfig.flip_screen_iterations": NON_NEGATIVE_INT,
+    "SolverConfig.flip_min_distance_m": NON_NEGATIVE,
+    "SolverConfig.flip_max_heading_angle_deg": Range(0.0, 90.0),
+    # pedx_graph.data.ground.GroundConfig
+    "GroundConfig.world_up": VECTOR3,
+    "GroundConfig.ground_offset_m": ANY,
+    "GroundConfig.sensor_xyz": VECTOR3,
+    "GroundConfig.source": Choice(("auto", "pointclouds", "segments", "calibration")),
+    "GroundConfig.max_camera_disagreement_deg": Range(0.0, 180.0, lo_open=True),
+    "GroundConfig.max_ground_tilt_deg": Range(0.0, 90.0, lo_open=True),
+    "GroundConfig.inlier_threshold_m": POSITIVE,
+    "GroundConfig.min_ground_points": Range(3.0, integer=True),
+    "GroundConfig.min_segment_feet": Range(3.0, integer=True),
+    "GroundConfig.max_pointcloud_frames": NON_NEGATIVE_INT,
+    "GroundConfig.max_fit_points": Range(3.0, integer=True),
+    "GroundConfig.ransac_iterations": COUNT,
+    # pedx_graph.data.calib.CalibrationLimits
+    "CalibrationLimits.min_fov_deg": Range(0.0, 180.0, lo_open=True, hi_open=True),
+    "CalibrationLimits.max_fov_deg": Range(0.0, 180.0, lo_open=True, hi_open=True),
+    "CalibrationLimits.principal_point_margin": NON_NEGATIVE,
+    "CalibrationLimits.rectified_focal_rel_tol": NON_NEGATIVE,
+    "CalibrationLimits.rectified_row_tol_px": NON_NEGATIVE,
+    "CalibrationLimits.min_baseline_m": NON_NEGATIVE,
+    "CalibrationLimits.max_baseline_m": POSITIVE,
+    "CalibrationLimits.max_camera_distance_m": POSITIVE,
+    "CalibrationLimits.rotation_tol": POSITIVE,
+    # pedx_graph.solvers.plausibility.PlausibilityConfig
+    "PlausibilityConfig.max_distance_m": POSITIVE,
+    "PlausibilityConfig.min_depth_m": NON_NEGATIVE,
+    "PlausibilityConfig.shape_support_margin": NON_NEGATIVE,
+    "PlausibilityConfig.max_abs_beta": POSITIVE,
+    "PlausibilityConfig.max_outlier_fraction": Range(0.0, 1.0, lo_open=True),
+    "PlausibilityConfig.min_rows": NON_NEGATIVE_INT,
+    # pedx_graph.data.reader.ReaderConfig
+    "ReaderConfig.fps": POSITIVE,
+    "ReaderConfig.timestamps_kind": Choice(("pointclouds", "images")),
+    "ReaderConfig.keypoint_margin": Range(0.0, 10.0),
+    # pedx_graph.data.noise_estimate.NoiseEstimateConfig
+    "NoiseEstimateConfig.min_keypoint_samples": COUNT,
+    "NoiseEstimateConfig.min_total_samples": COUNT,
+    "NoiseEstimateConfig.lidar_neighbours": Range(3.0, integer=True),
+    "NoiseEstimateConfig.lidar_max_span_m": POSITIVE,
+    "NoiseEstimateConfig.lidar_max_depth_step_m": POSITIVE,
+    "NoiseEstimateConfig.lidar_max_slope": POSITIVE,
+    "NoiseEstimateConfig.lidar_min_residuals": COUNT,
+    "NoiseEstimateConfig.lidar_max_points": COUNT,
+    # pedx_graph.solvers.stream.StreamConfig / isam.IsamConfig
+    "StreamConfig.track_timeout_s": POSITIVE,
+    "StreamConfig.heading_half_window_s": POSITIVE,
+    "IsamConfig.relinearize_threshold_rad": POSITIVE,
+    "IsamConfig.relinearize_threshold_m": POSITIVE,
+    "IsamConfig.shape_relinearize_threshold": POSITIVE,
+    "IsamConfig.shape_relinearize_every": NON_NEGATIVE_INT,
+    "IsamConfig.relinearize_skip": COUNT,
+    "IsamConfig.wildfire_threshold": NON_NEGATIVE,
+    "IsamConfig.relinearize_window": NON_NEGATIVE_INT,
+    "IsamConfig.presolve_iterations": NON_NEGATIVE_INT,
+    "IsamConfig.presolve_method": Choice(("gn", "lm")),
+    "IsamConfig.finalize": Choice(("lm", "isam")),
+    "IsamConfig.finalize_max_updates": NON_NEGATIVE_INT,
+    "IsamConfig.finalize_relative_tol": NON_NEGATIVE,
+    "IsamConfig.num_betas": COUNT,
+    # pedx_graph.solvers.admm.AdmmConfig
+    "AdmmConfig.rho": POSITIVE,
+    "AdmmConfig.primal_tol": POSITIVE,
+    "AdmmConfig.dual_tol": POSITIVE,
+    "AdmmConfig.max_iterations": COUNT,
+    "AdmmConfig.inner_iterations": COUNT,
+    "AdmmConfig.inner_relative_tol": NON_NEGATIVE,
+    "AdmmConfig.workers": COUNT,
+    # pedx_graph.solvers.marginals.MarginalsConfig
+    "MarginalsConfig.method": Choice(("chain", "gtsam")),
+    "MarginalsConfig.diffuse_information": NON_NEGATIVE,
+    "MarginalsConfig.max_trans_sigma_m": POSITIVE,
+    "MarginalsConfig.max_root_sigma_rad": POSITIVE,
+    "MarginalsConfig.chamfer_information": Choice(("point_to_plane", "point_to_point")),
+    "MarginalsConfig.vertex_match_tol_m": POSITIVE,
+    # pedx_graph.solvers.diagnostics.DiagnosticsConfig
+    "DiagnosticsConfig.outlier_weight": OPEN_FRACTION,
+    "DiagnosticsConfig.ref_root_rad": POSITIVE,
+    "DiagnosticsConfig.ref_trans_m": POSITIVE,
+    "DiagnosticsConfig.ref_body_pose_rad": POSITIVE,
+    "DiagnosticsConfig.ref_shape": POSITIVE,
+    "DiagnosticsConfig.worst_frames": NON_NEGATIVE_INT,
+    "DiagnosticsConfig.consistency_quantile": OPEN_FRACTION,
+    # pedx_graph.baselines.smplify_disparity.SmplifyDispConfig
+    "SmplifyDispConfig.keypoint_sigma_px": POSITIVE,
+    "SmplifyDispConfig.occluded_keypoint_sigma_px": POSITIVE,
+    "SmplifyDispConfig.reprojection_loss": LOSSES,
+    "SmplifyDispConfig.reprojection_loss_scale": POSITIVE,
+    "SmplifyDispConfig.hip_sigma_factor": POSITIVE,
+    "SmplifyDispConfig.joint_limit_sigma_rad": POSITIVE,
+    "SmplifyDispConfig.shape_sigma": POSITIVE,
+    "SmplifyDispConfig.pose_prior_covariance_scale": POSITIVE,
+    "SmplifyDispConfig.yaw_candidates_deg": ANY,
+    "SmplifyDispConfig.min_keypoints": COUNT,
+    "SmplifyDispConfig.default_depth_m": POSITIVE,
+    "SmplifyDispConfig.rigid_stage_sigma": POSITIVE,
+    # pedx_graph.eval: experiments, report, detector noise
+    "ExperimentConfig.pedestrians": COUNT,
+    "ExperimentConfig.frames": COUNT,
+    "ExperimentConfig.baselines": Choice(module="pedx_graph.baselines.run", attribute="BASELINES"),
+    "ExperimentConfig.floor_samples": COUNT,
+    "SceneVariant.intersection_x_m": ANY,
+    "SceneVariant.distance_mean_m": POSITIVE,
+    "SceneVariant.distance_std_m": NON_NEGATIVE,
+    "ReportConfig.floor_samples": COUNT,
+    "ReportConfig.seed": NON_NEGATIVE_INT,
+    "DetectorNoiseConfig.sigma_px": NON_NEGATIVE,
+    "DetectorNoiseConfig.sigma_height_frac": NON_NEGATIVE,
+    "DetectorNoiseConfig.occluded_sigma_factor": POSITIVE,
+    "DetectorNoiseConfig.miss_prob_visible": FRACTION,
+    "DetectorNoiseConfig.miss_prob_occluded": FRACTION,
+    "DetectorNoiseConfig.swap_prob": FRACTION,
+    "DetectorNoiseConfig.outlier_prob": FRACTION,
+    "DetectorNoiseConfig.polygon_scale_sigma": NON_NEGATIVE,
+    "DetectorNoiseConfig.polygon_shift_frac": NON_NEGATIVE,
+    "DetectorNoiseConfig.polygon_vertex_noise_px": NON_NEGATIVE,
+    "DetectorNoiseConfig.segment_depth_gate_m": NON_NEGATIVE,
+    # pedx_graph.priors.train.TrainConfig
+    "TrainConfig.fps": POSITIVE,
+    "TrainConfig.pose_fps": POSITIVE,
+    "TrainConfig.oversample": COUNT,
+    "TrainConfig.n_pose": COUNT,
+    "TrainConfig.n_temporal": COUNT,
+    "TrainConfig.reg_covar_pose": NON_NEGATIVE,
+    "TrainConfig.reg_covar_temporal": NON_NEGATIVE,
+    "TrainConfig.unobserved_std_pose": POSITIVE,
+    "TrainConfig.unobserved_std_temporal": POSITIVE,
+    "TrainConfig.n_init": COUNT,
+    "TrainConfig.max_iter": COUNT,
+    "TrainConfig.seed": NON_NEGATIVE_INT,
+    "TrainConfig.rest_skeleton": Choice(("body", "generic")),
+}
+
+#: ``(ClassName, check(config) -> bool, what must hold)`` relating fields of one config.
+CROSS_CHECKS: list[tuple[str, Callable[[Any], bool], str]] = [
+    ("CalibrationLimits", lambda c: c.min_fov_deg < c.max_fov_deg, "'min_fov_deg' < 'max_fov_deg'"),
+    ("CalibrationLimits", lambda c: c.min_baseline_m < c.max_baseline_m, "'min_baseline_m' < 'max_baseline_m'"),
+]
+
+#: Config classes whose fields are not in :data:`RULES` because the class checks itself (``validate``).
+SELF_CHECKED = ("SimConfig", "SceneConfig", "StereoPairConfig", "CamerasConfig", "LidarConfig", "LabelConfig",
+                "MotionConfig", "OutputFrameConfig")
+
+
+class _Problem(Exception):
+    pass
+
+
+def _check_value(value, rule, where: str) -> None:
+    if value is None:
+        return
+    if rule is None:                                        # no rule: numbers must still be finite
+        values = list(value) if isinstance(value, (list, tuple)) else [value]
+        for v in values:
+            if isinstance(v, numbers.Real) and not isinstance(v, bool) and not math.isfinite(float(v)):
+                raise _Problem(f"config key '{where}' must be finite, got {value!r}")
+        return
+    problem = rule.problem(value)
+    if problem:
+        raise _Problem(f"config key '{where}' {problem}, got {value!r}")
+
+
+def _walk(cfg, prefix: str) -> None:
+    name = type(cfg).__name__
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        where = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            _walk(value, where + ".")
+        elif isinstance(value, list) and value and all(dataclasses.is_dataclass(v) for v in value):
+            for i, item in enumerate(value):
+                _walk(item, f"{where}[{i}].")
+        elif not isinstance(value, bool):
+            _check_value(value, RULES.get(f"{name}.{f.name}"), where)
+    for cls_name, check, text in CROSS_CHECKS:
+        if cls_name == name and not check(cfg):
+            raise _Problem(f"config '{prefix.rstrip('.') or name}' needs {text}")
+
+
+def check_config(cfg, source: str = "<config>"):
+    """``cfg`` (any config dataclass, nested ones included) when every value is allowed (module docstring);
+    :class:`~pedx_graph.config.ConfigError` naming ``source`` and the key otherwise."""
+    from pedx_graph.config import ConfigError
+
+    try:
+        _walk(cfg, "")
+    except _Problem as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    validate = getattr(cfg, "validate", None)
+    if callable(validate):
+        validate(source)
+    return cfg
