@@ -160,8 +160,9 @@ def get_floats(entries: dict[str, str], key: str, count: int, path: str | os.Pat
 
 
 def _check_rotation(rot: np.ndarray, path, key: str, tol: float = ROTATION_TOL) -> np.ndarray:
-    err = np.abs(rot.T @ rot - np.eye(3)).max()
-    det = np.linalg.det(rot)
+    with np.errstate(over="ignore", invalid="ignore"):     # huge entries: inf / nan, refused below
+        err = np.abs(rot.T @ rot - np.eye(3)).max()
+        det = np.linalg.det(rot)
     if not (err <= tol and abs(det - 1.0) <= tol):
         raise DataFormatError(path, key, f"not a rotation (max |R^T R - I| = {err:.2e}, det = {det:.6f})")
     # Remove the rounding of the text file: nearest rotation (polar decomposition).
