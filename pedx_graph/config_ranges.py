@@ -175,6 +175,7 @@ RULES: dict[str, Range | Choice] = {
     "PlausibilityConfig.shape_support_margin": NON_NEGATIVE,
     "PlausibilityConfig.max_abs_beta": POSITIVE,
     "PlausibilityConfig.max_outlier_fraction": Range(0.0, 1.0, lo_open=True),
+    "PlausibilityConfig.max_lidar_outlier_fraction": Range(0.0, 1.0, lo_open=True),
     "PlausibilityConfig.min_rows": NON_NEGATIVE_INT,
     # pedx_graph.data.reader.ReaderConfig
     "ReaderConfig.fps": POSITIVE,

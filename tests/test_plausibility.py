@@ -104,6 +104,13 @@ def test_inconsistent_residuals(fitted, track):
     assert reasons_of(bad, track) == ["inconsistent_residuals"]
     config = FitConfig(plausibility=PlausibilityConfig(max_outlier_fraction=0.7))
     check_track_result(copy.deepcopy(bad), track, config)
+    # LiDAR rows: a segment may be mostly background; only a nearly complete rejection fails the track
+    lidar = copy.deepcopy(fitted)
+    chamfer = lidar.extra_track["diagnostics"]["residuals"]["lidar_chamfer"]
+    chamfer["outlier_rows"] = int(0.6 * chamfer["rows"])
+    check_track_result(copy.deepcopy(lidar), track, FitConfig())
+    chamfer["outlier_rows"] = chamfer["rows"]
+    assert reasons_of(lidar, track) == ["inconsistent_residuals"]
     config = FitConfig(plausibility=PlausibilityConfig(enabled=False))
     far = copy.deepcopy(bad)
     far.trans[:] = np.inf
