@@ -19,7 +19,7 @@ thresholds of :class:`PlausibilityConfig`:
 * ``inside_out``: a posed mesh with a non-positive signed volume (``inside_out_frames`` of
   :func:`~pedx_graph.solvers.diagnostics.body_plausibility`): a mirrored body.  Judged only for a body model
   whose mesh is closed (``mesh_closed``; the volume of an open mesh has no sign to trust).
-* ``inconsistent_residuals``: more than ``max_outlier_fraction`` (half) of the 2D keypoint rows
+* ``inconsistent_residuals``: more than ``max_outlier_fraction`` (70 %) of the 2D keypoint rows
   (``stereo_reprojection``), or more than ``max_lidar_outlier_fraction`` (90 %) of the LiDAR rows
   (``lidar_chamfer``), rejected by the term's robust loss
   (``outlier_rows`` of :func:`~pedx_graph.solvers.diagnostics.residual_tables`: whitened residual past the
@@ -66,8 +66,10 @@ class PlausibilityConfig:
     much, in betas units, before the body counts as outside the prior."""
     max_abs_beta: float = 5.0
     """Largest ``|beta_i|`` when the fit has no shape support term (``noise.shape_support_sd`` 0 or inf)."""
-    max_outlier_fraction: float = 0.5
-    """Largest fraction of the 2D keypoint rows the reprojection term's robust loss may reject."""
+    max_outlier_fraction: float = 0.7
+    """Largest fraction of the 2D keypoint rows the reprojection term's robust loss may reject (real labels
+    click some points where the body model does not put them — the head, the hips —, so a few keypoints
+    can be outliers in every frame of a sound fit: the limit leaves room for that)."""
     max_lidar_outlier_fraction: float = 0.9
     """Largest fraction of the LiDAR rows the chamfer term's robust loss may reject (segments cut by loose
     polygons can be mostly background: only a nearly complete rejection says the data contradict)."""
