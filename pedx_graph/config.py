@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import types
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -35,7 +36,7 @@ def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix
         raise ConfigError(f"{source}: '{prefix or '<root>'}' must be a mapping, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
+    unknown = sorted(set(data) - names, key=str)       # YAML keys may be numbers, null, ...
     if unknown:
         raise ConfigError(f"{source}: unknown config key '{prefix}{unknown[0]}' (known: {sorted(names)})")
     kwargs = {}
@@ -54,9 +55,22 @@ def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix
 def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
     origin = typing.get_origin(tp)
     try:
+        if origin is typing.Union or origin is types.UnionType:    # e.g. ``tuple[float, float] | None``
+            args = typing.get_args(tp)
+            if value is None and type(None) in args:
+                return None
+            for arg in args:
+                if arg is not type(None):
+                    try:
+                        return _coerce(value, arg, source, key)
+                    except ConfigError:
+                        pass
+            raise TypeError
         if tp is float and isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)
         if tp is int and isinstance(value, int) and not isinstance(value, bool):
+            if not -2 ** 63 <= value < 2 ** 63:     # what numpy and the solvers can hold
+                raise ConfigError(f"{source}: config key '{key}' is out of the 64-bit integer range")
             return value
         if tp is bool and isinstance(value, bool):
             return value
@@ -66,18 +80,49 @@ def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
             args = typing.get_args(tp)
             if len(args) == 2 and args[1] is Ellipsis:
                 return tuple(_coerce(v, args[0], source, key) for v in value)
+            if len(value) != len(args):
+                raise TypeError
             return tuple(_coerce(v, a, source, key) for v, a in zip(value, args))
         if origin in (list,) and isinstance(value, (list, tuple)):
             (arg,) = typing.get_args(tp) or (Any,)
             return [_coerce(v, arg, source, key) for v in value]
-        if tp in (Any, None) or origin is typing.Union or origin is getattr(__import__("types"), "UnionType", ()):
+        if tp in (Any, None):
             return value
-        if tp in (float, int, bool, str):
+        if tp in (float, int, bool, str) or origin in (tuple, list):
             raise TypeError
         return value
-    except TypeError:
+    except (TypeError, OverflowError):          # OverflowError: an integer beyond the float range
         pass
     raise ConfigError(f"{source}: config key '{key}' must be {getattr(tp, '__name__', tp)}, got {value!r}")
+
+
+def read_yaml(path: str | os.PathLike) -> Any:
+    """The parsed content of a YAML file (None when empty); :class:`ConfigError` naming the file, in one line,
+    when it cannot be read or parsed."""
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: config file not found") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config file ({exc.strerror or exc})") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not valid YAML (not UTF-8 text: {exc.reason} at byte {exc.start})") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({_yaml_problem(exc)})") from exc
+    except RecursionError as exc:
+        raise ConfigError(f"{path}: not valid YAML (nested too deeply)") from exc
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """YAML's own message spans several lines with a source excerpt: its problem and position on one line."""
+    problem, mark = getattr(exc, "problem", None), getattr(exc, "problem_mark", None)
+    if problem and mark is not None:
+        context = getattr(exc, "context", None)
+        text = f"{context + ': ' if context else ''}{problem} at line {mark.line + 1}, column {mark.column + 1}"
+    else:
+        text = str(exc)
+    return " ".join(text.split())
 
 
 def load_config(cls: type[T], path: str | os.PathLike | None = None) -> T:
@@ -87,14 +132,8 @@ def load_config(cls: type[T], path: str | os.PathLike | None = None) -> T:
 
     if path is None:
         return check_config(cls(), "<defaults>")
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: config file not found") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-    return check_config(from_dict(cls, data, source=str(path)), str(path))
+    data = read_yaml(path)
+    return check_config(from_dict(cls, {} if data is None else data, source=str(path)), str(path))
 
 
 def to_dict(cfg: Any) -> dict:

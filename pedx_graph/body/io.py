@@ -19,6 +19,8 @@ import json
 import logging
 import pickle
 import warnings
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -171,6 +173,12 @@ def _load_pickle(path: Path) -> dict:
             data = _RestrictedUnpickler(fh, encoding="latin1").load()
     except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError, ValueError) as exc:
         raise ModelFormatError(f"{path}: cannot read the pickle ({exc}).\n{CONVERT_HINT}") from exc
+    except OSError as exc:
+        raise ModelFormatError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
+    except Exception as exc:    # noqa: BLE001 -- corrupt opcodes reach the constructors the unpickler may call
+        # (numpy, scipy.sparse, builtins) with arbitrary arguments, or ask for absurd sizes (MemoryError,
+        # OverflowError, KeyError, IndexError, RecursionError, ...): all mean an unreadable file
+        raise ModelFormatError(f"{path}: cannot read the pickle ({type(exc).__name__}: {exc})") from exc
     if not isinstance(data, dict):
         raise ModelFormatError(f"{path}: the pickle holds a {type(data).__name__}, expected a dict of arrays")
     out = {}
@@ -191,7 +199,20 @@ def _load_pickle(path: Path) -> dict:
     return out
 
 
+#: What reading a corrupt ``.npz`` (a zip of ``.npy`` members) can raise besides OSError / ValueError / EOFError:
+#: bad zip structure or CRC, bad deflate data, an unsupported compression method, the encrypted flag.
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError)
+
+
 def _load_npz(path: Path) -> dict:
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise ModelFormatError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):        # np.load would also take a bare .npy or a pickle
+        raise ModelFormatError(f"{path}: not a readable .npz file (no zip archive signature; truncated or "
+                               f"not an .npz)")
     try:
         with np.load(path, allow_pickle=False) as npz:
             out = {}
@@ -199,14 +220,20 @@ def _load_npz(path: Path) -> dict:
                 try:
                     out[key] = npz[key]
                 except ValueError as exc:
+                    if "allow_pickle" not in str(exc):
+                        raise ModelFormatError(f"{path}: key '{key}' cannot be read ({' '.join(str(exc).split())})"
+                                               ) from exc
                     raise ModelFormatError(
                         f"{path}: key '{key}' is stored as a pickled object array, which is not loaded for "
                         f"safety; store it as a plain numeric array ({exc})") from exc
+                except (OSError, EOFError, *_ZIP_ERRORS) as exc:
+                    raise ModelFormatError(f"{path}: key '{key}' cannot be read ({' '.join(str(exc).split())})"
+                                           ) from exc
             return out
     except ModelFormatError:
         raise
-    except (OSError, ValueError, EOFError) as exc:
-        raise ModelFormatError(f"{path}: not a readable .npz file ({exc})") from exc
+    except (OSError, ValueError, EOFError, *_ZIP_ERRORS) as exc:
+        raise ModelFormatError(f"{path}: not a readable .npz file ({' '.join(str(exc).split())})") from exc
 
 
 def read_model_file(path: str | Path) -> dict:
@@ -363,11 +390,12 @@ def validate_model_arrays(raw: dict, source: str = "<arrays>", num_betas: int = 
     if faces_arr.ndim != 2 or faces_arr.shape[1] != 3:
         raise ModelFormatError(f"{src}: key 'f' has shape {faces_arr.shape}, expected (F, 3)")
     if faces_arr.size and not np.issubdtype(faces_arr.dtype, np.integer):
-        if not np.issubdtype(faces_arr.dtype, np.floating) or np.any(faces_arr != np.round(faces_arr)):
+        if not np.issubdtype(faces_arr.dtype, np.floating) or not np.all(np.isfinite(faces_arr)) \
+                or np.any(faces_arr != np.round(faces_arr)):
             raise ModelFormatError(f"{src}: key 'f' must hold integer vertex indices (dtype {faces_arr.dtype})")
-    faces = faces_arr.astype(np.int64)
-    if faces.size and (faces.min() < 0 or faces.max() >= num_v):
+    if faces_arr.size and (faces_arr.min() < 0 or faces_arr.max() >= num_v):     # checked before the cast
         raise ModelFormatError(f"{src}: key 'f' holds vertex indices outside [0, {num_v}) (V mismatch?)")
+    faces = faces_arr.astype(np.int64)
     names, vid, jid = _optional_keypoints(raw, src, num_v)
     return ModelData(v_template=v_template, shapedirs=shapedirs, posedirs=posedirs, j_regressor=j_regressor,
                      weights=weights, parents=parents, faces=faces, keypoint_names=names,

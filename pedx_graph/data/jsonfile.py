@@ -19,3 +19,7 @@ def read_json_file(path: str | os.PathLike) -> Any:
         raise DataFormatError(path, None, f"cannot read file ({exc.strerror or exc})") from exc
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataFormatError(path, "<json>", f"malformed JSON ({exc})") from exc
+    except ValueError as exc:       # an integer literal longer than Python's int conversion limit
+        raise DataFormatError(path, "<json>", "malformed JSON (a number literal is too long)") from exc
+    except RecursionError as exc:
+        raise DataFormatError(path, "<json>", "malformed JSON (arrays or objects nested too deeply)") from exc

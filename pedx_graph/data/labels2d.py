@@ -135,7 +135,10 @@ def _number(value, path, field: str) -> float:
                 raise DataFormatError(path, field, f"not a number: {value!r}") from None
         else:
             raise DataFormatError(path, field, f"not a number: {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:           # an integer beyond the float range
+        raise DataFormatError(path, field, "number out of the float range") from None
     if not np.isfinite(value):
         raise DataFormatError(path, field, f"non-finite value {value!r}")
     return value

@@ -73,12 +73,15 @@ def _parse_header(path: Path, data: bytes) -> tuple[str, list[tuple[str, int, li
                 raise DataFormatError(path, "format", f"unsupported PLY format line {raw.strip()!r}")
             fmt = words[1]
         elif words[0] == "element":
-            if len(words) != 3 or not words[2].isdigit():
-                raise DataFormatError(path, "element", f"bad element line {lineno}: {raw.strip()!r}")
+            if len(words) != 3 or not words[2].isdigit() or len(words[2].lstrip("0")) > 15:
+                raise DataFormatError(path, "element", f"bad element line {lineno}: {raw.strip()[:80]!r}")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property":
             if not elements:
                 raise DataFormatError(path, "property", f"property before any element (line {lineno})")
+            if words[-1] in {prop for prop, _ in elements[-1][2]}:
+                raise DataFormatError(path, words[-1], f"property appears twice in element "
+                                                       f"'{elements[-1][0]}' (line {lineno})")
             if len(words) == 5 and words[1] == "list":
                 if words[2] not in _PLY_TYPES or words[3] not in _PLY_TYPES:
                     raise DataFormatError(path, words[4], f"unknown list property types on line {lineno}")
@@ -123,15 +126,28 @@ def read_ply_vertices(path: str | os.PathLike) -> dict[str, np.ndarray]:
                 raise DataFormatError(path, "vertex", f"expected {count} vertex lines, found {len(rows)}")
             if has_list:
                 raise DataFormatError(path, "vertex", "list properties in the vertex element are not supported")
-            try:
-                table = np.array([[float(w) for w in r.split()] for r in rows], dtype=np.float64)
-            except ValueError as exc:
-                raise DataFormatError(path, "vertex", f"non-numeric vertex value ({exc})") from exc
-            table = table.reshape(count, -1) if count else np.zeros((0, len(props)))
-            if table.shape[1] != len(props):
-                raise DataFormatError(path, "vertex", f"expected {len(props)} values per vertex line, "
-                                                      f"found {table.shape[1]}")
-            return {p: table[:, i].astype(_PLY_TYPES[t]) for i, (p, t) in enumerate(props)}
+            table = np.zeros((count, len(props)))
+            for i, row in enumerate(rows):
+                words = row.split()
+                if len(words) != len(props):
+                    raise DataFormatError(path, "vertex", f"expected {len(props)} values per vertex line, "
+                                                          f"found {len(words)} (vertex {i})")
+                try:
+                    table[i] = [float(w) for w in words]
+                except ValueError as exc:
+                    raise DataFormatError(path, "vertex", f"non-numeric vertex value ({exc})") from exc
+            out = {}
+            for i, (prop, ply_type) in enumerate(props):
+                dtype = np.dtype(_PLY_TYPES[ply_type])
+                column = table[:, i]
+                if dtype.kind in "iu":      # integer properties: whole numbers inside the type's range
+                    info = np.iinfo(dtype)
+                    bad = ~np.isfinite(column) | (column != np.round(column)) | (column < info.min) \
+                        | (column > info.max)
+                    if bad.any():
+                        raise DataFormatError(path, prop, f"value {float(column[bad][0])!r} is not a {ply_type}")
+                out[prop] = column.astype(dtype)
+            return out
         if has_list:
             raise DataFormatError(path, name, "binary list properties before the vertex element are not supported")
         dtype = np.dtype([(p, order + _PLY_TYPES[t]) for p, t in props])

@@ -108,14 +108,15 @@ def timestamps_path(root: str | os.PathLike, sequence: str, kind: str = "pointcl
     return Path(root) / "timestamps" / f"timestamps-{kind}-{sequence}.txt"
 
 
-_DIGITS_RE = re.compile(r"(\d+)(?!.*\d)")
+_DIGITS_RE = re.compile(r"([0-9]+)(?!.*[0-9])")
 
 
 def _frame_token(token: str) -> int | None:
-    if token.isdigit():
-        return int(token)
-    match = _DIGITS_RE.search(token)  # e.g. a file name "<seq>_0000123.ply": its last digit run
-    return int(match.group(1)) if match and not _is_float(token) else None
+    digits = token if token.isascii() and token.isdigit() else None    # ASCII only: '²'.isdigit() too
+    if digits is None:
+        match = _DIGITS_RE.search(token)  # e.g. a file name "<seq>_0000123.ply": its last digit run
+        digits = match.group(1) if match and not _is_float(token) else None
+    return int(digits) if digits is not None and len(digits.lstrip("0")) <= 15 else None
 
 
 def _is_float(token: str) -> bool:

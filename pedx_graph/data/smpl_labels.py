@@ -48,7 +48,7 @@ def _vector(value, length: int | None, path, field: str) -> np.ndarray:
         raise DataFormatError(path, field, "missing")
     try:
         array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:     # Overflow: an integer beyond the float range
         raise DataFormatError(path, field, f"not a numeric array ({exc})") from exc
     array = array.reshape(-1)
     if length is not None and array.size != length:

@@ -26,12 +26,10 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
-import yaml
 
-from pedx_graph.config import ConfigError, from_dict, to_dict
+from pedx_graph.config import ConfigError, from_dict, read_yaml, to_dict
 
 #: Stereo pair names of the release: forward and left-facing pairs.
 FORWARD_PAIR = "ylw79D0-red707B"
@@ -485,12 +483,8 @@ def load_sim_config(path: str | os.PathLike | None = None, rig: str | None = Non
     source = "<command line>" if path is None else str(path)
     data: dict = {}
     if path is not None:
-        try:
-            data = yaml.safe_load(Path(path).read_text()) or {}
-        except FileNotFoundError as exc:
-            raise ConfigError(f"{path}: config file not found") from exc
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+        data = read_yaml(path)
+        data = {} if data is None else data
         if not isinstance(data, dict):
             raise ConfigError(f"{path}: '<root>' must be a mapping, got {type(data).__name__}")
     name = rig or data.get("rig") or "default"
