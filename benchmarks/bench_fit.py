@@ -70,7 +70,9 @@ def accuracy(seed: int, pedestrians: int, frames: int, workers: int, work: Path)
         n_tracks += len(summary["tracks"])
         n_failed += len(summary["failed"])
         n_frames += summary["total_frames"]
-        per_track += [t["seconds"] / max(t["frames"], 1) for t in summary["tracks"]]
+        frames_of = {(t["sequence"], t["tracking_id"]): t["frames"] for t in summary["tracks"]}
+        per_track += [t["seconds"] / max(frames_of[(t["sequence"], t["tracking_id"])], 1)
+                      for t in summary["timings"]["tracks"]]
         arr, _ = evaluate_arrays(results, scene)
         arrays.append(arr)
         scenes.append({"seed": seed + b, "distance_mean_m": cfg.scene.distance_mean_m,

@@ -140,6 +140,8 @@ def main(argv=None) -> int:
         # --- iSAM2 streaming (whole scene, interleaved tracks)
         stream_summary = stream_dataset(scene, work / "isam", config, StreamConfig(), ctx=ctx)
         by_id = {(t["sequence"], t["tracking_id"]): t for t in stream_summary["tracks"]}
+        stream_seconds = {(t["sequence"], t["tracking_id"]): t["seconds"]
+                          for t in stream_summary["timings"]["tracks"]}
         from pedx_graph.data.reader import read_smpl_labels
 
         streamed = read_smpl_labels(work / "isam")
@@ -155,7 +157,8 @@ def main(argv=None) -> int:
                 trans=np.stack([lab.trans for lab in labels]),
                 world_keypoints=np.stack([np.asarray(lab.extra["keypoints_3d"]) for lab in labels]),
                 final_error=entry["final_error"], initial_error=float("nan"), iterations=0,
-                seconds=entry["seconds"], solver="isam2-stream", extra_track=entry))
+                seconds=stream_seconds[(tr.sequence, tr.tracking_id)], solver="isam2-stream",
+                extra_track=entry))
         # --- ADMM on the first tracks
         common = fitted & {(r.sequence, r.tracking_id) for r in isam_results}
         admm_results = []
@@ -192,7 +195,7 @@ def main(argv=None) -> int:
     marg_frames = sum(r["frames"] for r in marg_rows)
     marg_ms = 1000.0 * sum(r["chain_seconds"] for r in marg_rows) / marg_frames
     marg_lin_ms = 1000.0 * sum(r["linearize_seconds"] for r in marg_rows) / marg_frames
-    lat = stream_summary.get("update_ms", {})
+    lat = stream_summary["timings"].get("update_ms", {})
     lm_all, isam_all, _ = table_all
     lm_sub, _, admm_row, plain_sub = table_sub
     goals = {

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     simulate(scene, sim_config, seed=args.seed)
     t1 = time.perf_counter()
     print(f"simulated {args.pedestrians} pedestrians x {args.frames} frames in {t1 - t0:.1f} s -> {scene}")
-    summary = fit_dataset(scene, results, config, workers=args.workers)
+    summary = fit_dataset(scene, results, config, workers=args.workers, overwrite=True)  # a re-run replaces them
     t2 = time.perf_counter()
     print(f"fitted {len(summary['tracks'])} tracks ({summary['total_frames']} frames) in {t2 - t1:.1f} s "
           f"({1000 * (t2 - t1) / max(summary['total_frames'], 1):.0f} ms per frame, {args.workers} workers); "

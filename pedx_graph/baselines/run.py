@@ -1,25 +1,24 @@
 """Run a baseline on one track or on a whole dataset, writing results exactly as ``pedx-graph fit`` does.
 
 ``run_baseline(name, track, model)`` -> :class:`~pedx_graph.solvers.fit.TrackResult`;
-``fit_dataset_baseline(dataset, out, name, workers)``: every track of every sequence (process pool over
-tracks, the body model and the pose prior loaded once per worker), results in the PedX SMPL layout under
-``out`` (with our ``keypoints_3d`` field, which the evaluation uses), ``summary.json`` and the resolved
-``baseline_config.yaml`` beside them.  One failing track is reported in the summary and never stops the run.
+``fit_dataset_baseline(dataset, out, name, workers)``: every track of every sequence as one task each
+(:func:`baseline_task`, run by :mod:`pedx_graph.execution` in this process, on a local process pool or a Dask
+cluster; the body model and the pose prior loaded once per worker), results in the PedX SMPL layout under
+``out`` as each track completes (with our ``keypoints_3d`` field, which the evaluation uses), the manifest,
+completion markers, ``summary.json`` and the resolved ``baseline_config.yaml`` beside them (resumable).  One
+failing track is reported in the summary and never stops the run.
 """
 from __future__ import annotations
 
 import logging
 import os
-import time
+import threading
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from pedx_graph.baselines.smplify_disparity import SmplifyDispConfig
-from pedx_graph.config import save_config
 from pedx_graph.data.types import Track
-from pedx_graph.solvers.fit import map_tracks, track_failure
 
 log = logging.getLogger(__name__)
 
@@ -80,10 +79,16 @@ def run_baseline(name: str, track: Track, model, config: BaselineConfig | None =
 
 # --- per-process state (body model and prior loaded once per worker) ------------------------------------
 _WORKER: dict = {}
+_WORKER_LOCK = threading.Lock()
 
 
 def _worker_state(name: str, config: BaselineConfig) -> dict:
     key = (config.body_model, name == "smplify_disp", config.smplify.pose_prior_covariance_scale)
+    with _WORKER_LOCK:         # a Dask worker may run tasks in several threads
+        return _load_worker_state(name, config, key)
+
+
+def _load_worker_state(name: str, config: BaselineConfig, key: tuple) -> dict:
     if _WORKER.get("key") != key:
         from pedx_graph.body import BodyModel
 
@@ -95,38 +100,42 @@ def _worker_state(name: str, config: BaselineConfig) -> dict:
     return _WORKER["state"]
 
 
-def _run_one(args):
-    name, track, config = args
-    try:
-        state = _worker_state(name, config)
-        return run_baseline(name, track, state["model"], config, state["mixture"], state["template"]), None
-    except Exception as exc:  # one bad track never kills the run
-        return None, track_failure(track, exc)
+def baseline_task(track: Track, params: tuple):
+    """The task of one track in :func:`fit_dataset_baseline` (run in a worker): ``params = (name, config)``
+    -> :class:`~pedx_graph.execution.tasks.TrackOutput`."""
+    from pedx_graph.execution.tasks import limit_blas_threads, result_output
+
+    name, config = params
+    limit_blas_threads()
+    state = _worker_state(name, config)
+    return result_output([run_baseline(name, track, state["model"], config, state["mixture"], state["template"])])
 
 
-def run_tracks(name: str, tracks: list[Track], config: BaselineConfig, workers: int = 1):
-    """Run baseline ``name`` on tracks (process pool when ``workers > 1``); yields (result, error) in order."""
-    _check_name(name)
-    yield from map_tracks(_run_one, [(name, tr, config) for tr in tracks], workers)
+def baseline_warm_up(params: tuple) -> None:
+    """Load the body model (and the pose prior of ``smplify_disp``) of ``params = (name, config)`` here."""
+    from pedx_graph.execution.tasks import limit_blas_threads
+
+    limit_blas_threads()
+    _worker_state(*params)
 
 
 def fit_dataset_baseline(dataset: str | os.PathLike, out: str | os.PathLike, name: str, workers: int = 1,
-                         config: BaselineConfig | None = None, sequences: list[str] | None = None) -> dict:
+                         config: BaselineConfig | None = None, sequences: list[str] | None = None, *,
+                         cluster: str | None = None, resume: bool = False, overwrite: bool = False,
+                         progress: bool = False, keep_records: bool = True, on_track=None) -> dict:
     """Run baseline ``name`` on every track of ``dataset``; results under ``out``; returns the summary.
 
-    Same layout and summary fields as :func:`pedx_graph.solvers.fit.fit_dataset`, plus ``baseline`` and
-    each track's baseline extras (e.g. how many keypoints were filled).
+    Same layout, summary fields, executors and resume / overwrite as
+    :func:`pedx_graph.solvers.fit.fit_dataset`, with ``baseline`` instead of ``solver`` and each track's
+    baseline extras (e.g. how many keypoints were filled).
     """
-    from pedx_graph.data.reader import read_dataset
-    from pedx_graph.solvers.fit import sequence_grounds, write_outcomes
+    from pedx_graph.execution.executors import ExecutorSpec
+    from pedx_graph.execution.runner import RunSpec, run_dataset
 
     _check_name(name)
     config = config or BaselineConfig()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    save_config(config, out / "baseline_config.yaml")
-    t0 = time.perf_counter()
-    tracks = read_dataset(dataset, sequences=sequences)
-    summary = {"dataset": str(dataset), "baseline": name, "tracks": [], "failed": [], "workers": workers,
-               "ground": sequence_grounds(tracks)}
-    return write_outcomes(run_tracks(name, tracks, config, workers), out, summary, t0)
+    spec = RunSpec(command="baseline", method=name, method_key="baseline", dataset=dataset, task_fn=baseline_task,
+                   configs={"baseline_config": config}, make_params=lambda tracks: ((name, config), {}),
+                   sequences=sequences, warm_up=baseline_warm_up)
+    return run_dataset(spec, out, ExecutorSpec(workers=workers, cluster=cluster), resume=resume,
+                       overwrite=overwrite, progress=progress, keep_records=keep_records, on_track=on_track)

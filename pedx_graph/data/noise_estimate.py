@@ -398,7 +398,8 @@ def estimate_range_noise(tracks: Iterable, config: NoiseEstimateConfig | None = 
 def estimate_noise(tracks: Iterable, config: NoiseEstimateConfig | None = None) -> NoiseEstimate:
     """Click noise per keypoint and LiDAR range noise of a dataset's tracks (see the module docstring)."""
     config = config or NoiseEstimateConfig()
-    tracks = list(tracks)
+    if iter(tracks) is tracks:      # a one-shot iterator is kept for the two passes; a re-iterable is read twice
+        tracks = list(tracks)
     samples = vertical_disparities(tracks, visible_only=config.visible_only)
     clicks = estimate_click_noise(samples, config)
     lidar = estimate_range_noise(tracks, config)

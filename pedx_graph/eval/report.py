@@ -75,10 +75,13 @@ def describe_run(path: str | os.PathLike) -> dict:
     exp = path / "experiment.json"
     if exp.is_file():
         info.update(json.loads(exp.read_text()))
-    info["summary"] = {k: summary.get(k) for k in ("wall_seconds", "total_frames", "workers")}
+    # times and the executor live in the summary's timings / execution sections (older summaries: top level)
+    timings, execution = summary.get("timings") or summary, summary.get("execution") or summary
+    info["summary"] = {"wall_seconds": timings.get("wall_seconds"), "total_frames": summary.get("total_frames"),
+                       "workers": execution.get("workers") or execution.get("cluster")}
     info["summary"]["tracks"] = len(summary.get("tracks", []))
     info["summary"]["failed"] = len(summary.get("failed", []))
-    seconds = [t.get("seconds") for t in summary.get("tracks", []) if t.get("seconds") is not None]
+    seconds = [t.get("seconds") for t in timings.get("tracks", []) if t.get("seconds") is not None]
     info["summary"]["track_seconds_sum"] = float(np.sum(seconds)) if seconds else None
     info["summary"]["track_seconds_median"] = float(np.median(seconds)) if seconds else None
     return info

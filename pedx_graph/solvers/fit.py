@@ -1,27 +1,26 @@
 """Batch fit of whole tracks (offline smoothing) and of whole datasets.
 
 ``fit_track``: track -> graph -> LM -> :class:`TrackResult`.  ``fit_dataset``: every track of every
-sequence, a process pool over tracks (graphs holding CustomFactors cannot be pickled, so each worker builds
-its own graph from the track's numpy data), results written in the PedX SMPL layout, ``summary.json`` and
-the resolved config beside them.  One failing track is reported in the summary and never stops the run.
+sequence as one task each (:func:`fit_task`, run by :mod:`pedx_graph.execution` in this process, on a local
+process pool or on a Dask cluster; graphs holding CustomFactors cannot be pickled, so each worker builds its
+own graph from the track's numpy data), results written in the PedX SMPL layout as each track completes,
+with a manifest, completion markers, ``summary.json`` and the resolved config beside them (resumable).  One
+failing track is reported in the summary and never stops the run.
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
 import os
+import threading
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from pedx_graph.config import save_config
 from pedx_graph.data.types import SmplLabel, Track
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.utils import atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -52,12 +51,13 @@ class TrackResult:
     """Per-track extra fields (shape covariance, residual totals, ...)."""
 
     def to_labels(self) -> list[SmplLabel]:
-        """One PedX SMPL label per frame, with our extra fields."""
+        """One PedX SMPL label per frame, with our extra fields (no timings: result files are the same for
+        the same input, whatever ran them; times go to the summary)."""
         labels = []
         for i, frame in enumerate(self.frames):
             extra = {"keypoints_3d": self.world_keypoints[i], "keypoint_names": _names(),
                      "track_final_error": self.final_error, "track_iterations": self.iterations,
-                     "track_seconds": self.seconds, "solver": self.solver}
+                     "solver": self.solver}
             if self.extra_per_frame:
                 extra.update(self.extra_per_frame[i])
             labels.append(SmplLabel(sequence=self.sequence, frame=int(frame), tracking_id=self.tracking_id,
@@ -72,21 +72,22 @@ def _names() -> list[str]:
 
 # --- per-process state (body model and priors are loaded once per worker) -------------------------------
 _WORKER: dict = {}
+_WORKER_LOCK = threading.Lock()
 
 
 def _context(config: FitConfig):
+    """The estimator context (body model, priors) of ``config``, made once per process (per config)."""
+    from pedx_graph.execution.tasks import limit_blas_threads
+
     key = (config.body_model, config.pose_prior, config.temporal_prior, config.prior_covariance_scale,
            config.chamfer_vertices, config.noise.shape_sigma)
-    if "threads" not in _WORKER:
-        # Small dense products: BLAS threads only add overhead (measured ~2x on 2 cores); processes
-        # over tracks use the cores instead.
-        from threadpoolctl import threadpool_limits
-        _WORKER["threads"] = threadpool_limits(limits=1, user_api="blas")
-    if _WORKER.get("key") != key:
-        from pedx_graph.graph.build import EstimatorContext
-        _WORKER["ctx"] = EstimatorContext.create(config)
-        _WORKER["key"] = key
-    return _WORKER["ctx"]
+    limit_blas_threads()       # small dense products: processes over tracks use the cores instead
+    with _WORKER_LOCK:         # a Dask worker may run tasks in several threads
+        if _WORKER.get("key") != key:
+            from pedx_graph.graph.build import EstimatorContext
+            _WORKER["ctx"] = EstimatorContext.create(config)
+            _WORKER["key"] = key
+        return _WORKER["ctx"]
 
 
 def fit_track(track: Track, config: FitConfig | None = None, context=None) -> TrackResult:
@@ -266,26 +267,28 @@ def track_failure(track: Track, exc: BaseException) -> tuple[str, str, str, str]
 
 
 def map_tracks(job_fn, jobs: list, workers: int = 1):
-    """``job_fn`` over ``jobs`` in order, in a process pool when ``workers > 1`` (``job_fn`` must be a
-    module-level function returning (result or None, error or None))."""
-    if workers <= 1 or len(jobs) <= 1:
-        for job in jobs:
-            yield job_fn(job)
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(job_fn, jobs, chunksize=1)
+    """``job_fn`` over ``jobs`` in order, in a local process pool when ``workers > 1`` (``job_fn`` must be a
+    module-level function returning (result or None, error or None)); the workers ignore SIGINT and exit
+    with this process (:func:`pedx_graph.execution.executors.map_ordered`)."""
+    from pedx_graph.execution.executors import map_ordered
+
+    yield from map_ordered(job_fn, jobs, workers)
 
 
 def _fit_one(args):
     track, config, solver = args
     try:
-        if solver == "admm":
-            from pedx_graph.solvers.admm import fit_track_admm
-            return fit_track_admm(track, config, _context(config), marginals=config.covariances,
-                                  diagnostics=config.diagnostics), None
-        return fit_track(track, config), None
+        return _fit_result(track, config, solver), None
     except Exception as exc:  # one bad track never kills the run
         return None, track_failure(track, exc)
+
+
+def _fit_result(track: Track, config: FitConfig, solver: str) -> TrackResult:
+    if solver == "admm":
+        from pedx_graph.solvers.admm import fit_track_admm
+        return fit_track_admm(track, config, _context(config), marginals=config.covariances,
+                              diagnostics=config.diagnostics)
+    return fit_track(track, config)
 
 
 def fit_tracks(tracks: list[Track], config: FitConfig, workers: int = 1, solver: str = "lm"):
@@ -295,60 +298,48 @@ def fit_tracks(tracks: list[Track], config: FitConfig, workers: int = 1, solver:
     yield from map_tracks(_fit_one, [(tr, config, solver) for tr in tracks], workers)
 
 
+def fit_task(track: Track, params: tuple):
+    """The task of one track in ``fit_dataset`` (run in a worker): ``params = (config, solver)`` ->
+    :class:`~pedx_graph.execution.tasks.TrackOutput` (its labels as bytes, its summary record, timings)."""
+    from pedx_graph.execution.tasks import result_output
+
+    config, solver = params
+    return result_output([_fit_result(track, config, solver)])
+
+
+def fit_warm_up(params: tuple) -> None:
+    """Load the estimator context (body model, priors) of ``params = (config, solver)`` in this worker."""
+    _context(params[0])
+
+
 def fit_dataset(dataset: str | os.PathLike, out: str | os.PathLike, config: FitConfig | None = None,
-                workers: int = 1, sequences: list[str] | None = None, solver: str = "lm") -> dict:
-    """Fit every track of ``dataset`` and write results under ``out`` (PedX SMPL layout); returns the summary."""
-    from pedx_graph.data.reader import read_dataset
+                workers: int = 1, sequences: list[str] | None = None, solver: str = "lm", *,
+                cluster: str | None = None, resume: bool = False, overwrite: bool = False,
+                progress: bool = False, keep_records: bool = True, on_track=None) -> dict:
+    """Fit every track of ``dataset`` and write results under ``out`` (PedX SMPL layout); returns the summary.
+
+    ``workers`` local processes (1: this process) or a Dask ``cluster`` (address, scheduler file or
+    ``local:N``) run one task per track; ``resume`` skips the tracks a previous run of the same work
+    completed, ``overwrite`` replaces a previous run's results (an existing non-empty ``out`` is refused
+    otherwise); ``progress``: a progress bar on stderr.  See :func:`pedx_graph.execution.runner.run_dataset`
+    (interrupts raise ``RunInterrupted`` after writing the summary).
+    """
+    from pedx_graph.data.noise_estimate import resolve_noise
+    from pedx_graph.execution.executors import ExecutorSpec
+    from pedx_graph.execution.runner import RunSpec, run_dataset
 
     config = config or FitConfig()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    save_config(config, out / "fit_config.yaml")
-    t0 = time.perf_counter()
-    tracks = read_dataset(dataset, sequences=sequences, config=config.reader_config())
-    summary = {"dataset": str(dataset), "solver": solver, "tracks": [], "failed": [], "workers": workers,
-               "ground": sequence_grounds(tracks)}
-    # click noise per keypoint and LiDAR range noise from the data, once per dataset, into the config the
-    # workers get (fit_config.yaml keeps the config as given); what was used goes into summary.json
-    from pedx_graph.data.noise_estimate import resolve_noise
-    resolved = resolve_noise(tracks, config.noise)
-    config = dataclasses.replace(config, noise=resolved.noise)
-    summary["noise"] = resolved.record
-    return write_outcomes(fit_tracks(tracks, config, workers, solver), out, summary, t0)
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
 
+    def make_params(tracks):
+        # click noise per keypoint and LiDAR range noise from the data, once per dataset, into the config the
+        # workers get (fit_config.yaml keeps the config as given); what was used goes into summary.json
+        resolved = resolve_noise(tracks, config.noise)
+        return (dataclasses.replace(config, noise=resolved.noise), solver), {"noise": resolved.record}
 
-def sequence_grounds(tracks: list[Track]) -> dict:
-    """Sequence -> the up axis, ground plane and viewpoint its tracks were fitted in (for ``summary.json``)."""
-    return {tr.sequence: tr.ground.to_dict() for tr in sorted(tracks, key=lambda t: t.sequence)
-            if tr.ground is not None}
-
-
-def write_outcomes(outcomes, out: Path, summary: dict, t0: float) -> dict:
-    """Write every fitted track's labels under ``out`` and record it, or its failure, in ``summary``;
-    then write ``summary.json`` (atomically) and return the summary.  Shared by every solver and baseline.
-
-    ``outcomes``: iterable of (TrackResult or None, error tuple (sequence, tracking_id, message, traceback)
-    or None).
-    """
-    from pedx_graph.data.writer import write_results
-
-    summary.setdefault("tracks", [])
-    summary.setdefault("failed", [])
-    n_frames = 0
-    for result, error in outcomes:
-        if error is not None:
-            seq, tid, message, tb = error
-            log.warning("track %s/%s failed: %s", seq, tid, message)
-            summary["failed"].append({"sequence": seq, "tracking_id": tid, "error": message, "traceback": tb})
-            continue
-        write_results(out, result.to_labels())
-        n_frames += len(result.frames)
-        summary["tracks"].append({
-            "sequence": result.sequence, "tracking_id": result.tracking_id, "frames": len(result.frames),
-            "betas": result.betas, "initial_error": result.initial_error, "final_error": result.final_error,
-            "iterations": result.iterations, "seconds": result.seconds, "solver": result.solver,
-            **result.extra_track})
-    summary["total_frames"] = n_frames
-    summary["wall_seconds"] = time.perf_counter() - t0
-    atomic_write_json(out / "summary.json", summary)
-    return summary
+    spec = RunSpec(command="fit", method=solver, method_key="solver", dataset=dataset, task_fn=fit_task,
+                   configs={"fit_config": config}, make_params=make_params, sequences=sequences,
+                   reader_config=config.reader_config(), warm_up=fit_warm_up)
+    return run_dataset(spec, out, ExecutorSpec(workers=workers, cluster=cluster), resume=resume,
+                       overwrite=overwrite, progress=progress, keep_records=keep_records, on_track=on_track)

@@ -700,100 +700,130 @@ class StreamingEstimator:
 
 
 def _causal_label(sequence: str, est: FrameEstimate):
+    """The causal estimate of one frame as a result label (its update time goes to the summary's timings,
+    never into the file)."""
     from pedx_graph.data.types import SmplLabel
     from pedx_graph.keypoints import PEDX_KEYPOINTS
 
     extra = {"keypoints_3d": est.world_keypoints, "keypoint_names": list(PEDX_KEYPOINTS),
-             "timestamp": est.timestamp, "update_ms": est.update_seconds * 1e3, "solver": "isam2-causal"}
+             "timestamp": est.timestamp, "solver": "isam2-causal"}
     extra.update(est.extra)
     return SmplLabel(sequence=sequence, frame=int(est.frame), tracking_id=est.tracking_id, betas=est.betas,
                      pose=est.pose, trans=est.trans, extra=extra)
 
 
+def stream_track(track: Track, ctx, config: FitConfig, stream_config: StreamConfig):
+    """Stream one track's frames in timestamp order through its own :class:`StreamingEstimator`.
+
+    Returns ``(smoothed results, causal estimates, failed)``: the smoothed :class:`TrackResult` of each piece
+    of the track (one unless it paused longer than ``track_timeout_s``), the causal :class:`FrameEstimate`
+    of every frame whose update succeeded, and ``{"frame" or "stage", "error"}`` of each failed update and
+    of each piece refused as implausible."""
+    import copy
+
+    estimator = StreamingEstimator(ctx, config, copy.deepcopy(stream_config), sequence=track.sequence,
+                                   ground=track.ground)
+    results, causal, failed = [], [], []
+
+    def collect():
+        results.extend(estimator.pop_finished())
+        failed.extend({"stage": "plausibility", "error": bad["error"]} for bad in estimator.pop_failed())
+
+    for fr in sorted(track.frames, key=lambda f: (float(f.timestamp), f.frame)):
+        current = estimator.add_frame(float(fr.timestamp), {track.tracking_id: fr}, track.calibrations)
+        if track.tracking_id in current:
+            causal.append(current[track.tracking_id])
+        else:
+            failed.append({"frame": int(fr.frame), "error": "update failed (see the log)"})
+        collect()
+    results.extend(estimator.finish())
+    collect()
+    return results, causal, failed
+
+
+def stream_task(track: Track, params: tuple):
+    """The task of one track in :func:`stream_dataset` (run in a worker): ``params = (config, stream_config,
+    ctx or None)`` -> :class:`~pedx_graph.execution.tasks.TrackOutput` with the smoothed labels, the causal
+    labels (under ``causal/``), the track's records (failed updates in the first one's ``failed_updates``)
+    and its per-update latencies (``update_ms``, ``cpu_ms``, ``isam_ms``) as timings."""
+    from pedx_graph.execution.tasks import label_files, result_output
+    from pedx_graph.solvers.fit import _context
+
+    config, stream_config, ctx = params
+    results, causal, failed = stream_track(track, ctx or _context(config), config, stream_config)
+    if not results:
+        reasons = "; ".join(sorted({bad["error"] for bad in failed})) or "no frame"
+        raise RuntimeError(f"no smoothed estimate of the track ({reasons})")
+    causal_files = label_files([_causal_label(track.sequence, e) for e in causal], prefix="causal")
+    output = result_output(results, extra_files=causal_files, extra_timings={
+        "update_ms": [e.update_seconds * 1e3 for e in causal], "cpu_ms": [e.cpu_seconds * 1e3 for e in causal],
+        "isam_ms": [e.isam_seconds * 1e3 for e in causal]})
+    if failed:
+        output.records[0]["failed_updates"] = failed
+    return output
+
+
+def stream_warm_up(params: tuple) -> None:
+    """Load the estimator context of ``params = (config, stream_config, ctx or None)`` in this worker."""
+    from pedx_graph.solvers.fit import _context
+
+    if params[2] is None:
+        _context(params[0])
+
+
+def stream_timings(tracks: list[dict]) -> dict:
+    """Whole-run latency figures (``update_ms``: median, p90, max, mean of the updates' wall time; CPU time;
+    the ISAM2 update alone) from the tracks' per-update lists, which are then dropped from the entries."""
+    lat, cpu, isam = [], [], []
+    for entry in tracks:
+        lat += entry.pop("update_ms", None) or []
+        cpu += entry.pop("cpu_ms", None) or []
+        isam += entry.pop("isam_ms", None) or []
+    if not lat:
+        return {}
+    lat, cpu, isam = np.asarray(lat), np.asarray(cpu), np.asarray(isam)
+    return {"update_ms": {"median": float(np.median(lat)), "p90": float(np.percentile(lat, 90)),
+                          "max": float(lat.max()), "mean": float(lat.mean()),
+                          "cpu_median": float(np.median(cpu)) if cpu.size else None,
+                          "cpu_p90": float(np.percentile(cpu, 90)) if cpu.size else None,
+                          "isam_update_median": float(np.median(isam)) if isam.size else None,
+                          "isam_update_p90": float(np.percentile(isam, 90)) if isam.size else None}}
+
+
 def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config: StreamConfig | None = None,
-                   ctx=None, sequences: list[str] | None = None) -> dict:
-    """Stream every sequence of ``dataset`` in timestamp order and write under ``out``:
+                   ctx=None, sequences: list[str] | None = None, *, workers: int = 1, cluster: str | None = None,
+                   resume: bool = False, overwrite: bool = False, progress: bool = False,
+                   keep_records: bool = True, on_track=None) -> dict:
+    """Stream every track of ``dataset`` (its frames in timestamp order, one task per track) and write under
+    ``out`` as each track completes:
 
-    * ``causal/labels/3d/smpl/...``: the causal estimate of every visible pedestrian after each frame;
-    * ``labels/3d/smpl/...``: the smoothed estimate of every track once it ends (with covariances);
-    * ``summary.json``: per track the update latencies, errors, diagnostics; overall latency statistics;
-    * ``fit_config.yaml`` / ``stream_config.yaml``: the resolved configs.
+    * ``causal/labels/3d/smpl/...``: the causal estimate of the track after each of its frames;
+    * ``labels/3d/smpl/...``: the smoothed estimate of the track once it ends (with covariances);
+    * ``summary.json``: per track errors, diagnostics, failed updates; the update latencies (per track and
+      over the run) in its ``timings`` section;
+    * ``fit_config.yaml`` / ``stream_config.yaml``, ``manifest.json``, ``done/`` (completion markers).
+
+    Each track is its own task (as ``fit``): results do not depend on which tracks share a process or a
+    run, a failing track stops nothing else, resume and scale-out are per track.  (:class:`StreamingEstimator`
+    itself takes all pedestrians of a sample at once, as a live system would; here each task feeds one.)
+    Executor, resume and overwrite as :func:`pedx_graph.solvers.fit.fit_dataset`; a given ``ctx`` (estimator
+    context) is used in this process only (``workers=1``).
     """
-    from pathlib import Path
-
-    from threadpoolctl import threadpool_limits
-
-    from pedx_graph.config import save_config
     from pedx_graph.data.noise_estimate import resolve_noise
-    from pedx_graph.data.reader import read_dataset
-    from pedx_graph.data.writer import write_results
-    from pedx_graph.graph.build import EstimatorContext
-    from pedx_graph.solvers.fit import sequence_grounds
-    from pedx_graph.utils import atomic_write_json
+    from pedx_graph.execution.executors import ExecutorSpec
+    from pedx_graph.execution.runner import RunSpec, run_dataset
 
     config = config or FitConfig()
     stream_config = stream_config or StreamConfig()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    save_config(config, out / "fit_config.yaml")
-    save_config(stream_config, out / "stream_config.yaml")
-    t0 = time.perf_counter()
-    with threadpool_limits(limits=1, user_api="blas"):
-        ctx = ctx or EstimatorContext.create(config)
-        tracks = read_dataset(dataset, sequences=sequences, config=config.reader_config())
-        by_sequence: dict[str, list[Track]] = {}
-        for tr in tracks:
-            by_sequence.setdefault(tr.sequence, []).append(tr)
-        summary = {"dataset": str(dataset), "tracks": [], "failed": [], "solver": "isam2-stream",
-                   "ground": sequence_grounds(tracks)}
+
+    def make_params(tracks):
         # the click and range noise from the data, as the batch fit (pedx_graph.data.noise_estimate)
         resolved = resolve_noise(tracks, config.noise)
-        config = dataclasses.replace(config, noise=resolved.noise)
-        summary["noise"] = resolved.record
-        latencies, cpu_latencies, isam_latencies = [], [], []
+        return (dataclasses.replace(config, noise=resolved.noise), stream_config, ctx), {"noise": resolved.record}
 
-        def record(result):
-            write_results(out, result.to_labels())
-            entry = {"sequence": result.sequence, "tracking_id": result.tracking_id, "frames": len(result.frames),
-                     "betas": result.betas, "final_error": result.final_error, "seconds": result.seconds,
-                     "solver": result.solver, **result.extra_track}
-            summary["tracks"].append(entry)
-
-        for sequence, seq_tracks in sorted(by_sequence.items()):
-            calibrations = {}
-            samples: dict[float, dict[str, TrackFrame]] = {}
-            for tr in seq_tracks:
-                calibrations.update(tr.calibrations)
-                for fr in tr.frames:
-                    samples.setdefault(float(fr.timestamp), {})[tr.tracking_id] = fr
-            estimator = StreamingEstimator(ctx, config, stream_config, sequence=sequence,
-                                           ground=seq_tracks[0].ground)
-            for timestamp in sorted(samples):
-                current = estimator.add_frame(timestamp, samples[timestamp], calibrations)
-                cpu_latencies.extend(e.cpu_seconds for e in current.values())
-                missing = set(samples[timestamp]) - set(current)
-                for tid in sorted(missing):
-                    summary["failed"].append({"sequence": sequence, "tracking_id": tid,
-                                              "frame": int(samples[timestamp][tid].frame),
-                                              "error": "update failed (see log)"})
-                write_results(out / "causal", [_causal_label(sequence, e) for e in current.values()])
-                latencies.extend(e.update_seconds for e in current.values())
-                isam_latencies.extend(e.isam_seconds for e in current.values())
-                for result in estimator.pop_finished():
-                    record(result)
-                summary["failed"].extend(estimator.pop_failed())        # implausible smoothed tracks
-            for result in estimator.finish():
-                record(result)
-            summary["failed"].extend(estimator.pop_failed())
-    lat = np.asarray(latencies) * 1e3
-    summary["total_frames"] = int(len(lat))
-    if len(lat):
-        summary["update_ms"] = {"median": float(np.median(lat)), "p90": float(np.percentile(lat, 90)),
-                                "max": float(lat.max()), "mean": float(lat.mean()),
-                                "cpu_median": float(np.median(np.asarray(cpu_latencies) * 1e3)),
-                                "cpu_p90": float(np.percentile(np.asarray(cpu_latencies) * 1e3, 90)),
-                                "isam_update_median": float(np.median(np.asarray(isam_latencies) * 1e3)),
-                                "isam_update_p90": float(np.percentile(np.asarray(isam_latencies) * 1e3, 90))}
-    summary["wall_seconds"] = time.perf_counter() - t0
-    atomic_write_json(out / "summary.json", summary)
-    return summary
+    spec = RunSpec(command="stream", method="isam2-stream", method_key="solver", dataset=dataset,
+                   task_fn=stream_task, configs={"fit_config": config, "stream_config": stream_config},
+                   make_params=make_params, sequences=sequences, reader_config=config.reader_config(),
+                   summarise_timings=stream_timings, inline_only=ctx is not None, warm_up=stream_warm_up)
+    return run_dataset(spec, out, ExecutorSpec(workers=workers, cluster=cluster), resume=resume,
+                       overwrite=overwrite, progress=progress, keep_records=keep_records, on_track=on_track)

@@ -3,15 +3,18 @@ from __future__ import annotations
 
 import argparse
 
+from pedx_graph.execution.options import add_run_arguments, run_command
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "stream", help="stream a dataset frame by frame (iSAM2 per track, causal estimates + smoothed tracks)",
-        description="Feed the frames of every sequence of DATASET in timestamp order to one iSAM2 per "
-                    "pedestrian track.  Writes the causal estimate of every visible pedestrian after each "
-                    "frame under RESULTS/causal (PedX SMPL layout), the smoothed estimate of every track "
-                    "when it ends under RESULTS (with covariances), and RESULTS/summary.json with the "
-                    "per-update latencies.")
+        description="Feed the frames of every pedestrian track of DATASET in timestamp order to its own "
+                    "iSAM2 (one task per track).  Writes the causal estimate after each frame under "
+                    "RESULTS/causal (PedX SMPL layout), the smoothed estimate of every track when it ends "
+                    "under RESULTS (with covariances), as each track completes, and RESULTS/summary.json "
+                    "with the per-update latencies in its timings section; tracks run in this process, on "
+                    "--workers local processes or on a Dask --cluster (docs/running.md).")
     p.add_argument("dataset", help="dataset root (the folder holding labels/ and calib/, or its parent)")
     p.add_argument("--out", required=True, help="results folder")
     p.add_argument("--config", default=None, help="YAML preset of the estimator (FitConfig, see configs/)")
@@ -22,6 +25,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-marginals", action="store_true", help="skip covariances of the smoothed tracks")
     p.add_argument("--track-timeout", type=float, default=None,
                    help="seconds without observations after which a track ends (default from the config)")
+    add_run_arguments(p)
     p.set_defaults(func=_run_stream)
 
 
@@ -42,10 +46,13 @@ def _run_stream(args: argparse.Namespace) -> int:
     from pedx_graph.preflight import check_fit_setup
     check_config(stream_config, args.stream_config or "<command line>")       # before any output
     check_fit_setup(config, args.dataset, args.config or "<defaults>")
-    summary = stream_dataset(args.dataset, args.out, config, stream_config, sequences=args.sequence)
-    lat = summary.get("update_ms", {})
-    print(f"streamed {summary['total_frames']} pedestrian-frames, {len(summary['tracks'])} tracks in "
-          f"{summary['wall_seconds']:.1f} s; update median {lat.get('median', float('nan')):.1f} ms, "
-          f"p90 {lat.get('p90', float('nan')):.1f} ms; {len(summary['failed'])} failed updates; "
-          f"results in {args.out}")
-    return 0 if summary["tracks"] or not summary["failed"] else 1
+
+    def describe(summary: dict) -> str:
+        lat = summary["timings"].get("update_ms", {})
+        return (f"streamed {summary['counts']['done']} of {summary['counts']['tracks']} tracks "
+                f"({summary['total_frames']} frames) in {summary['timings']['wall_seconds']:.1f} s; update median "
+                f"{lat.get('median', float('nan')):.1f} ms, p90 {lat.get('p90', float('nan')):.1f} ms; "
+                f"{len(summary['failed'])} failures; results in {args.out}")
+
+    return run_command(args, lambda **opts: stream_dataset(args.dataset, args.out, config, stream_config,
+                                                           sequences=args.sequence, **opts), describe)
