@@ -115,6 +115,46 @@ def test_interrupt_of_a_local_pool_keeps_finished_tracks_and_resumes(scene, refe
     assert_same_run(out, reference)
 
 
+def test_resume_clears_a_track_whose_writing_was_cut(scene, reference, tmp_path):
+    """As after a SIGKILL while a track was being written: some of its files, its list of files, no marker.
+    Resume removes them and runs the track again."""
+    import shutil
+
+    from pedx_graph.execution.outdir import RunFolder
+
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    marker = sorted((out / "done").rglob("*.json"))[0]
+    record = json.loads(marker.read_text())
+    marker.unlink()
+    listing = marker.with_name(marker.stem + ".writing")
+    listing.write_text(json.dumps(record["files"]))
+    for rel in record["files"][3:]:
+        (out / rel).unlink()                    # three frames written, the rest never
+    (out / record["files"][0]).write_bytes(b"{truncated")
+    every = {(t["sequence"], t["tracking_id"]) for t in json.loads((reference / "summary.json").read_text())["tracks"]}
+    assert RunFolder(out, {}).completed() == every - {(record["sequence"], record["tracking_id"])}
+    seen = []
+    fit_dataset(scene, out, FitConfig(), resume=True, on_track=seen.append)
+    assert [(i["sequence"], i["tracking_id"]) for i in seen] == [(record["sequence"], record["tracking_id"])]
+    assert not listing.exists()
+    assert_same_run(out, reference)
+
+
+def test_the_summary_is_written_when_a_run_aborts(scene, tmp_path):
+    """An error outside any track (here the caller's callback) stops the run; the summary says so."""
+    out = tmp_path / "out"
+
+    def broken_callback(info):
+        raise RuntimeError("the caller's callback failed")
+
+    with pytest.raises(RuntimeError, match="callback failed"):
+        fit_dataset(scene, out, FitConfig(), on_track=broken_callback)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "aborted" and "callback failed" in summary["error"]
+    assert summary["counts"]["done"] == 1 and summary["counts"]["not_run"] == 3 and len(summary["tracks"]) == 1
+
+
 def test_a_track_whose_files_cannot_be_written_fails_alone(scene, reference, tmp_path, monkeypatch):
     """A directory squatting on one result path and a full disk halfway through another track: those two
     tracks fail (their other files removed, no marker), the others are written unchanged."""

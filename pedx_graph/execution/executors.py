@@ -347,6 +347,7 @@ class DaskExecutor:
                                 f"({type(exc).__name__}: {exc}){hint}") from None
         self.token = secrets.token_hex(4)
         self._slots = (3, -1e9)
+        self._finished = threading.Event()
 
     def slots(self) -> int:
         now = time.monotonic()
@@ -364,16 +365,20 @@ class DaskExecutor:
 
     def submit(self, task: TrackTask) -> Handle:
         key = f"pedx-{task.kind}-{task.index}-{self.token}"
-        return Handle(task, self.client.submit(run_task, task, key=key, pure=False))
+        future = self.client.submit(run_task, task, key=key, pure=False)
+        future.add_done_callback(lambda _: self._finished.set())
+        return Handle(task, future)
 
-    def wait(self, handles: list[Handle], timeout: float, poll_s: float = 0.01) -> list[Handle]:
-        # polled (``distributed.wait`` needs a default client; this one is not made the default)
+    def wait(self, handles: list[Handle], timeout: float) -> list[Handle]:
+        # woken by the futures' callbacks (``distributed.wait`` needs a default client; this one is not one)
         deadline = time.monotonic() + timeout
         while True:
+            self._finished.clear()              # cleared before looking: a completion in between is not lost
             done = [h for h in handles if h.future.done()]
-            if done or time.monotonic() >= deadline:
+            remaining = deadline - time.monotonic()
+            if done or remaining <= 0:
                 return done
-            time.sleep(poll_s)
+            self._finished.wait(remaining)
 
     def outcome(self, handle: Handle) -> TaskOutcome:
         try:

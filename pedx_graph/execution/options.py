@@ -2,8 +2,9 @@
 overwrite, progress) and how a run's end maps to one line on stderr and the exit code.
 
 Exit codes: 0 done (some tracks may have failed: the summary lists them; 1 when every track failed),
-1 an unusable ``--out`` or cluster (one line naming it), 2 bad flags, 128 + signal number after SIGINT
-(130) or SIGTERM (143), the finished tracks kept and the summary written.
+1 an unusable ``--out`` or cluster (their ``ValueError`` subclasses end in one line through
+:func:`pedx_graph.cli.main`), 2 bad flags, 128 + signal number after SIGINT (130) or SIGTERM (143), the
+finished tracks kept and the summary written.
 """
 from __future__ import annotations
 
@@ -61,9 +62,8 @@ def run_options(args: argparse.Namespace) -> dict:
 
 def run_command(args: argparse.Namespace, run: Callable[..., dict], describe: Callable[[dict], str]) -> int:
     """Run ``run(**run_options(args))``; print ``describe(summary)`` (and each failed track) on success.
-    Interrupts, an unusable ``--out`` and cluster errors end in one line on stderr and their exit code."""
-    from pedx_graph.execution.executors import ExecutorError
-    from pedx_graph.execution.outdir import RunFolderError
+    An interrupt ends in one line on stderr and its exit code; other errors propagate (one line from
+    :func:`pedx_graph.cli.main`)."""
     from pedx_graph.execution.runner import RunInterrupted
 
     options = run_options(args)
@@ -83,9 +83,6 @@ def run_command(args: argparse.Namespace, run: Callable[..., dict], describe: Ca
             print(f"{name}: interrupted: {counts['done']} of {counts['tracks']} tracks done ({counts['failed']} "
                   f"failed) in {args.out}; finish with --resume", file=sys.stderr)
         return exc.exit_code
-    except (RunFolderError, ExecutorError) as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr)
-        return 1
     print(describe(summary))
     for bad in summary["failed"]:
         where = f" frame {bad['frame']}" if "frame" in bad else ""

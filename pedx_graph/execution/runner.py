@@ -222,11 +222,10 @@ def run_dataset(spec: RunSpec, out, executor: ExecutorSpec | None = None, resume
         executor = None
         try:
             try:
-                with guard.raising():
+                executor = make_executor(executor_spec, guard)      # first: an unreachable cluster fails fast
+                with guard.raising():                               # (and its start is not cut short)
                     params, sections = spec.make_params(source)
                     keys = source.index()
-                executor = make_executor(executor_spec, guard)      # a cluster's start is not cut short
-                with guard.raising():
                     if spec.warm_up is not None:                    # model and priors loaded by every worker
                         executor.warm_up(spec.warm_up, params)
             except KeyboardInterrupt:
