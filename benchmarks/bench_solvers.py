@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_fit import SHARED_CMU, hardware, sim_config  # noqa: E402
 from _common import cell, public_args  # noqa: E402
+from pedx_graph.data.noise_estimate import resolve_noise  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.data.writer import write_results  # noqa: E402
 from pedx_graph.eval.evaluate import evaluate  # noqa: E402
@@ -121,6 +122,8 @@ def main(argv=None) -> int:
         simulate(scene, sim_config(args.pedestrians, args.frames), seed=args.seed)
         sim_s = time.perf_counter() - t0
         tracks = read_dataset(scene)
+        # every solver with the noise `pedx-graph fit` resolves from the data (the stream resolves it too)
+        config = dataclasses.replace(config, noise=resolve_noise(tracks, config.noise).noise)
         tracks = [t for t in tracks if len(t.frames) >= 2]
         # --- batch LM + marginals
         lm_results, marg_rows, failed = [], [], []
