@@ -262,11 +262,6 @@ class LocalPoolExecutor:
         if pool is not None:
             pool.shutdown(wait=True)
 
-    @property
-    def processes(self) -> list:
-        """The pool's worker processes now (``multiprocessing.Process``)."""
-        return list((getattr(self._pool, "_processes", None) or {}).values())
-
 
 # --- Dask -----------------------------------------------------------------------------------------------------
 def parse_local_cluster(address: str) -> int | None:
@@ -421,10 +416,6 @@ class DaskExecutor:
         if client is not None or cluster is not None:
             self._dask_log.setLevel(self._dask_log_level)
             self._config.__exit__(None, None, None)
-
-    def worker_pids(self) -> list[int]:
-        """Process ids of the cluster's workers (for tests and benchmarks)."""
-        return sorted(self.client.run(os.getpid).values())
 
 
 # --- ordered map (for callers that want results in input order) -----------------------------------------------
