@@ -8,7 +8,7 @@ The shared definition (the temporal GMM in ``pedx_graph.priors`` is trained on e
 
 The translation step is expressed in the full body frame of frame i (SMPL axes: Y up, +Z forward), so d is
 invariant to any rotation and translation of the world (the world's up axis never enters: mocap in a Y-up
-frame and PedX's z-up LiDAR frame give the same d).  For a person walking forward the step is ~(0, 0, v dt).
+frame and a LiDAR frame of any orientation — PedX's points z down — give the same d).  For a person walking forward the step is ~(0, 0, v dt).
 ``trans`` differences equal pelvis differences because the shape is shared by the track.
 
 The prior is the 10-component GMM of the paper evaluated as a max-mixture (:class:`factors.common.MaxMixture`,

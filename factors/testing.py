@@ -160,7 +160,8 @@ def make_test_calibration(focal_px: float = 1000.0, baseline_m: float = 0.5,
 
 
 def standing_rotation(yaw: float) -> np.ndarray:
-    """``world_R_body`` of an upright SMPL body (body +Y -> world +z) facing world yaw ``yaw`` (body +Z)."""
+    """``world_R_body`` of an upright SMPL body in the tests' world whose up axis is ``e_z`` (body +Y -> ``e_z``)
+    facing yaw ``yaw`` (body +Z); the estimator itself takes up from the data (``Track.ground``)."""
     forward = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     up = np.array([0.0, 0.0, 1.0])
     return np.stack([np.cross(up, forward), up, forward], axis=1)

@@ -186,8 +186,7 @@ def test_run_baseline_dispatch(model, scene):
 def test_smplify_with_the_shipped_pose_prior(model, scene):
     from pedx_graph.priors import DATA_DIR
 
-    if not (DATA_DIR / "pose_gmm.npz").is_file():
-        pytest.skip("shipped pose prior not present")
+    assert (DATA_DIR / "pose_gmm.npz").is_file(), "the shipped pose prior is missing"
     track, truth, _ = scene
     short = Track(track.sequence, track.tracking_id, track.frames[:2], track.calibrations)
     res = run_baseline("smplify_disp", short, model)

@@ -241,8 +241,7 @@ def test_default_body_model_smoke(tmp_path):
     """The shipped open model runs through the simulator (outward faces, keypoints, foot contact)."""
     from pedx_graph.body import BodyModel, default_model_path
 
-    if not default_model_path().is_file():
-        pytest.skip("default body model file not installed")
+    assert default_model_path().is_file(), "the shipped default body model is missing"
     body = BodyModel.load()
     cfg = small_config(n_frames=2, n_pedestrians=4)
     cfg.lidar.azimuth_step_deg = 0.72

@@ -1,7 +1,7 @@
 """The sequence's up axis, ground plane and viewpoint, derived from the data (never assumed).
 
 Nothing in pedx-graph may assume which axis of the LiDAR (world) frame points up: the real PedX range frame
-has z pointing *down*, a simulated one z up, a user's rig anything.  Every quantity that means "up",
+has z pointing *down*, the default simulated one +z, a user's rig anything.  Every quantity that means "up",
 "ground", "heading", "height" or "horizontal" is computed through a :class:`GroundFrame`:
 
 * ``world_up`` (3,): unit vector against gravity, in the world (LiDAR) frame;
