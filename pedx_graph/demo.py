@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     sim_config = SimConfig()
     sim_config.scene.n_pedestrians = args.pedestrians
     sim_config.scene.n_frames = args.frames
-    simulate(scene, sim_config, seed=args.seed)
+    simulate(scene, sim_config, seed=args.seed, overwrite=True)   # the demo owns its folder: a re-run replaces it
     t1 = time.perf_counter()
     print(f"simulated {args.pedestrians} pedestrians x {args.frames} frames in {t1 - t0:.1f} s -> {scene}")
     summary = fit_dataset(scene, results, config, workers=args.workers, overwrite=True)  # a re-run replaces them

@@ -21,3 +21,14 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
 def test_cli_without_command_prints_help(capsys):
     assert main([]) == 2
     assert "demo" in capsys.readouterr().out
+
+
+def test_demo_runs_again_into_the_same_folder(tmp_path):
+    """The README's first command can be run twice: the demo owns its output folder."""
+    from pedx_graph.cli import main
+
+    out = tmp_path / "demo"
+    args = ["demo", "--out", str(out), "--pedestrians", "2", "--frames", "3"]
+    assert main(args) == 0
+    assert main(args) == 0
+    assert (out / "results" / "summary.json").is_file()
