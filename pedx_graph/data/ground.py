@@ -94,7 +94,8 @@ class GroundFrame:
         return np.stack([self.world_forward, left, self.world_up], axis=1)
 
     def to_level(self, world_p: np.ndarray) -> np.ndarray:
-        """(..., 3) world points -> level coordinates (x forward, y left, z up; origin at the sensor)."""
+        """(..., 3) world points -> level coordinates (x forward, y left, z along ``world_up``; origin at the
+        sensor)."""
         return (np.asarray(world_p, dtype=float) - self.world_p_sensor) @ self.world_R_level
 
     def level_directions(self, world_d: np.ndarray) -> np.ndarray:

@@ -104,8 +104,8 @@ def _lidar_centroid(frame: TrackFrame, ground: GroundFrame) -> np.ndarray:
 
 
 def _smoothed_velocity(times: np.ndarray, points: np.ndarray, half_window_s: float) -> np.ndarray:
-    """Velocity (T, 2) of the horizontal trajectory (``points`` (T, 3) in the level frame, z up) by a local
-    linear fit; NaN where undetermined."""
+    """Velocity (T, 2) of the horizontal trajectory (``points`` (T, 3) in the level frame: z along the derived
+    up) by a local linear fit; NaN where undetermined."""
     vel = np.full((len(times), 2), np.nan)
     ok = np.all(np.isfinite(points[:, :2]), axis=1)
     for i in range(len(times)):

@@ -16,7 +16,7 @@ Temporal prior (paper Eq. 10): ``n_temporal`` (10) components on the 75-d frame-
                 body_pose_j - body_pose_i ]                   (69) body pose difference, rad
 
 Expressing the step and the rotation in the body frame of frame i makes d independent of the walking
-direction and of the world's axes (Y-up mocap and z-up LiDAR give the same d). Pairs (i, j = i + dt) start
+direction and of the world's axes (Y-up mocap and a LiDAR frame of any orientation give the same d). Pairs (i, j = i + dt) start
 at every ``1 / (fps * oversample)`` s so all phases of the motion are used.
 
 Covariances: scikit-learn's ``reg_covar`` adds a variance floor to every dimension. The pose default

@@ -2,8 +2,8 @@
 
 A four-way-stop intersection (ground, buildings, poles, parked and moving cars) with SMPL-format pedestrians
 walking on crosswalks and sidewalks at 5-45 m, seen by two rectified stereo pairs and a 32-beam spinning LiDAR,
-all by Embree ray casting.  Two rigs: ``default`` (ylw79D0-red707B forward, blu79CF-grn43E3 left, z-up LiDAR
-frame) and ``pedx`` (the real PedX cameras in the real z-down LiDAR frame, real-label quirks).  Writes the
+all by Embree ray casting.  Two rigs: ``default`` (ylw79D0-red707B forward, blu79CF-grn43E3 left, LiDAR frame with +z
+against gravity) and ``pedx`` (the real PedX cameras in the real z-down LiDAR frame, real-label quirks).  Writes the
 PedX release layout (calib, 2D labels with annotator noise, polygon-assigned LiDAR segments, SMPL labels in the
 LiDAR frame, full sweeps, timestamps) plus exact ground truth under ``truth/``.
 
