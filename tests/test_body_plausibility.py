@@ -6,13 +6,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scene_fixtures import small_scene
 
 from pedx_graph.body import BodyModel
 from pedx_graph.data.reader import read_dataset
 from pedx_graph.data.types import TrackFrame, View2D
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.sim.config import SimConfig
-from pedx_graph.sim.simulate import simulate
 from pedx_graph.solvers.diagnostics import body_plausibility, is_monocular, mesh_signed_volumes
 from pedx_graph.solvers.fit import _context, fit_track
 
@@ -75,12 +74,7 @@ def test_monocular_flag():
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("plausibility_scene")
-    cfg = SimConfig()
-    cfg.scene.n_pedestrians = 2
-    cfg.scene.n_frames = 4
-    simulate(out, cfg, seed=1)
-    return out
+    return small_scene(tmp_path_factory.mktemp("plausibility_scene"), pedestrians=2, frames=4, seed=1)
 
 
 def test_a_normal_fit_writes_positive_volumes_everywhere(scene):

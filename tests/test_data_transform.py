@@ -2,12 +2,11 @@
 simulator truth); round trips, rigid bodies, byte stability, bad input."""
 from __future__ import annotations
 
-import hashlib
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from scene_fixtures import tree_digest
 from scipy.spatial.transform import Rotation
 
 from pedx_graph.data import read_smpl_labels
@@ -31,11 +30,6 @@ def random_motion(rng: np.random.Generator, shift_m: float = 20.0) -> np.ndarray
     motion[:3, :3] = Rotation.random(random_state=int(rng.integers(2**31))).as_matrix()
     motion[:3, 3] = rng.uniform(-shift_m, shift_m, 3)
     return motion
-
-
-def _digest(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 @pytest.fixture(scope="module")
@@ -144,11 +138,11 @@ def test_transform_is_byte_stable_and_refuses_bad_input(sim_folder, body, tmp_pa
     motion = random_motion(np.random.default_rng(2))
     transform_dataset(sim_folder, tmp_path / "a", motion, body)
     transform_dataset(sim_folder, tmp_path / "b", motion, body)
-    assert _digest(tmp_path / "a") == _digest(tmp_path / "b")
+    assert tree_digest(tmp_path / "a") == tree_digest(tmp_path / "b")
     with pytest.raises(FileExistsError, match="not empty"):
         transform_dataset(sim_folder, tmp_path / "a", motion, body)
     transform_dataset(sim_folder, tmp_path / "a", np.eye(4), body, overwrite=True)
-    assert _digest(tmp_path / "a") != _digest(tmp_path / "b")
+    assert tree_digest(tmp_path / "a") != tree_digest(tmp_path / "b")
     with pytest.raises(ValueError, match="inside"):
         transform_dataset(sim_folder, sim_folder / "sub", motion, body)
     scaled = motion.copy()

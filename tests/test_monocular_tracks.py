@@ -4,22 +4,16 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scene_fixtures import small_scene
 
 from pedx_graph.data.reader import read_dataset, read_smpl_labels
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.sim.config import SimConfig
-from pedx_graph.sim.simulate import simulate
 from pedx_graph.solvers.fit import _context, fit_track
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("mono_scene")
-    cfg = SimConfig()
-    cfg.scene.n_pedestrians = 4
-    cfg.scene.n_frames = 6
-    simulate(out, cfg, seed=8)
-    return out
+    return small_scene(tmp_path_factory.mktemp("mono_scene"), pedestrians=4, frames=6, seed=8)
 
 
 def _one_camera(track):

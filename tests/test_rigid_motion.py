@@ -6,6 +6,7 @@ keypoint, root orientation, translation and covariance must follow within 1 mm /
 """
 import numpy as np
 import pytest
+from scene_fixtures import small_scene
 from scipy.spatial.transform import Rotation
 
 from pedx_graph.body import BodyModel
@@ -13,8 +14,6 @@ from pedx_graph.data.calib import CalibrationLimits
 from pedx_graph.data.reader import read_smpl_labels
 from pedx_graph.data.transform import transform_dataset, transform_smpl
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.sim.config import SimConfig
-from pedx_graph.sim.simulate import simulate
 from pedx_graph.solvers.fit import fit_dataset
 
 
@@ -39,12 +38,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rigid_scene")
-    cfg = SimConfig()
-    cfg.scene.n_pedestrians = 3
-    cfg.scene.n_frames = 5
-    simulate(out, cfg, seed=5)
-    return out
+    return small_scene(tmp_path_factory.mktemp("rigid_scene"), pedestrians=3, frames=5, seed=5)
 
 
 @pytest.fixture(scope="module")

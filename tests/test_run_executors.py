@@ -12,10 +12,9 @@ from pathlib import Path
 import distributed
 import psutil
 import pytest
+from scene_fixtures import small_scene
 
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.sim.config import SimConfig
-from pedx_graph.sim.simulate import simulate
 from pedx_graph.solvers.fit import fit_dataset
 
 RUN_SPECIFIC = ("summary.json", "timings.jsonl")
@@ -23,12 +22,7 @@ RUN_SPECIFIC = ("summary.json", "timings.jsonl")
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("scene") / "data"
-    cfg = SimConfig()
-    cfg.scene.n_pedestrians = 4
-    cfg.scene.n_frames = 6
-    simulate(out, cfg, seed=11)
-    return out
+    return small_scene(tmp_path_factory.mktemp("scene") / "data", pedestrians=4, frames=6, seed=11)
 
 
 @pytest.fixture(scope="module")
@@ -115,12 +109,7 @@ def test_a_lost_local_worker_is_retried(scene, tmp_path):
 @pytest.fixture(scope="module")
 def slow_scene(tmp_path_factory):
     """Enough work that a run is still going when the first track is done (8 tracks of 10-12 frames)."""
-    out = tmp_path_factory.mktemp("slow") / "data"
-    cfg = SimConfig()
-    cfg.scene.n_pedestrians = 8
-    cfg.scene.n_frames = 12
-    simulate(out, cfg, seed=5)
-    return out
+    return small_scene(tmp_path_factory.mktemp("slow") / "data", pedestrians=8, frames=12, seed=5)
 
 
 def start_cli(dataset: Path, out: Path, *flags: str) -> subprocess.Popen:

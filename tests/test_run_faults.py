@@ -9,13 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scene_fixtures import small_scene
 
 from pedx_graph.execution.outdir import RunFolderError
 from pedx_graph.execution.runner import RunInterrupted
 from pedx_graph.execution.tasks import TIMING_KEY
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.sim.config import SimConfig
-from pedx_graph.sim.simulate import simulate
 from pedx_graph.solvers.fit import fit_dataset
 
 #: Files of a results folder that hold times or the executor (everything else must be byte-identical).
@@ -24,12 +23,7 @@ RUN_SPECIFIC = ("summary.json", "timings.jsonl")
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("scene") / "data"
-    cfg = SimConfig()
-    cfg.scene.n_pedestrians = 4
-    cfg.scene.n_frames = 8
-    simulate(out, cfg, seed=3)
-    return out
+    return small_scene(tmp_path_factory.mktemp("scene") / "data", pedestrians=4, frames=8, seed=3)
 
 
 @pytest.fixture(scope="module")

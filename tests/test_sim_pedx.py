@@ -2,12 +2,11 @@
 per-keypoint click noise (small scenes, stand-in body model)."""
 from __future__ import annotations
 
-import hashlib
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from scene_fixtures import tree_digest
 
 from pedx_graph.config import ConfigError, load_config
 from pedx_graph.data import read_smpl_labels
@@ -35,11 +34,6 @@ def small_pedx(n_frames: int = 3, n_pedestrians: int = 10) -> SimConfig:
     cfg.scene.n_pedestrians = n_pedestrians
     cfg.lidar.azimuth_step_deg = 0.72
     return cfg
-
-
-def _digest(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 @pytest.fixture(scope="module")
@@ -293,14 +287,14 @@ def test_pedx_same_seed_same_bytes_and_cli(tmp_path, body):
     simulate(tmp_path / "a", cfg, seed=9, body_model=body)
     simulate(tmp_path / "b", cfg, seed=9, body_model=body)
     simulate(tmp_path / "c", cfg, seed=10, body_model=body)
-    digest = _digest(tmp_path / "a")
-    assert len(digest) > 10 and digest == _digest(tmp_path / "b") and digest != _digest(tmp_path / "c")
+    digest = tree_digest(tmp_path / "a")
+    assert len(digest) > 10 and digest == tree_digest(tmp_path / "b") and digest != tree_digest(tmp_path / "c")
     model = save_model_npz(tmp_path / "standin.npz", standin_model_arrays())
     preset = tmp_path / "small.yaml"
     preset.write_text("lidar:\n  azimuth_step_deg: 0.72\n")
     assert main(["simulate", str(tmp_path / "cli"), "--rig", "pedx", "--seed", "9", "--pedestrians", "5",
                  "--frames", "2", "--config", str(preset), "--body-model", str(model)]) == 0
-    from_cli = _digest(tmp_path / "cli")
+    from_cli = tree_digest(tmp_path / "cli")
     assert from_cli.pop("sim_config.yaml") != digest.pop("sim_config.yaml")   # it names the body model file
     assert from_cli == digest
     written = load_sim_config(tmp_path / "cli" / "sim_config.yaml")
