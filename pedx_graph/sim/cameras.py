@@ -2,7 +2,7 @@
 
 Frames (as in :mod:`pedx_graph.data.types`): ``cam`` = raw left camera (x right, y down, z forward),
 ``rect`` = rectified left camera, ``rect_p = rect_R_cam @ cam_p``; world = the simulator's internal (sim)
-frame, z up, LiDAR at the origin (the written calibration is mapped into the output frame by
+frame (its +z against gravity, LiDAR at the origin) (the written calibration is mapped into the output frame by
 :func:`output_calibration`).  A pair is placed either by yaw ``y`` and pitch ``p`` in the sim frame (the
 rectified left camera looks along ``(cos p cos y, cos p sin y, sin p)``, its x axis horizontal, to the right
 of the viewing direction), or by the raw left camera's optical axis and image-down direction given in the

@@ -23,8 +23,9 @@ def register(subparsers) -> None:
     p.add_argument("--split", default=None, choices=["holdout", "train", "all"],
                    help="clip split used with --motion-dir (default from config: holdout)")
     p.add_argument("--rig", default=None, choices=["default", "pedx"],
-                   help="rig preset: 'default' (z-up LiDAR frame, forward + left pairs) or 'pedx' (the real PedX "
-                        "rig, z-down LiDAR frame, real-label quirks); default: the YAML's 'rig:' key, else default")
+                   help="rig preset: 'default' (LiDAR frame with +z against gravity, forward + left pairs) or "
+                        "'pedx' (the real PedX rig, z-down LiDAR frame, real-label quirks); default: the YAML's "
+                        "'rig:' key, else default")
     p.add_argument("--config", default=None,
                    help="YAML read on top of the rig preset (e.g. configs/sim_default.yaml, configs/sim_pedx.yaml)")
     p.add_argument("--body-model", default=None, help="SMPL-format .npz (default: the package's open model)")

@@ -1,15 +1,15 @@
 """Configuration of the PedX-like simulator (nested dataclasses, one docstring per field) and its rig presets.
 
 Frames: ``sim`` (the simulator's internal frame, called ``world`` inside :mod:`pedx_graph.sim`) has its
-origin at the simulated LiDAR's optical centre, x forward (along the vehicle), y to the vehicle's left, z up,
-metres; the ground is the plane ``z = -lidar.height_m``.  ``output`` is the frame every written 3D quantity
-is in (the release's LiDAR/range frame): ``output_p = output_T_sim @ sim_p`` with ``output_T_sim`` from
+origin at the simulated LiDAR's optical centre, x forward (along the vehicle), y to the vehicle's left, +z
+against gravity, metres; the ground is the plane ``z = -lidar.height_m``.  ``output`` is the frame every
+written 3D quantity is in (the release's LiDAR/range frame): ``output_p = output_T_sim @ sim_p`` with ``output_T_sim`` from
 :class:`OutputFrameConfig` (identity for the default rig).  Angles in the config are degrees; everything
 else SI (m, s) or pixels.
 
 Two rigs (:data:`RIGS`, :func:`rig_config`, ``rig:`` in YAML, ``--rig`` on the command line):
 
-* ``default``: output = sim frame (z up).  Focal length, baseline and mounting are plausible values chosen
+* ``default``: output = sim frame (+z against gravity).  Focal length, baseline and mounting are plausible values chosen
   for a 12 MP roof-mounted rig (see docs/simulator.md for the reasoning):
 
 * focal length 3000 px: with 3678 px wide images that is a 63 deg horizontal field of view, so a 1.7 m
@@ -104,8 +104,8 @@ class CamerasConfig:
     """Also write 2D labels for the right camera of each pair (PedX labels all four cameras)."""
     frame: str = "sim"
     """Frame of every pair's ``left_camera_xyz``, ``optical_axis`` and ``image_down``: ``sim`` (the
-    simulator's z-up frame, LiDAR at the origin) or ``output`` (the written frame, :class:`OutputFrameConfig`;
-    cameras given there are mapped into the sim frame with ``sim_T_output``)."""
+    simulator's frame with +z against gravity, LiDAR at the origin) or ``output`` (the written frame,
+    :class:`OutputFrameConfig`; cameras given there are mapped into the sim frame with ``sim_T_output``)."""
 
     def pairs(self) -> list[StereoPairConfig]:
         """The pairs in a fixed order (forward, left)."""

@@ -22,7 +22,7 @@ from pedx_graph.data.labels2d import iter_label2d_files, read_label2d
 
 
 def _top_view(ax, meta, calibs, pair, points, truth, person_ids, limits, title, sim_T_output):
-    """Top view in the sim frame (x forward, y left, z up): ``points`` are already there, calibrations and
+    """Top view in the sim frame (x forward, y left, +z against gravity): ``points`` are already there, calibrations and
     truth joints (output frame) are mapped with ``sim_T_output``."""
     from matplotlib.patches import Polygon as MplPolygon, Wedge
 

@@ -1,14 +1,14 @@
 """Pedestrians: body shapes, motions and their placement on the crosswalks and sidewalks.
 
 Placement of a motion clip (:class:`pedx_graph.motion.clips.MotionClip`, clip world Y up, floor
-``y = floor_y``) in the world (the sim frame: LiDAR at the origin, z up)::
+``y = floor_y``) in the world (the sim frame: LiDAR at the origin, +z against gravity)::
 
     world_R_clip = Rz(psi - phi_clip) @ A,      A = [[0, 0, 1], [1, 0, 0], [0, 1, 0]]
     world_R_pelvis(t) = world_R_clip @ clip_R_pelvis(t)          -> pose[t, :3] = Log(world_R_pelvis(t))
     world_pelvis(t) = world_R_clip @ (clip_pelvis(t) - anchor) + (x_a, y_a, ground_z)
     trans(t) = world_pelvis(t) - J_0(betas) + (0, 0, dz(t))
 
-``A`` maps the clip's +Y (up) to world +z and its +Z to world +x; ``phi_clip`` is the heading (in the world
+``A`` maps the clip's +Y (up) to sim-frame +z and its +Z to world +x; ``phi_clip`` is the heading (in the world
 after ``A``) of the clip's net horizontal displacement and ``psi`` the walking direction on the walkway;
 ``anchor`` is the clip pelvis at the middle frame, projected to the floor.  ``dz(t)`` puts the lowest
 vertex of the body on the ground at every frame (a walker always has a foot down), absorbing differences
@@ -32,13 +32,14 @@ from pedx_graph.sim.scene import StaticScene, Walkway
 
 logger = logging.getLogger(__name__)
 
-#: Clip world (Y up, +Z forward) -> world (z up): clip +Z -> world +x, clip +Y -> world +z, clip +X -> world +y.
+#: Clip world (Y up, +Z forward) -> sim frame (+z against gravity): clip +Z -> sim +x, clip +Y -> sim +z,
+#: clip +X -> sim +y.
 WORLD_R_CLIPAXES = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
 @dataclass
 class Pedestrian:
-    """Ground truth of one simulated pedestrian over the sequence (world = the sim frame, z up)."""
+    """Ground truth of one simulated pedestrian over the sequence (world = the sim frame, +z against gravity)."""
 
     tracking_id: str
     """32-hex tracking id shared by the 2D, segment and SMPL files."""

@@ -1,9 +1,9 @@
 """The simulated four-way-stop intersection: ground, buildings, poles, parked and moving cars, walkways.
 
-World frame = LiDAR frame of the stopped capture vehicle (x forward, y left, z up, metres; the ground is the
-plane ``z = ground_z = -lidar.height_m``).  The vehicle waits at the stop line of the approach from -x; the
-intersection centre is at ``(intersection_x_m, road_center_y_m)``.  The approach road and the far road run
-along x, the cross road along y.
+Sim frame = the simulator's own LiDAR frame of the stopped capture vehicle, before ``output_T_sim`` (x forward,
+y left, +z against gravity, metres; the ground is the plane ``z = ground_z = -lidar.height_m``).  The vehicle
+waits at the stop line of the approach from -x; the intersection centre is at ``(intersection_x_m,
+road_center_y_m)``.  The approach road and the far road run along x, the cross road along y.
 
 Every solid is a triangle mesh ``(vertices (V, 3), faces (F, 3))`` tagged with an integer *object id*
 (:class:`SceneObject`); ray casting (:class:`RayScene`, Embree through ``embreex``) reports the object id of
@@ -77,7 +77,7 @@ class MovingCar:
     speed_mps: float
     """Speed, m/s."""
     car_vertices: np.ndarray
-    """(V, 3) mesh in the car frame (x forward, y left, z up from the ground at the footprint centre)."""
+    """(V, 3) mesh in the car frame (x forward, y left, +z against gravity from the ground at the footprint centre)."""
     faces: np.ndarray
     """(F, 3) triangle indices."""
 
@@ -148,7 +148,7 @@ def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.n
 
 
 def car_mesh(length_m: float, width_m: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """A box-ish car in its own frame (x forward, y left, z up, ground at z = 0): body, cabin, 4 wheels.
+    """A box-ish car in its own frame (x forward, y left, +z against gravity, ground at z = 0): body, cabin, 4 wheels.
 
     Returns ``(vertices (V, 3), faces (F, 3))``; a few hundred triangles.
     """

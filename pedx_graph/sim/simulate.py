@@ -14,7 +14,7 @@ Output layout (``out_dir``; the PedX release layout, see the pedx-format notes, 
     sim_config.yaml                                            resolved config (``# seed: S`` first line)
     summary.json                                               counts (no wall-clock times: byte-stable)
 
-Frames: the simulation runs in the sim frame (z up, LiDAR at the origin); every written 3D quantity (calib
+Frames: the simulation runs in the sim frame (+z against gravity, LiDAR at the origin); every written 3D quantity (calib
 ``world_T_cam``, clouds, segments, SMPL labels, truth points, keypoints and joints) is in the output frame,
 ``output_p = output_T_sim @ sim_p`` (:class:`~pedx_graph.sim.config.OutputFrameConfig`; identity for the
 default rig).  ``truth/meta.json`` records ``output_T_sim`` (4x4), ``world_p_lidar`` (the LiDAR's centre) and
