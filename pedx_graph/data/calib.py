@@ -5,7 +5,9 @@ Each file holds one ``key: values`` per line.  Two kinds are used per stereo pai
 ``calib_cam_to_cam_<left>-<right>.txt`` (KITTI raw's ``calib_cam_to_cam.txt``; index 00 = left, 01 = right)
     ``S_rect_00`` (w h), ``R_rect_00`` (3x3, row-major), ``P_rect_00`` (3x4), and the same for ``01``.
     ``P_rect_01`` applies to points in the rectified *left* frame and carries ``-f * baseline`` in
-    ``[0, 3]``.  Other KITTI keys (``S_xx``, ``K_xx``, ``D_xx``, ``R_xx``, ``T_xx``, ``calib_time``, ...)
+    ``[0, 3]``.  The raw image model ``K_0x`` (3x3) and ``D_0x`` (OpenCV radial-tangential, 4/5/8/12/14
+    values) is kept when both are present (:class:`~pedx_graph.data.types.RawCamera`, used to undistort
+    detections made on raw images).  Other KITTI keys (``S_xx``, ``R_xx``, ``T_xx``, ``calib_time``, ...)
     are accepted and ignored.
 
 ``calib_cam_to_range_<left>.txt``
@@ -33,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pedx_graph.data.types import DataFormatError, StereoCalibration
+from pedx_graph.data.types import DataFormatError, RawCamera, StereoCalibration
 from pedx_graph.utils import atomic_write_text
 
 logger = logging.getLogger(__name__)
@@ -253,8 +255,29 @@ def read_cam_to_cam(path: str | os.PathLike, left_camera: str | None = None,
     if not limits.min_baseline_m <= baseline <= limits.max_baseline_m:
         raise DataFormatError(path, "P_rect_01", f"baseline -P[0,3]/P[0,0] = {baseline:g} m, outside "
                                                  f"{limits.min_baseline_m:g}-{limits.max_baseline_m:g} m")
+    left_raw = _read_raw_camera(entries, path, "00", rect_R, left_P)
+    right_raw = _read_raw_camera(entries, path, "01", right_rect_R, right_P)
     return {"left_P_rect": left_P, "right_P_rect": right_P, "rect_R_cam": rect_R,
-            "right_rect_R_cam": right_rect_R, "image_size": image_size}
+            "right_rect_R_cam": right_rect_R, "image_size": image_size,
+            "left_raw": left_raw, "right_raw": right_raw}
+
+
+def _read_raw_camera(entries: dict[str, str], path, index: str, rect_R: np.ndarray | None,
+                     P_rect: np.ndarray) -> RawCamera | None:
+    """``K_<index>`` + ``D_<index>`` (+ the rectification) as a :class:`RawCamera`; None when a key is absent."""
+    if f"K_{index}" not in entries or f"D_{index}" not in entries or rect_R is None:
+        return None
+    raw_K = get_floats(entries, f"K_{index}", 9, path, (3, 3))
+    if not (raw_K[0, 0] > 0 and raw_K[1, 1] > 0 and np.allclose(raw_K[2], [0.0, 0.0, 1.0])
+            and raw_K[1, 0] == 0 and raw_K[2, 0] == 0):
+        raise DataFormatError(path, f"K_{index}", "not an intrinsic matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] "
+                                                  "with positive focal lengths")
+    count = len(entries[f"D_{index}"].split())
+    if count not in (4, 5, 8, 12, 14):
+        raise DataFormatError(path, f"D_{index}", f"expected 4, 5, 8, 12 or 14 distortion coefficients, "
+                                                  f"found {count}")
+    raw_D = get_floats(entries, f"D_{index}", count, path)
+    return RawCamera(raw_K=raw_K, raw_D=raw_D, rect_R_cam=rect_R, P_rect=P_rect)
 
 
 def read_cam_to_range(path: str | os.PathLike, limits: CalibrationLimits | None = None) -> np.ndarray:
@@ -295,7 +318,8 @@ def read_stereo_calibration(calib_dir: str | os.PathLike, pair: str,
     world_T_cam = read_cam_to_range(cam_to_range_path(calib_dir, pair), limits=limits)
     return StereoCalibration(name=pair, left_P_rect=parsed["left_P_rect"], right_P_rect=parsed["right_P_rect"],
                              rect_R_cam=parsed["rect_R_cam"], world_T_cam=world_T_cam,
-                             image_size=parsed["image_size"])
+                             image_size=parsed["image_size"], left_raw=parsed["left_raw"],
+                             right_raw=parsed["right_raw"])
 
 
 def read_calibrations(calib_dir: str | os.PathLike, limits: CalibrationLimits | None = None,
@@ -339,7 +363,7 @@ def format_cam_to_cam(calib: StereoCalibration, right_rect_R_cam: np.ndarray | N
     one orientation, as simulated).  Floats are written with ``repr`` so reading back is exact.
     """
     if right_rect_R_cam is None:
-        right_rect_R_cam = calib.rect_R_cam
+        right_rect_R_cam = calib.right_raw.rect_R_cam if calib.right_raw is not None else calib.rect_R_cam
     width, height = calib.image_size
     lines = [
         f"S_rect_00: {float(width)!r} {float(height)!r}",
@@ -349,6 +373,9 @@ def format_cam_to_cam(calib: StereoCalibration, right_rect_R_cam: np.ndarray | N
         f"R_rect_01: {_fmt(right_rect_R_cam)}",
         f"P_rect_01: {_fmt(calib.right_P_rect)}",
     ]
+    for index, raw in (("00", calib.left_raw), ("01", calib.right_raw)):
+        if raw is not None:
+            lines += [f"K_{index}: {_fmt(raw.raw_K)}", f"D_{index}: {_fmt(raw.raw_D)}"]
     return "\n".join(lines) + "\n"
 
 

@@ -39,6 +39,21 @@ class DataFormatError(ValueError):
 
 
 @dataclass(frozen=True)
+class RawCamera:
+    """One camera's raw (distorted) image model and its rectification, from the KITTI raw keys
+    ``K_0x``, ``D_0x``, ``R_rect_0x``, ``P_rect_0x`` (x = 0 left, 1 right) of ``calib_cam_to_cam``."""
+
+    raw_K: np.ndarray
+    """(3, 3) intrinsic matrix of the raw image, pixels."""
+    raw_D: np.ndarray
+    """(N,) OpenCV radial-tangential distortion ``k1 k2 p1 p2 [k3 ...]`` (N = 4, 5, 8, 12 or 14)."""
+    rect_R_cam: np.ndarray
+    """(3, 3) rotation: this camera's frame -> its rectified frame (``R_rect_0x``)."""
+    P_rect: np.ndarray
+    """(3, 4) rectified projection of this camera (``P_rect_0x``); its left 3x3 maps rectified rays to pixels."""
+
+
+@dataclass(frozen=True)
 class StereoCalibration:
     """Calibration of one rectified stereo pair and its placement in the LiDAR (world) frame."""
 
@@ -54,6 +69,10 @@ class StereoCalibration:
     """(4, 4) rigid transform: left camera frame -> LiDAR (world) frame."""
     image_size: tuple[int, int]
     """(width, height) of the rectified images in pixels."""
+    left_raw: RawCamera | None = None
+    """The left camera's raw image model (``K_00``, ``D_00``), None when the file has no raw keys."""
+    right_raw: RawCamera | None = None
+    """The right camera's raw image model (``K_01``, ``D_01``, ``R_rect_01``), None when absent."""
 
     @property
     def focal_px(self) -> float:
