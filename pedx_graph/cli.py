@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import re
 import sys
 
 #: Modules providing ``register(subparsers)``, in help order.
@@ -30,6 +31,33 @@ COMMAND_MODULES = (
 )
 
 
+_RST_ROLE = re.compile(r":(?:func|class|mod|meth|attr|data|obj|exc):`~?([^`]+)`")
+
+
+def plain_text(text: str) -> str:
+    """Help text without reStructuredText markup (descriptions are often module docstrings): roles such as
+    :func:`x` become x, ``literal`` and `title` lose their backquotes."""
+    return _RST_ROLE.sub(r"\1", text).replace("``", "").replace("`", "")
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help as plain text (no markup) with every option's default, unless its help already states one, it is
+    required, or it is an on/off flag (off by default)."""
+
+    def _format_text(self, text: str) -> str:
+        return super()._format_text(plain_text(text))
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = plain_text(action.help or "")
+        flag = isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction,
+                                   argparse._VersionAction, argparse._HelpAction))
+        positional = not action.option_strings and action.nargs not in (argparse.OPTIONAL, argparse.ZERO_OR_MORE)
+        if (flag or positional or action.required or action.default is argparse.SUPPRESS
+                or "default" in text.lower()):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 class OneLineParser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line on stderr (``<prog>: error: <message> (see
     --help)``), exit code 2; subcommand parsers are of the same class."""
@@ -39,8 +67,13 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from pedx_graph import __version__
+
     parser = OneLineParser(prog="pedx-graph", description="pedx-graph: metric 3D pedestrian body models from "
-                                                          "stereo 2D labels and LiDAR (factor graphs).")
+                                                          "stereo 2D labels and LiDAR (factor graphs).",
+                           formatter_class=HelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the version and exit")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error (also after COMMAND)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -53,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
             raise
         module.register(sub)
     for command in sub.choices.values():     # --debug also after the command, without overriding the top one
+        command.formatter_class = HelpFormatter
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help="show the traceback of an error")
     return parser

@@ -25,7 +25,7 @@ def _positive_int(text: str) -> int:
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--workers``, ``--cluster``, ``--resume`` / ``--overwrite`` and ``--no-progress``."""
+    """Add ``--workers``, ``--cluster``, ``--resume`` / ``--overwrite`` and ``--quiet`` (``--no-progress``)."""
     group = parser.add_argument_group("where tracks run, and the results folder")
     group.add_argument("--workers", type=_positive_int, default=1,
                        help="local processes over tracks (default 1: this process)")
@@ -39,7 +39,8 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                             "version, checked against its manifest.json)")
     again.add_argument("--overwrite", action="store_true",
                        help="replace the results of a previous run in --out (only its own files are removed)")
-    group.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    group.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
+                       help="no progress bar (one per track on stderr, shown only when stderr is a terminal)")
     parser.set_defaults(run_parser=parser)
 
 

@@ -451,7 +451,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     try:
         if progress:
             from tqdm import tqdm
-            results = tqdm(results, total=sc.n_frames, desc="simulate", unit="frame")
+            results = tqdm(results, total=sc.n_frames, desc="simulate", unit="frame", disable=None)  # off unless a TTY
         for frame_counts in results:
             instances.extend(frame_counts.pop("instances"))
             for key, value in frame_counts.items():
