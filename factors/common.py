@@ -30,6 +30,7 @@ import gtsam
 import numpy as np
 
 from pedx_graph.body.rotation import log_so3
+from pedx_graph.priors.gmm import MaxMixture  # noqa: F401  (the max-mixture residual, defined with the priors)
 
 #: Tangent dimensions of the per-frame variables.
 ROOT_DIM = 3
@@ -178,108 +179,6 @@ def make_noise(sigmas: np.ndarray | float, dim: int | None = None, robust: str =
     else:
         raise ValueError(f"unknown robust kernel {robust!r}; expected one of {ROBUST_KERNELS}")
     return gtsam.noiseModel.Robust.Create(m, base)
-
-
-class MaxMixture:
-    """Gaussian mixture evaluated as a max-mixture residual (Olson & Agarwal 2013; SMPLify's pose prior).
-
-    Components ``k`` with weight ``w_k``, mean ``mu_k`` (D,) and precision Cholesky factor ``L_k`` (D, D)
-    (``precision_k = L_k L_k^T``, as scikit-learn's ``precisions_cholesky_``).  Per component
-
-        c_k = -log w_k - log|det L_k|     (so -log(w_k N_k(x)) = 0.5 ||L_k^T (x - mu_k)||^2 + c_k + const)
-
-    and with ``c_min = min_k c_k`` the residual is
-
-        k*  = argmin_k 0.5 ||L_k^T (x - mu_k)||^2 + c_k
-        r(x) = [L_k*^T (x - mu_k*) ; sqrt(2 (c_k* - c_min))]        (D + 1,)
-
-    so ``0.5 ||r||^2 = -log max_k w_k N_k(x) + const`` (unit noise model).  The Jacobian is ``L_k*^T`` on the
-    first D rows and zero on the last (the selection is piecewise constant).  ``covariance_scale`` s
-    multiplies every covariance (``L_k -> L_k / sqrt(s)``); it changes every ``c_k`` by the same amount.
-    """
-
-    def __init__(self, weights: np.ndarray, means: np.ndarray, prec_chol: np.ndarray,
-                 covariance_scale: float = 1.0) -> None:
-        weights = np.asarray(weights, dtype=np.float64).reshape(-1)
-        means = np.asarray(means, dtype=np.float64)
-        prec_chol = np.asarray(prec_chol, dtype=np.float64)
-        k = weights.size
-        if means.ndim != 2 or means.shape[0] != k:
-            raise ValueError(f"means must be (K={k}, D), got {means.shape}")
-        d = means.shape[1]
-        if prec_chol.shape != (k, d, d):
-            raise ValueError(f"prec_chol must be (K={k}, D={d}, D={d}), got {prec_chol.shape}")
-        if np.any(weights <= 0) or not np.all(np.isfinite(weights)):
-            raise ValueError("mixture weights must be finite and > 0")
-        if not covariance_scale > 0:
-            raise ValueError(f"covariance_scale must be > 0, got {covariance_scale}")
-        sign, logdet = np.linalg.slogdet(prec_chol)
-        if np.any(sign == 0) or not np.all(np.isfinite(logdet)):
-            raise ValueError("a precision Cholesky factor is singular")
-        self.dim = d
-        self.num_components = k
-        self.means = as_f64(means)
-        #: L_k^T / sqrt(s): (K, D, D), so that whitened = lt[k] @ (x - mu_k)
-        self.lt = as_f64(np.swapaxes(prec_chol, 1, 2) / np.sqrt(covariance_scale))
-        #: Jacobian of the residual per component: (K, D + 1, D), last row zero (read-only views handed out)
-        self._jac = np.zeros((k, d + 1, d))
-        self._jac[:, :d] = self.lt
-        self._jac.setflags(write=False)
-        c = -np.log(weights / weights.sum()) - logdet
-        self.extra = np.sqrt(2.0 * (c - c.min()))          # (K,) >= 0
-        self.c = c - c.min()
-
-    @classmethod
-    def from_gmm(cls, gmm: Any, covariance_scale: float = 1.0) -> "MaxMixture":
-        """From any object with ``weights``, ``means`` and ``precisions_cholesky`` (or ``prec_chol``), e.g.
-        ``pedx_graph.priors``' ``GaussianMixturePrior`` or a fitted scikit-learn ``GaussianMixture``
-        (``covariance_type="full"``)."""
-        chol = getattr(gmm, "precisions_cholesky", None)
-        if chol is None:
-            chol = getattr(gmm, "precisions_cholesky_", None)
-        if chol is None:
-            chol = getattr(gmm, "prec_chol")
-        weights = getattr(gmm, "weights", None)
-        weights = getattr(gmm, "weights_") if weights is None else weights
-        means = getattr(gmm, "means", None)
-        means = getattr(gmm, "means_") if means is None else means
-        return cls(weights, means, chol, covariance_scale=covariance_scale)
-
-    def residual(self, x: np.ndarray, want_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None, int]:
-        """Max-mixture residual (D+1,), its Jacobian (D+1, D) (or None) and the selected component.
-
-        The Jacobian is a read-only array shared between calls (copy it before modifying).
-        """
-        r, best = self.residual_batch(np.asarray(x, dtype=np.float64)[None])
-        k = int(best[0])
-        return r[0], (self._jac[k] if want_jacobian else None), k
-
-    def residual_batch(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`residual` of N points at once: residuals (N, D+1) and selected components (N,).
-
-        The Jacobian of row n is ``self.jacobian(best[n])`` (:meth:`jacobian`).
-        """
-        x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
-        white = np.empty((len(x), self.num_components, self.dim))                               # (N, K, D)
-        for k in range(self.num_components):        # one (N, D) x (D, D) product per component
-            np.matmul(x - self.means[k], self.lt[k].T, out=white[:, k])
-        cost = 0.5 * np.einsum("nkd,nkd->nk", white, white) + self.c[None]
-        best = np.argmin(cost, axis=1)
-        rows = np.arange(len(best))
-        return np.concatenate([white[rows, best], self.extra[best][:, None]], axis=1), best
-
-    def jacobian(self, component: int) -> np.ndarray:
-        """The residual's Jacobian (D+1, D) when ``component`` is selected (read-only, shared)."""
-        return self._jac[int(component)]
-
-    def jacobians(self, components: np.ndarray) -> np.ndarray:
-        """:meth:`jacobian` of each of N selected components, stacked: (N, D+1, D) (a new array)."""
-        return self._jac[np.asarray(components, dtype=np.int64)]
-
-    def negative_log_likelihood(self, x: np.ndarray) -> float:
-        """``0.5 ||r(x)||^2`` (max-mixture cost, up to a constant)."""
-        r, _, _ = self.residual(x)
-        return 0.5 * float(r @ r)
 
 
 def row_loss_and_weight(white: np.ndarray, kernel: str, scale: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,6 @@
 """E_tp (PedX Eq. 10): motion prior between consecutive frames, a GMM on a 75-d frame-to-frame difference.
 
-The shared definition (the temporal GMM in ``pedx_graph.priors`` is trained on exactly this function):
+The shared definition (:func:`pedx_graph.priors.difference.temporal_difference`; the temporal GMM is trained on it):
 
     d(i, j) = [ world_R_body_i^T (trans_j - trans_i)        (3)  translation step in the body frame of i, m
                 Log(world_R_body_i^T world_R_body_j)         (3)  root rotation step, local rotation vector, rad
@@ -28,24 +28,11 @@ import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, set_jacobians
 from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
+from pedx_graph.priors.difference import temporal_difference
 
 #: Dimension of the temporal difference.
 TEMPORAL_DIM = TRANS_DIM + ROOT_DIM + BODY_POSE_DIM          # 75
 _DIMS = [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BODY_POSE_DIM]
-
-
-def temporal_difference(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
-                        world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray) -> np.ndarray:
-    """The 75-d difference d(i, j) of the module docstring, batched over leading dimensions.
-
-    Shapes: rotations (..., 3, 3), translations (..., 3) metres, body poses (..., 69) radians -> (..., 75).
-    """
-    rot_i = np.asarray(world_R_body_i, dtype=np.float64)
-    rot_j = np.asarray(world_R_body_j, dtype=np.float64)
-    step = np.einsum("...ji,...j->...i", rot_i, np.asarray(trans_j, float) - np.asarray(trans_i, float))
-    rel = np.swapaxes(rot_i, -1, -2) @ rot_j
-    return np.concatenate([step, log_so3(rel),
-                           np.asarray(body_pose_j, float) - np.asarray(body_pose_i, float)], axis=-1)
 
 
 def sequence_differences(world_R_body: np.ndarray, trans: np.ndarray, body_pose: np.ndarray,

@@ -81,15 +81,18 @@ def test_bad_inputs_raise():
         make_pose_prior_factor(0)
 
 
-def test_matches_priors_package_residual():
-    """MaxMixture.from_gmm on pedx_graph.priors' GaussianMixturePrior gives the same max-mixture residual."""
+def test_factor_error_is_the_best_components_negative_log_density():
+    """The factor built from a GaussianMixturePrior: error = -log max_k w_k N_k(x) - C (the prior's density)."""
     import pedx_graph.priors.gmm as gmm_mod
     rng = np.random.default_rng(6)
     weights, means, chol = random_gmm(rng, 3, D)
     cov = np.linalg.inv(chol @ np.swapaxes(chol, 1, 2))
     prior = gmm_mod.GaussianMixturePrior(name="pose", weights=weights, means=means, covariances=cov,
                                          precisions_cholesky=chol, dims=tuple(f"d{i}" for i in range(D)))
-    mix = MaxMixture.from_gmm(prior)
+    factor = make_pose_prior_factor(0, mixture=MaxMixture.from_gmm(prior))
     for _ in range(3):
         x = means[rng.integers(3)] + rng.normal(scale=0.1, size=D)
-        np.testing.assert_allclose(mix.residual(x)[0], prior.residual(x)[0], atol=1e-10)
+        values = gtsam.Values()
+        values.insert(0, x)
+        expected = -prior.component_log_densities(x).max() - prior.residual_constant()
+        assert factor.error(values) == pytest.approx(expected, rel=1e-9, abs=1e-9)

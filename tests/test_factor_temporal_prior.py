@@ -2,6 +2,7 @@
 import gtsam
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from factors.common import MaxMixture
 from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, sequence_differences,
@@ -94,16 +95,24 @@ def test_bad_inputs():
         make_temporal_prior_factor(*range(6), w5, m5, c5)
 
 
-def test_matches_the_priors_training_definition():
-    """pedx_graph.priors trains the temporal GMM on the same 75-d difference (pelvis steps == trans steps)."""
+def test_factor_and_training_share_one_definition_of_the_difference():
+    """The factor and the prior's training use the one function of pedx_graph.priors.difference; a sequence's
+    differences are the pairwise ones of consecutive frames."""
+    import factors.temporal_prior as tp
     import pedx_graph.priors.train as train
+    from pedx_graph.priors.difference import temporal_difference
+
+    assert tp.temporal_difference is temporal_difference and train.temporal_difference is temporal_difference
     rng = np.random.default_rng(40)
     rot = np.stack([random_rot3(rng).matrix() for _ in range(6)])
     trans = rng.normal(size=(6, 3))
     pose = rng.normal(scale=0.3, size=(6, 69))
-    ours = sequence_differences(rot, trans, pose)
-    theirs = train.temporal_difference(rot[:-1], trans[:-1], pose[:-1], rot[1:], trans[1:], pose[1:])
-    np.testing.assert_allclose(ours, theirs, atol=1e-10)
+    seq = sequence_differences(rot, trans, pose)
+    for t in range(5):
+        d = temporal_difference(rot[t], trans[t], pose[t], rot[t + 1], trans[t + 1], pose[t + 1])
+        np.testing.assert_allclose(seq[t], d, atol=1e-12)
+        np.testing.assert_allclose(d[:3], rot[t].T @ (trans[t + 1] - trans[t]), atol=1e-12)
+        np.testing.assert_allclose(Rotation.from_rotvec(d[3:6]).as_matrix(), rot[t].T @ rot[t + 1], atol=1e-9)
 
 
 def test_mixture_from_sklearn_like_object():

@@ -72,15 +72,19 @@ def test_sklearn_wrapper_density_matches_score_samples():
     np.testing.assert_allclose(prior.log_density(data[:20]), gmm.score_samples(data[:20]), rtol=1e-9)
 
 
-def test_agrees_with_factor_max_mixture():
+def test_factors_use_this_max_mixture_and_batch_equals_single():
     import factors.common as common
+    from pedx_graph.priors.gmm import MaxMixture
+    assert common.MaxMixture is MaxMixture                     # one definition of the residual
     prior = _random_prior(seed=7)
-    mix = common.MaxMixture(prior.weights, prior.means, prior.precisions_cholesky)
-    for x in np.random.default_rng(8).normal(size=(5, prior.dim)):
-        r_a, _, k_a = prior.residual(x)
-        r_b, _, k_b = mix.residual(x)
+    xs = np.random.default_rng(8).normal(size=(5, prior.dim))
+    r_batch, k_batch = prior.residuals(xs)
+    for x, r_b, k_b in zip(xs, r_batch, k_batch):
+        r_a, jac, k_a = prior.residual(x, want_jacobian=True)
         assert k_a == k_b
         np.testing.assert_allclose(r_a, r_b, atol=1e-12)
+        np.testing.assert_allclose(jac[:-1], prior.precisions_cholesky[k_a].T, atol=1e-12)
+        assert not jac[-1].any()
 
 
 def test_npz_round_trip_and_errors(tmp_path):

@@ -10,8 +10,6 @@ from pedx_graph.motion import is_holdout, procedural_gait
 from pedx_graph.priors import DATA_DIR, load_pose_prior, load_temporal_prior
 from pedx_graph.priors.train import temporal_features
 
-pytestmark = pytest.mark.skipif(not (DATA_DIR / "pose_gmm.npz").is_file(), reason="priors not shipped yet")
-
 
 def test_loaders_return_the_shipped_priors():
     pose, temporal = load_pose_prior(), load_temporal_prior()

@@ -41,11 +41,13 @@ def test_temporal_difference_is_heading_invariant_and_matches_factor():
     walk_step = d_a[:, 2].mean()
     assert walk_step == pytest.approx(0.13, abs=0.01)          # 1.3 m/s x 0.1 s along body +Z
     import factors.temporal_prior as tp
+    assert tp.temporal_difference is temporal_difference      # one definition, trained on and evaluated
     rng = np.random.default_rng(1)
     rot_i, rot_j = Rotation.random(2, random_state=2).as_matrix()
     t_i, t_j, p_i, p_j = rng.normal(size=3), rng.normal(size=3), rng.normal(size=69), rng.normal(size=69)
-    np.testing.assert_allclose(temporal_difference(rot_i, t_i, p_i, rot_j, t_j, p_j),
-                               tp.temporal_difference(rot_i, t_i, p_i, rot_j, t_j, p_j), atol=1e-12)
+    d = temporal_difference(rot_i, t_i, p_i, rot_j, t_j, p_j)
+    np.testing.assert_allclose(Rotation.from_rotvec(d[3:6]).as_matrix(), rot_i.T @ rot_j, atol=1e-9)
+    np.testing.assert_allclose(d[6:], p_j - p_i, atol=1e-12)
 
 
 @needs_cmu

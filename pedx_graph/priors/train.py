@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pedx_graph.keypoints import SMPL_JOINTS
 from pedx_graph.motion import (MotionClip, generic_rest_joints, is_holdout, list_clips, load_cmu_clip,
                                resample_clip)
+from pedx_graph.priors.difference import temporal_difference
 from pedx_graph.priors.gmm import GaussianMixturePrior, precision_cholesky_from_covariance
 from pedx_graph.utils import atomic_write_json
 
@@ -121,16 +121,6 @@ def rest_joints_for(name: str) -> tuple[np.ndarray, str]:
         model = BodyModel.load(path)
         return model.rest_joints(np.zeros(model.num_betas)), f"body model {path.name}, betas = 0"
     raise ValueError(f"rest_skeleton must be 'body' or 'generic', got {name!r}")
-
-
-def temporal_difference(world_R_i: np.ndarray, pelvis_i: np.ndarray, pose_i: np.ndarray,
-                        world_R_j: np.ndarray, pelvis_j: np.ndarray, pose_j: np.ndarray) -> np.ndarray:
-    """The 75-d difference d(i, j) of the module docstring, batched: (..., 3, 3), (..., 3), (..., 69) x 2."""
-    rot_i = np.asarray(world_R_i, dtype=np.float64)
-    step = np.einsum("...ji,...j->...i", rot_i, np.asarray(pelvis_j, float) - np.asarray(pelvis_i, float))
-    rel = np.swapaxes(rot_i, -1, -2) @ np.asarray(world_R_j, dtype=np.float64)
-    w = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec().reshape(rel.shape[:-2] + (3,))
-    return np.concatenate([step, w, np.asarray(pose_j, float) - np.asarray(pose_i, float)], axis=-1)
 
 
 def assert_not_holdout(names) -> None:
