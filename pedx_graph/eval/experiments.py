@@ -208,8 +208,9 @@ def _mark(run_dir: Path, **fields) -> None:
 
 
 def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = None, seed: int = 0,
-                    workers: int = 2, report: bool = True) -> dict:
-    """Run everything (module docstring) into ``out``; returns the ``experiments.json`` dict."""
+                    workers: int = 2, report: bool = True, progress: bool = False) -> dict:
+    """Run everything (module docstring) into ``out``; returns the ``experiments.json`` dict.  ``progress``: a
+    progress bar per phase on stderr (frames simulated, tracks fitted; only when stderr is a terminal)."""
     from pedx_graph.baselines.run import fit_dataset_baseline
     from pedx_graph.config import load_config, to_dict
     from pedx_graph.eval.detector_noise import make_noisy_dataset
@@ -237,16 +238,17 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
     for k, variant in enumerate(config.scenes):
         path = out / "scenes" / variant.name
         timed(f"simulate {variant.name}", simulate, path, scene_config(variant, config), seed=seed + k,
-              workers=workers)
+              workers=workers, progress=progress)
         scene_dirs.append(path)
     dataset = timed("merge scenes", merge_scenes, scene_dirs, out / "dataset")
     fit_cfg = load_config(FitConfig, config.fit_config or None)
     runs = out / "runs"
 
-    timed("fit ours", fit_dataset, dataset, runs / "ours", fit_cfg, workers=workers)
+    timed("fit ours", fit_dataset, dataset, runs / "ours", fit_cfg, workers=workers, progress=progress)
     _mark(runs / "ours", name="ours", label="ours", group="methods", labels="clean", ablation_row=5)
     for name in config.baselines:
-        timed(f"baseline {name}", fit_dataset_baseline, dataset, runs / name, name, workers=workers)
+        timed(f"baseline {name}", fit_dataset_baseline, dataset, runs / name, name, workers=workers,
+              progress=progress)
         _mark(runs / name, name=name, label=name, group="methods", labels="clean")
     if config.ablation:
         for number, row in enumerate(ABLATION_ROWS, start=1):
@@ -254,7 +256,7 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
                 continue
             cfg = dataclasses.replace(fit_cfg, terms=dataclasses.replace(fit_cfg.terms, **row.fit_terms()))
             name = f"ablation{number}"
-            timed(f"fit {name}", fit_dataset, dataset, runs / name, cfg, workers=workers)
+            timed(f"fit {name}", fit_dataset, dataset, runs / name, cfg, workers=workers, progress=progress)
             _mark(runs / name, name=name, label=row.label, group="ablation", labels="clean", ablation_row=number)
     if config.detector_methods:
         noisy = out / "dataset_detector"
@@ -265,9 +267,10 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
         for name in config.detector_methods:
             run = runs / f"{name}_detector"
             if name == "ours":
-                timed("fit ours_detector", fit_dataset, noisy, run, fit_cfg, workers=workers)
+                timed("fit ours_detector", fit_dataset, noisy, run, fit_cfg, workers=workers, progress=progress)
             else:
-                timed(f"baseline {name}_detector", fit_dataset_baseline, noisy, run, name, workers=workers)
+                timed(f"baseline {name}_detector", fit_dataset_baseline, noisy, run, name, workers=workers,
+                      progress=progress)
             _mark(run, name=f"{name}_detector", label=name, group="detector", labels="detector")
     record = {"seed": seed, "workers": workers, "config": to_dict(config), "phases_seconds": phases,
               "code": code_version(),

@@ -33,6 +33,8 @@ def register(subparsers) -> None:
     e.add_argument("--config", default=None, help="YAML with ExperimentConfig fields")
     e.add_argument("--workers", type=int, default=2, help="processes (simulation frames, tracks)")
     e.add_argument("--docs", default=None, help="also write results.md and figures/ into this folder")
+    e.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bars (one per phase on stderr, shown only when stderr is a terminal)")
     e.set_defaults(func=_run_experiments)
 
 
@@ -93,7 +95,10 @@ def _run_experiments(args: argparse.Namespace) -> int:
     if config.detector_config:
         from pedx_graph.eval.detector_noise import DetectorNoiseConfig
         load_config(DetectorNoiseConfig, config.detector_config)
-    record = run_experiments(args.out, config, seed=args.seed, workers=args.workers)
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    with logging_redirect_tqdm():                           # phase names above the bars, not through them
+        record = run_experiments(args.out, config, seed=args.seed, workers=args.workers, progress=not args.quiet)
     report_dir = Path(args.out) / "report"
     print(f"experiment written to {args.out} in {record['total_seconds'] / 60:.1f} min; "
           f"report {report_dir / 'report.md'}")
