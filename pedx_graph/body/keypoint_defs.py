@@ -16,8 +16,12 @@ Sources, in order:
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -59,7 +63,7 @@ class KeypointMap:
     """Keypoints as a linear map over a few vertices and the joints: ``kp = C_v x[vertex_ids] + C_j joints``."""
 
     names: tuple[str, ...]
-    """(K,) keypoint names (PEDX_KEYPOINTS order)."""
+    """(K,) keypoint names (PEDX_KEYPOINTS order, or the order of a keypoint set's data file)."""
     vertex_ids: np.ndarray
     """(m,) distinct vertex ids used by any keypoint (int64, may be empty)."""
     vertex_coeffs: np.ndarray
@@ -67,7 +71,8 @@ class KeypointMap:
     joint_coeffs: np.ndarray
     """(K, J) coefficients of the posed joints."""
     source: str
-    """How the map was obtained: 'file', 'smpl-topology' or 'joints-only'."""
+    """How the map was obtained: 'file', 'smpl-topology', 'joints-only', or '<set>:open' / '<set>:smpl' for
+    a keypoint set's data file (:func:`keypoint_set_map`)."""
 
     @property
     def num_keypoints(self) -> int:
@@ -164,3 +169,96 @@ def keypoint_map_for_model(data, joints_only: bool = False) -> KeypointMap:
         f"{data.source}: the model has {data.num_vertices} vertices (not the SMPL topology, {SMPL_NUM_VERTICES}) "
         f"and no 'pedx_keypoint_names' / 'pedx_keypoint_vertex_ids' / 'pedx_keypoint_joint_ids' keys, so the "
         f"PedX face keypoints cannot be placed; add those keys or load with joints_only_keypoints=True")
+
+
+# ------------------------------------------------------------------------------------------------ keypoint sets
+#: Folder of the keypoint-set data files, one ``<set>.json`` each (written by ``tools/build_keypoint_sets.py``).
+KEYPOINT_SET_DIR = Path(__file__).resolve().parent / "data" / "keypoint_sets"
+
+
+@dataclass(frozen=True)
+class KeypointSet:
+    """One detector format's keypoints: names in file order, and their definitions on the body model.
+
+    ``definitions`` maps a topology (``"open"``: the open default model, identified by its faces' digest;
+    ``"smpl"``: the SMPL topology, V = 6890) to ``name -> {"vertices": [[id, w], ...], "joints": [[id, w], ...]}``.
+    ``pedx_equivalent`` maps the names that are PedX's points (same body point) to the PedX name; the steps
+    that need a named point (initialisation, flips, body size) look names up through it (:meth:`index_of`).
+    """
+
+    name: str
+    keypoints: tuple[str, ...]
+    pedx_equivalent: dict[str, str]
+    definitions: dict[str, dict]
+    description: str = ""
+
+    def index_of(self, pedx_name: str) -> int | None:
+        """Index in this set of the keypoint that is PedX's ``pedx_name``, or None when the set lacks it."""
+        for i, n in enumerate(self.keypoints):
+            if self.pedx_equivalent.get(n) == pedx_name:
+                return i
+        return None
+
+
+def keypoint_set_names() -> tuple[str, ...]:
+    """Names of the shipped keypoint sets (the data files' stems), sorted."""
+    return tuple(sorted(p.stem for p in KEYPOINT_SET_DIR.glob("*.json")))
+
+
+@lru_cache(maxsize=None)
+def load_keypoint_set(name: str) -> KeypointSet:
+    """The shipped keypoint set ``name`` (``pedx18``, ``coco17``, ``coco18``, ``body25``, ``body25b``).
+
+    Raises KeyError naming the known sets when there is no such data file.
+    """
+    path = KEYPOINT_SET_DIR / f"{name}.json"
+    if not path.is_file():
+        raise KeyError(f"unknown keypoint set {name!r}; known: {', '.join(keypoint_set_names())}")
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    return KeypointSet(name=doc["name"], keypoints=tuple(doc["keypoints"]),
+                       pedx_equivalent=dict(doc["pedx_equivalent"]), definitions=doc["definitions"],
+                       description=doc.get("description", ""))
+
+
+def faces_digest(faces: np.ndarray) -> str:
+    """First 16 hex digits of the SHA-256 of the (F, 3) faces as int64: identifies a mesh topology."""
+    return hashlib.sha256(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest()[:16]
+
+
+def keypoint_set_map(data, set_name: str) -> KeypointMap:
+    """The :class:`KeypointMap` of keypoint set ``set_name`` on the model ``data`` (a ModelData).
+
+    ``pedx18`` is the model's own PedX map (:func:`keypoint_map_for_model`).  Other sets use the data file's
+    ``open`` definitions when the model's faces match the open model's digest, else its ``smpl`` definitions
+    when the model has the SMPL topology (V = 6890); any other model raises ValueError naming it.
+    """
+    if set_name == "pedx18":
+        return keypoint_map_for_model(data)
+    kset = load_keypoint_set(set_name)
+    open_defs = kset.definitions["open"]
+    if data.num_vertices == open_defs["num_vertices"] and faces_digest(data.faces) == open_defs["faces_sha256_16"]:
+        topology = "open"
+    elif data.num_vertices == SMPL_NUM_VERTICES:
+        topology = "smpl"
+    else:
+        raise ValueError(f"{data.source}: keypoint set {set_name!r} is defined on the open model and the SMPL "
+                         f"topology only; this model has {data.num_vertices} vertices")
+    points = kset.definitions[topology]["points"]
+    entries = {n: (tuple((int(v), float(c)) for v, c in points[n]["vertices"]),
+                   tuple((int(j), float(c)) for j, c in points[n]["joints"])) for n in kset.keypoints}
+    return _build_named(kset.keypoints, entries, len(data.parents), f"{set_name}:{topology}")
+
+
+def _build_named(names: tuple[str, ...], entries: dict, num_joints: int, source: str) -> KeypointMap:
+    used = sorted({v for name in names for v, _ in entries[name][0]})
+    col = {v: i for i, v in enumerate(used)}
+    vertex_coeffs = np.zeros((len(names), len(used)))
+    joint_coeffs = np.zeros((len(names), num_joints))
+    for k, name in enumerate(names):
+        verts, joints = entries[name]
+        for v, c in verts:
+            vertex_coeffs[k, col[v]] += c
+        for j, c in joints:
+            joint_coeffs[k, j] += c
+    return KeypointMap(names=tuple(names), vertex_ids=np.array(used, dtype=np.int64),
+                       vertex_coeffs=vertex_coeffs, joint_coeffs=joint_coeffs, source=source)

@@ -20,7 +20,7 @@ import scipy.sparse as sp
 
 from pedx_graph.body import jacobians as jac
 from pedx_graph.body.io import ModelData, load_model_data
-from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model
+from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model, keypoint_set_map
 from pedx_graph.body.lbs import (batch_rigid_transform, descendant_mask, pose_features, skin, skin_frames_last,
                                  vertices2joints)
 from pedx_graph.body.rotation import exp_and_right_jacobian, exp_so3, exp_so3_derivative
@@ -185,6 +185,27 @@ class BodyModel:
     @property
     def source(self) -> str:
         return self.data.source
+
+    @property
+    def keypoint_set(self) -> str:
+        """Name of the keypoint set :meth:`keypoints` returns (``"pedx18"`` unless :meth:`for_keypoint_set`)."""
+        return getattr(self, "_keypoint_set", "pedx18")
+
+    def keypoint_set_map(self, set_name: str) -> KeypointMap:
+        """The :class:`KeypointMap` of keypoint set ``set_name`` on this model (:func:`keypoint_set_map`)."""
+        return keypoint_set_map(self.data, set_name)
+
+    def for_keypoint_set(self, set_name: str) -> "BodyModel":
+        """This model with :meth:`keypoints` (and their Jacobians) in keypoint set ``set_name``'s order and
+        definitions; the same object for its own set, one cached model per set otherwise."""
+        if set_name == self.keypoint_set:
+            return self
+        cache = self.__dict__.setdefault("_set_models", {})
+        if set_name not in cache:
+            other = BodyModel(self.data, keypoint_set_map(self.data, set_name))
+            other._keypoint_set = set_name
+            cache[set_name] = other
+        return cache[set_name]
 
     def __repr__(self) -> str:
         return (f"BodyModel(V={self.num_vertices}, J={self.num_joints}, B={self.num_betas}, "
