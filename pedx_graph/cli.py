@@ -27,7 +27,9 @@ COMMAND_MODULES = (
     "pedx_graph.baselines.cli",  # baseline
     "pedx_graph.eval.cli",       # eval
     "pedx_graph.eval.report_cli",  # report, experiments
+    "pedx_graph.export.cli",     # export
     "pedx_graph.demo",           # demo
+    "pedx_graph.config_reference",  # config
 )
 
 
