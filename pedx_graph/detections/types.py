@@ -34,6 +34,8 @@ class Detection:
     """(4,) ``x, y, w, h`` in the raw image, pixels, if the file gives one."""
     occluded: np.ndarray | None = None
     """(K,) bool: labelled but marked not visible (COCO ``v = 1``); None when the file has no such flag."""
+    sequence: str | None = None
+    """The sequence named by the file (e.g. a PedX image name's ``<sequence>_`` prefix), else None."""
 
     @property
     def present(self) -> np.ndarray:
