@@ -31,6 +31,10 @@ def register(subparsers) -> None:
     p.add_argument("--body-model", default=None, help="SMPL-format .npz (default: the package's open model)")
     p.add_argument("--workers", type=int, default=1, help="processes over frames (same files for any count)")
     p.add_argument("--overwrite", action="store_true", help="replace a simulation already in OUT")
+    p.add_argument("--images", action="store_true",
+                   help="also render camera images into images/<seq>/<cam>/ (config: images.enabled)")
+    p.add_argument("--image-scale", type=float, default=None,
+                   help="rendered image size over the calibration's (config: images.scale)")
     p.add_argument("--figure", default=None, metavar="PNG",
                    help="also render the middle frame to this PNG (needs matplotlib)")
     p.set_defaults(func=_run_simulate)
@@ -51,6 +55,10 @@ def _run_simulate(args: argparse.Namespace) -> int:
         config.motion.split = args.split
     if args.body_model is not None:
         config.body_model = args.body_model
+    if args.images:
+        config.images.enabled = True
+    if args.image_scale is not None:
+        config.images.scale = args.image_scale
     config.validate(args.config or "<command line>")
     summary = simulate(args.out, config, seed=args.seed, progress=True, overwrite=args.overwrite,
                        workers=args.workers)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pedx_graph.config import ConfigError, from_dict, read_yaml, to_dict
+from pedx_graph.sim.render import ImageConfig
 
 #: Stereo pair names of the release: forward and left-facing pairs.
 FORWARD_PAIR = "ylw79D0-red707B"
@@ -320,6 +321,8 @@ class SimConfig:
     """The frame every written 3D quantity is in, relative to the sim frame."""
     body_model: str | None = None
     """Body model ``.npz`` path; None = the package's default open model."""
+    images: ImageConfig = field(default_factory=ImageConfig)
+    """Rendered camera images under ``images/`` (:mod:`pedx_graph.sim.render`), off by default."""
 
     def validate(self, source: str = "<config>") -> "SimConfig":
         """Check ranges; raise :class:`ConfigError` naming the field. Returns self."""

@@ -287,6 +287,11 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
             counts["smpl_labels"] += 1
             instances.append([tid, distance, sorted(vl.camera for vl in labelled_views)])
         truth_people[tid] = record
+    if config.images.enabled:                         # rendered camera images of this frame (sim/render.py)
+        from pedx_graph.sim.render import write_frame_images
+        write_frame_images(out, seq, frame, [v for c in calibs.values() for v in cameras.camera_views(c)],
+                           ctx.scene.ground_z, meshes, {o.object_id: o.kind for o in ctx.scene.objects},
+                           config.images)
     truth_dir = out / "truth" / seq
     atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
     write_json_compact(truth_dir / f"{seq}_{frame:07d}.json",
