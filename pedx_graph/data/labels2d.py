@@ -12,6 +12,9 @@ SMPL files.  Fields of the JSON object:
 ``tracking_id`` (str), ``category`` (``pedestrian`` / ``vehicle``), ``subtype``, ``frame_id``,
 ``polygon``: list of ``[x, y]`` pixels (at least 3), or null;
 ``keypoint``: dict keyed by the 18 :data:`PEDX_KEYPOINTS` names, each ``{"x", "y", "visible"}``, or null.
+Our own extension for imported detections (``pedx-graph import``): ``keypoint_set`` (absent = ``pedx18``;
+else ``coco17``, ``coco18``, ``body25``, ``body25b``) names the set whose names key ``keypoint``, and each
+entry may carry ``confidence`` (the detector's, [0, 1]) and ``sigma_px`` (its pixel noise per axis, > 0).
 A missing name = not labelled; an entry that is null, or whose ``x`` and ``y`` are both null, is not
 labelled either.  ``visible`` defaults to true when absent.  Unknown keypoint names are warned about and
 ignored.  Any other malformation raises :class:`DataFormatError` naming the file and the field.
@@ -154,10 +157,12 @@ def _flag(value, path, field: str) -> bool:
     raise DataFormatError(path, field, f"not a boolean: {value!r}")
 
 
-def parse_keypoints(data, path) -> tuple[np.ndarray, np.ndarray]:
-    """(18, 2) pixels (NaN = not labelled) and (18,) visible flags from a ``keypoint`` value (dict or None)."""
-    keypoints = np.full((len(PEDX_KEYPOINTS), 2), np.nan)
-    visible = np.zeros(len(PEDX_KEYPOINTS), dtype=bool)
+def parse_keypoints(data, path, names: tuple[str, ...] = PEDX_KEYPOINTS) -> tuple[np.ndarray, np.ndarray]:
+    """(18, 2) pixels (NaN = not labelled) and (18,) visible flags from a ``keypoint`` value (dict or None);
+    ``names``: the keypoint set's names (K of them) when not PedX's."""
+    index_of = _KEYPOINT_INDEX if names is PEDX_KEYPOINTS else {n: i for i, n in enumerate(names)}
+    keypoints = np.full((len(names), 2), np.nan)
+    visible = np.zeros(len(names), dtype=bool)
     if data is None:
         return keypoints, visible
     if not isinstance(data, dict):
@@ -165,7 +170,7 @@ def parse_keypoints(data, path) -> tuple[np.ndarray, np.ndarray]:
                                                 f"got {type(data).__name__}")
     for name, entry in data.items():
         field = f"keypoint.{name}"
-        index = _KEYPOINT_INDEX.get(name)
+        index = index_of.get(name)
         if index is None:
             logger.warning("%s: field '%s': unknown keypoint name, ignored", path, field)
             continue
@@ -221,12 +226,45 @@ def read_label2d(path: str | os.PathLike, sequence: str, camera: str, frame: int
     if file_tid is not None and str(file_tid) != tracking_id:
         logger.warning("%s: field 'tracking_id' %r differs from the file name's %r; using the file name",
                        path, file_tid, tracking_id)
-    keypoints, visible = parse_keypoints(data.get("keypoint"), path)
+    keypoint_set, names = _keypoint_set(data, path)
+    keypoints, visible = parse_keypoints(data.get("keypoint"), path, names)
+    sigma_px, confidence = _parse_noise(data.get("keypoint"), path, names) if keypoint_set != "pedx18" else (None,
+                                                                                                            None)
     polygon = parse_polygon(data.get("polygon"), path)
     subtype = data.get("subtype")
     return Label2D(sequence=sequence, camera=camera, frame=int(frame), tracking_id=tracking_id,
-                   category=category, view=View2D(keypoints=keypoints, visible=visible, polygon=polygon),
+                   category=category, view=View2D(keypoints=keypoints, visible=visible, polygon=polygon,
+                                                  keypoint_set=keypoint_set, sigma_px=sigma_px,
+                                                  confidence=confidence),
                    subtype=None if subtype is None else str(subtype), frame_id=data.get("frame_id"))
+
+
+def _keypoint_set(data: dict, path) -> tuple[str, tuple[str, ...]]:
+    """The file's ``keypoint_set`` and its names (PedX's when absent)."""
+    name = data.get("keypoint_set", "pedx18")
+    if name == "pedx18":
+        return "pedx18", PEDX_KEYPOINTS
+    from pedx_graph.body.keypoint_defs import keypoint_set_names, load_keypoint_set
+    if not isinstance(name, str) or name not in keypoint_set_names():
+        raise DataFormatError(path, "keypoint_set", f"unknown set {name!r} (known: {', '.join(keypoint_set_names())})")
+    return name, load_keypoint_set(name).keypoints
+
+
+def _parse_noise(data, path, names: tuple[str, ...]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(K,) ``sigma_px`` and ``confidence`` of the entries (NaN where absent; None when no entry has one)."""
+    out = {"sigma_px": np.full(len(names), np.nan), "confidence": np.full(len(names), np.nan)}
+    for i, name in enumerate(names):
+        entry = data.get(name) if isinstance(data, dict) else None
+        if not isinstance(entry, dict):
+            continue
+        for key in out:
+            if entry.get(key) is not None:
+                value = _number(entry[key], path, f"keypoint.{name}.{key}")
+                if (key == "sigma_px" and not value > 0) or (key == "confidence" and not 0 <= value <= 1):
+                    raise DataFormatError(path, f"keypoint.{name}.{key}",
+                                          f"must be {'> 0' if key == 'sigma_px' else 'in [0, 1]'}, got {value:g}")
+                out[key][i] = value
+    return tuple(None if np.all(np.isnan(v)) else v for v in (out["sigma_px"], out["confidence"]))
 
 
 def _outside(points: np.ndarray, image_size: tuple[int, int], margin: float) -> np.ndarray:
@@ -262,10 +300,10 @@ def screen_label(label: Label2D, image_size: tuple[int, int], margin: float = 0.
         first = int(np.flatnonzero(outside)[0])
         logger.warning("%s: field 'keypoint': %d of %d keypoints outside the %s image by more than %g %% (e.g. "
                        "%s at (%.4g, %.4g) px); instance skipped", where, n_out, n_labelled, size_text,
-                       100 * margin, PEDX_KEYPOINTS[first], *view.keypoints[first])
+                       100 * margin, _names(view)[first], *view.keypoints[first])
         return None
     if n_out:
-        fields = ", ".join(f"'keypoint.{PEDX_KEYPOINTS[i]}' ({view.keypoints[i, 0]:.4g}, {view.keypoints[i, 1]:.4g})"
+        fields = ", ".join(f"'keypoint.{_names(view)[i]}' ({view.keypoints[i, 0]:.4g}, {view.keypoints[i, 1]:.4g})"
                            for i in np.flatnonzero(outside))
         logger.warning("%s: field %s: outside the %s image by more than %g %%; dropped", where, fields, size_text,
                        100 * margin)
@@ -275,7 +313,15 @@ def screen_label(label: Label2D, image_size: tuple[int, int], margin: float = 0.
     visible = view.visible.copy()
     keypoints[outside] = np.nan
     visible[outside] = False
-    return dataclasses.replace(label, view=View2D(keypoints=keypoints, visible=visible, polygon=polygon))
+    return dataclasses.replace(label, view=dataclasses.replace(view, keypoints=keypoints, visible=visible,
+                                                               polygon=polygon))
+
+
+def _names(view: View2D) -> tuple[str, ...]:
+    if view.keypoint_set == "pedx18":
+        return PEDX_KEYPOINTS
+    from pedx_graph.body.keypoint_defs import load_keypoint_set
+    return load_keypoint_set(view.keypoint_set).keypoints
 
 
 def label2d_to_json(label: Label2D) -> dict:
@@ -286,9 +332,17 @@ def label2d_to_json(label: Label2D) -> dict:
     if labelled.any():
         keypoint = {name: {"x": float(view.keypoints[i, 0]), "y": float(view.keypoints[i, 1]),
                            "visible": bool(view.visible[i])}
-                    for i, name in enumerate(PEDX_KEYPOINTS) if labelled[i]}
+                    for i, name in enumerate(_names(view)) if labelled[i]}
+        for key in ("confidence", "sigma_px"):
+            values = getattr(view, key)
+            if values is not None:
+                for i, name in enumerate(_names(view)):
+                    if labelled[i] and np.isfinite(values[i]):
+                        keypoint[name][key] = float(values[i])
     polygon = None if view.polygon is None else np.asarray(view.polygon, dtype=float).tolist()
+    extra = {} if view.keypoint_set == "pedx18" else {"keypoint_set": view.keypoint_set}
     return {
+        **extra,
         "tracking_id": label.tracking_id,
         "category": label.category,
         "subtype": label.subtype,
@@ -302,8 +356,9 @@ def write_label2d(root: str | os.PathLike, label: Label2D, flat: bool = False) -
     """Write ``label`` atomically to its release path under ``root`` (folder holding ``labels/``)."""
     if "_" in label.sequence or "_" in label.camera:
         raise ValueError(f"sequence and camera names must not contain '_': {label.sequence!r}, {label.camera!r}")
-    if label.view.keypoints.shape != (len(PEDX_KEYPOINTS), 2):
-        raise ValueError(f"keypoints must have shape (18, 2), got {label.view.keypoints.shape}")
+    if label.view.keypoints.shape != (len(_names(label.view)), 2):
+        raise ValueError(f"keypoints must have shape ({len(_names(label.view))}, 2) for keypoint set "
+                         f"{label.view.keypoint_set}, got {label.view.keypoints.shape}")
     if label.view.polygon is not None:
         polygon = np.asarray(label.view.polygon, dtype=float)
         if polygon.ndim != 2 or polygon.shape[1] != 2 or len(polygon) < 3 or not np.isfinite(polygon).all():

@@ -286,6 +286,7 @@ def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[t
                     skipped: dict[str, int] | None = None) -> Track | None:
     skipped = skipped if skipped is not None else {"labels": 0}
     by_frame: dict[int, dict[str, dict[str, Label2D]]] = defaultdict(lambda: defaultdict(dict))
+    track_set = None
     for frame, camera, path in sorted(entries):
         try:
             label = read_label2d(path, sequence, camera, frame, tracking_id)
@@ -296,6 +297,12 @@ def _assemble_track(root: Path, sequence: str, tracking_id: str, entries: list[t
         if label.category not in config.categories:
             continue
         pair, side = sides[camera]
+        track_set = label.view.keypoint_set if track_set is None else track_set
+        if label.view.keypoint_set != track_set:      # one keypoint set per track (the fit's body map)
+            logger.warning("%s: field 'keypoint_set' %r differs from the track's %r; instance skipped", path,
+                           label.view.keypoint_set, track_set)
+            skipped["labels"] += 1
+            continue
         label = screen_label(label, calibrations[pair].image_size, config.keypoint_margin, path)
         if label is None:
             skipped["labels"] += 1

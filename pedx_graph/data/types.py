@@ -121,10 +121,19 @@ class View2D:
     """(18,) bool, the annotator's ``visible`` flag (False also where not labelled)."""
     polygon: np.ndarray | None = None
     """(K, 2) pixel polygon of the instance silhouette, or None when the label has none."""
+    keypoint_set: str = "pedx18"
+    """Which keypoints :attr:`keypoints` holds, in that set's order (``pedx18``: the 18 PedX keypoints;
+    ``coco17``, ``body25``, ...: a detector's, see ``pedx_graph/body/data/keypoint_sets``).  With another
+    set, ``keypoints``, ``visible`` and :attr:`sigma_px` have that set's length instead of 18."""
+    sigma_px: np.ndarray | None = None
+    """(K,) per-keypoint pixel noise (per axis) from the label file (a detector's confidence turned into
+    noise by ``pedx-graph import``), NaN where the file gives none; None: the config's noise for all."""
+    confidence: np.ndarray | None = None
+    """(K,) the detector's confidence per keypoint as imported (kept for reports), or None."""
 
     @property
     def labelled(self) -> np.ndarray:
-        """(18,) bool: the joint has a 2D position."""
+        """(18,) bool (K in another keypoint set): the joint has a 2D position."""
         return np.all(np.isfinite(self.keypoints), axis=-1)
 
 
@@ -195,6 +204,15 @@ class Track:
 
     def __len__(self) -> int:
         return len(self.frames)
+
+    @property
+    def keypoint_set(self) -> str:
+        """The keypoint set of the track's 2D labels (the reader keeps one set per track): ``pedx18`` unless
+        the labels were imported from a detector."""
+        for fr in self.frames:
+            for _, _, view in fr.labelled_views():
+                return view.keypoint_set
+        return "pedx18"
 
 
 @dataclass
