@@ -52,4 +52,13 @@ def run(args: argparse.Namespace) -> int:
     write_report(report, results, title="Demo accuracy")
     print(markdown_table(report, title="Demo accuracy (simulated ground truth)"))
     print(f"results: {results} (PedX SMPL layout, summary.json, eval.md)")
+    if summary["tracks"]:                                   # a picture of one track (pedx-graph export)
+        from pedx_graph.export.run import ExportConfig, export_results
+
+        first = summary["tracks"][0]["tracking_id"]
+        export_results(results, out / "export", scene, ExportConfig(tracks=(first,), overlay_every=10 ** 6))
+        seq = summary["tracks"][0]["sequence"]
+        print(f"picture: {out / 'export' / 'animation' / seq / f'{seq}_{first}.gif'} "
+              f"(top view: {out / 'export' / 'topview' / seq / f'{seq}_{first}.png'}; all tracks: "
+              f"pedx-graph export {results})")
     return 0 if summary["tracks"] else 1
