@@ -20,6 +20,7 @@ import sys
 COMMAND_MODULES = (
     "pedx_graph.body.cli",       # info
     "pedx_graph.sim.cli",        # simulate
+    "pedx_graph.detections.cli",  # import
     "pedx_graph.data.noise_cli",  # noise
     "pedx_graph.priors.cli",     # train-prior
     "pedx_graph.solvers.cli",    # fit

@@ -1,0 +1,75 @@
+"""``pedx-graph import openpose|coco``: detector / annotation-tool keypoint files -> a PedX-layout dataset."""
+from __future__ import annotations
+
+import argparse
+import logging
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "import", help="import OpenPose / COCO keypoint files as a PedX-layout dataset",
+        description="Read detector keypoints (OpenPose JSON: BODY_25, BODY_25B, COCO-18; COCO annotation or "
+                    "results files) made on the raw images, undistort and rectify them with the calibration, "
+                    "group them into people (the files' ids with --use-file-ids, else stereo + tracking "
+                    "association) and write labels/2d in the PedX layout with keypoint_set, confidence and "
+                    "sigma_px per keypoint, plus calib/ (copied), pointclouds/ (linked) and LiDAR segments cut "
+                    "from the scene clouds.  Camera and frame come from the file names: PedX image names "
+                    "<seq>_<cam>_<frame>, <cam>.<frame>, or --name-pattern.")
+    p.add_argument("format", choices=["openpose", "coco"], help="input format")
+    p.add_argument("input", nargs="+", help="OpenPose: JSON files or folders (searched recursively); "
+                                            "COCO: one annotation or results file")
+    p.add_argument("--calib", required=True,
+                   help="a dataset root holding calib/ (its pointclouds/ and timestamps/ are used too) or a "
+                        "folder of calib_cam_to_cam_*.txt / calib_cam_to_range_*.txt files")
+    p.add_argument("--out", required=True, help="output dataset root (created)")
+    p.add_argument("--keypoint-set", default=None, choices=["body25", "body25b", "coco18"],
+                   help="OpenPose model (25 keypoints are BODY_25 unless body25b is named; 18 are COCO-18)")
+    p.add_argument("--name-pattern", default=None,
+                   help="regex with named groups camera, frame (and optionally sequence) matched against the "
+                        "file / image name without its extension, e.g. '(?P<camera>cam\\d+)\\.(?P<frame>\\d+)'")
+    p.add_argument("--camera", action="append", default=None, metavar="NAME=CALIB_NAME",
+                   help="rename a camera of the file names to its calibration name (repeatable)")
+    p.add_argument("--sequence", default=None, help="sequence name when the file names give none (default: "
+                                                    "'detections')")
+    p.add_argument("--images", default=None, help="COCO results: the file listing the images (an annotation "
+                                                  "file), to resolve image ids to names")
+    p.add_argument("--use-file-ids", action="store_true",
+                   help="group by the ids in the files (OpenPose person_id, COCO track_id) instead of associating")
+    p.add_argument("--config", default=None, help="YAML with an ImportConfig (noise: sigma curve, threshold)")
+    p.set_defaults(func=_run_import)
+
+
+def _camera_names(items: list[str] | None) -> dict[str, str] | None:
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        name, sep, calib_name = item.partition("=")
+        if not sep or not name or not calib_name:
+            raise ValueError(f"--camera expects NAME=CALIB_NAME, got {item!r}")
+        out[name] = calib_name
+    return out
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    from pedx_graph.config import load_config
+    from pedx_graph.detections.importer import ImportConfig, import_detections
+
+    config = load_config(ImportConfig, args.config)
+    cameras = _camera_names(args.camera)
+    if args.format == "openpose":
+        from pedx_graph.detections.openpose import read_openpose
+        detections = read_openpose(args.input, args.keypoint_set, args.name_pattern, cameras)
+    else:
+        from pedx_graph.detections.coco import read_coco
+        if len(args.input) != 1:
+            raise ValueError("coco: give exactly one annotation or results file")
+        detections = read_coco(args.input[0], args.images, args.name_pattern, cameras)
+    config.use_file_ids = config.use_file_ids or args.use_file_ids
+    summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence)
+    tracks = sum(s["tracks"] for s in summary["sequences"].values())
+    labels = sum(s["labels_written"] for s in summary["sequences"].values())
+    print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")
+    return 0

@@ -1,0 +1,201 @@
+"""``pedx-graph import openpose|coco``: detector files -> a dataset in the PedX release layout, ready to fit.
+
+Steps: read the files (:mod:`.openpose`, :mod:`.coco`; camera and frame from the file / image names,
+:mod:`.naming`) -> group them into people: the file's own ids with ``use_file_ids`` (OpenPose ``person_id``,
+COCO ``track_id``; every detection must have one), else :func:`pedx_graph.detections.association.associate`
+(stereo, over frames, across pairs) -> per person, frame and camera, undistort + rectify the keypoints
+(:func:`pedx_graph.detections.undistort.rectified`), drop those below the confidence threshold and turn the
+confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoiseConfig`) -> write
+``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` with ``keypoint_set`` and per-keypoint
+``confidence`` and ``sigma_px`` (:mod:`pedx_graph.data.labels2d`), copy ``calib/`` (and ``timestamps/``),
+link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
+(:func:`pedx_graph.detections.lidar_cut.write_track_segments`) when the source dataset has them.  A summary
+goes to ``<out>/import_summary.json``.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from collections import defaultdict
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pedx_graph.data.calib import read_calibrations
+from pedx_graph.data.labels2d import Label2D, write_label2d
+from pedx_graph.data.types import DataFormatError, View2D
+from pedx_graph.detections.noise import DetectionNoiseConfig
+from pedx_graph.detections.types import Detection
+from pedx_graph.detections.undistort import rectified
+from pedx_graph.utils import atomic_write_json
+
+log = logging.getLogger(__name__)
+
+DEFAULT_SEQUENCE = "detections"
+"""Sequence name of detections whose file names give none and no ``--sequence`` is passed."""
+
+
+@dataclass
+class ImportConfig:
+    """How detections become 2D labels."""
+
+    noise: DetectionNoiseConfig = field(default_factory=DetectionNoiseConfig)
+    """Confidence -> pixel noise and the drop threshold."""
+    use_file_ids: bool = False
+    """Group detections by the ids in the files (every detection must have one) instead of associating them."""
+    min_keypoints: int = 3
+    """A detection with fewer kept keypoints (after the threshold) is not written."""
+
+
+def calibration_dir(source: str | os.PathLike) -> Path:
+    """``<source>/calib`` when ``source`` is a dataset root holding one, else ``source`` itself."""
+    source = Path(source)
+    return source / "calib" if (source / "calib").is_dir() else source
+
+
+class _Clouds(Mapping):
+    """Frame -> the sequence's scene cloud, read on demand (``pointclouds/<seq>/``)."""
+
+    def __init__(self, root: Path, sequence: str):
+        from pedx_graph.data.ply import pointcloud_path
+        self._paths = {}
+        folder = root / "pointclouds" / sequence
+        if folder.is_dir():
+            for path in folder.glob(f"{sequence}_*.ply"):
+                token = path.stem.rsplit("_", 1)[-1]
+                if token.isdigit() and pointcloud_path(root, sequence, int(token)) == path:
+                    self._paths[int(token)] = path
+        self._cache: dict[int, np.ndarray] = {}
+
+    def __getitem__(self, frame: int) -> np.ndarray:
+        from pedx_graph.data.ply import read_ply_points
+        if frame not in self._cache:
+            self._cache = {frame: read_ply_points(self._paths[frame])}      # one frame at a time in memory
+        return self._cache[frame]
+
+    def __iter__(self):
+        return iter(sorted(self._paths))
+
+    def __len__(self) -> int:
+        return len(self._paths)
+
+
+def detection_view(det: Detection, calibrations, noise: DetectionNoiseConfig) -> View2D:
+    """The :class:`View2D` of one detection: rectified pixels, keypoints below the threshold dropped,
+    per-keypoint confidence and sigma_px (annotations: :attr:`DetectionNoiseConfig.annotation_sigma_px`)."""
+    uv = rectified(det, calibrations)
+    annotation = det.occluded is not None
+    sigma = noise.sigma(det.keypoint_set, det.confidence, det.occluded, annotation=annotation)
+    keep = np.all(np.isfinite(uv), axis=1) & np.isfinite(sigma)
+    uv[~keep] = np.nan
+    visible = keep & (~det.occluded if det.occluded is not None else True)
+    return View2D(keypoints=uv, visible=visible, keypoint_set=det.keypoint_set,
+                  sigma_px=np.where(keep, sigma, np.nan), confidence=np.where(keep, det.confidence, np.nan))
+
+
+def _group_by_file_ids(detections: list[Detection]) -> dict[str, list[Detection]]:
+    groups: dict[str, list[Detection]] = defaultdict(list)
+    for det in detections:
+        if det.track_id is None:
+            raise DataFormatError(det.source, "person_id/track_id", "no id in the file (needed with --use-file-ids)")
+        groups[det.track_id].append(det)
+    return groups
+
+
+def _copy_support(source_root: Path | None, calib_dir: Path, out: Path) -> dict:
+    """Copy the calibration (and timestamps), link the scene clouds; returns what was done."""
+    done = {"calib_files": 0, "pointclouds": None, "timestamps": False}
+    (out / "calib").mkdir(parents=True, exist_ok=True)
+    for path in sorted(calib_dir.glob("calib_*.txt")):
+        shutil.copyfile(path, out / "calib" / path.name)
+        done["calib_files"] += 1
+    if source_root is None:
+        return done
+    if (source_root / "timestamps").is_dir() and not (out / "timestamps").exists():
+        shutil.copytree(source_root / "timestamps", out / "timestamps")
+        done["timestamps"] = True
+    clouds = source_root / "pointclouds"
+    target = out / "pointclouds"
+    if clouds.is_dir() and not target.exists():
+        try:
+            target.symlink_to(os.path.relpath(clouds.resolve(), out.resolve()), target_is_directory=True)
+            done["pointclouds"] = "linked"
+        except OSError:
+            shutil.copytree(clouds, target)
+            done["pointclouds"] = "copied"
+    return done
+
+
+def import_detections(detections: list[Detection], calib: str | os.PathLike, out: str | os.PathLike,
+                      config: ImportConfig | None = None, sequence: str | None = None) -> dict:
+    """Write ``detections`` as a dataset under ``out`` (module docstring); returns the summary (also written)."""
+    config = config or ImportConfig()
+    calib = Path(calib)
+    calib_dir = calibration_dir(calib)
+    calibrations = read_calibrations(calib_dir)
+    source_root = calib if calib_dir != calib else None
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    support = _copy_support(source_root, calib_dir, out)
+    by_sequence: dict[str, list[Detection]] = defaultdict(list)
+    for det in detections:
+        by_sequence[det.sequence or sequence or DEFAULT_SEQUENCE].append(det)
+    summary = {"detections": len(detections), "sequences": {}, "support": support,
+               "keypoint_sets": sorted({d.keypoint_set for d in detections})}
+    for seq in sorted(by_sequence):
+        if "_" in seq:
+            raise ValueError(f"sequence name {seq!r} must not contain '_' (release file names); pass --sequence")
+        summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config)
+    atomic_write_json(out / "import_summary.json", summary)
+    return summary
+
+
+def _import_sequence(seq: str, detections: list[Detection], calibrations, out: Path, source_root: Path | None,
+                     config: ImportConfig) -> dict:
+    from pedx_graph.detections.association import associate
+
+    known = [d for d in detections if _calibrated(d.camera, calibrations)]
+    uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
+    if uncalibrated:
+        log.warning("%s: cameras %s are in no calibrated pair; their detections are skipped", seq, uncalibrated)
+    clouds = _Clouds(source_root, seq) if source_root is not None else {}
+    people: dict[str, dict[int, dict[str, Detection]]] = {}
+    tracks = None
+    if config.use_file_ids:
+        for tid, dets in sorted(_group_by_file_ids(known).items()):
+            frames: dict[int, dict[str, Detection]] = defaultdict(dict)
+            for det in sorted(dets, key=lambda d: (d.frame, d.camera, -d.score)):
+                frames[det.frame].setdefault(det.camera, det)
+            people[tid] = frames
+    else:
+        from pedx_graph.data.ground import ground_from_calibrations
+        ground = ground_from_calibrations(dict(calibrations), seq)
+        tracks = associate(known, calibrations, clouds=clouds or None, ground=ground)
+        for track in tracks:
+            people[track.track_id] = {fr.frame: dict(fr.detections) for fr in track.frames}
+    written = 0
+    for tid, frames in people.items():
+        for frame, cams in sorted(frames.items()):
+            for camera, det in sorted(cams.items()):
+                view = detection_view(det, calibrations, config.noise)
+                if int(view.labelled.sum()) < config.min_keypoints:
+                    continue
+                write_label2d(out, Label2D(sequence=seq, camera=camera, frame=frame, tracking_id=tid,
+                                           category="pedestrian", view=view, subtype="detection"))
+                written += 1
+    result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
+              "uncalibrated_cameras": uncalibrated}
+    if tracks is not None and len(clouds):
+        from pedx_graph.data.ground import ground_from_calibrations
+        from pedx_graph.detections.lidar_cut import write_track_segments
+        result["segments"] = write_track_segments(out, seq, tracks, calibrations,
+                                                  ground_from_calibrations(dict(calibrations), seq),
+                                                  lambda frame: clouds[frame])
+    return result
+
+
+def _calibrated(camera: str, calibrations) -> bool:
+    return any(camera in calib.name.split("-") for calib in calibrations.values())
