@@ -44,7 +44,7 @@ from pedx_graph.body import BodyModel  # noqa: E402
 from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
 from pedx_graph.eval.evaluate import evaluate_arrays  # noqa: E402
 from pedx_graph.eval.metrics import summarise  # noqa: E402
-from pedx_graph.eval.report import calibration  # noqa: E402
+from pedx_graph.eval.calibration import calibration  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
 from pedx_graph.sim.config import pedx_rig_config  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
@@ -199,7 +199,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path) -> d
 
 
 def _pool_nees(parts: list[dict]) -> dict:
-    """Frame-weighted pooling of :func:`pedx_graph.eval.report.calibration` over scenes."""
+    """Frame-weighted pooling of :func:`pedx_graph.eval.calibration.calibration` over scenes."""
     def pool(items):
         items = [i for i in items if i.get("n")]
         n = sum(i["n"] for i in items)

@@ -8,7 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pedx_graph.eval import floor as fl
 from pedx_graph.eval import report as rp
+from pedx_graph.eval import runs
+from pedx_graph.eval import tables as tb
 from pedx_graph.eval.detector_noise import SWAP_PAIRS, DetectorNoiseConfig, corrupt_keypoints, corrupt_polygon
 from pedx_graph.eval.experiments import ABLATION_ROWS, ExperimentConfig, SceneVariant
 from pedx_graph.eval.metrics import summarise
@@ -26,7 +29,7 @@ def constant_summary(global_mm: float, rel_mm: float, distances=(10.0, 20.0, 30.
 
 
 def test_per_joint_table_columns_and_mean():
-    table = rp.per_joint_table({"a": constant_summary(100, 40), "b": constant_summary(250, 60)}, "global_mm",
+    table = tb.per_joint_table({"a": constant_summary(100, 40), "b": constant_summary(250, 60)}, "global_mm",
                                floor=constant_summary(10, 5))
     lines = table.strip().splitlines()
     assert lines[0] == "| joint | a | b | floor |"
@@ -38,28 +41,28 @@ def test_per_joint_table_columns_and_mean():
 def test_distance_and_floor_ratio_tables():
     methods = {"m": constant_summary(300, 90)}
     floor = constant_summary(30, 10)
-    dist = rp.distance_table(methods, floor)
+    dist = tb.distance_table(methods, floor)
     assert "| frames | 1 | 1 | 1 | 1 |" in dist
     assert "| m | 300.0 / 90.0 | 300.0 / 90.0 | 300.0 / 90.0 | 300.0 / 90.0 |" in dist
-    ratio = rp.floor_ratio_table(methods, floor)
+    ratio = tb.floor_ratio_table(methods, floor)
     assert "| m | 10.0 / 9.0 | 10.0 / 9.0 |" in ratio
 
 
 def test_distance_table_empty_bin_is_a_dash():
-    table = rp.distance_table({"m": constant_summary(100, 50, distances=(10.0,))})
+    table = tb.distance_table({"m": constant_summary(100, 50, distances=(10.0,))})
     assert "| m | 100.0 / 50.0 | - / - | - / - | - / - |" in table
 
 
 def test_ablation_table_and_ordering():
     rows = [(i + 1, r.label, r.terms, constant_summary(400 - 50 * i, 100 - 10 * i))
             for i, r in enumerate(ABLATION_ROWS[:5])]
-    table = rp.ablation_table(rows)
+    table = tb.ablation_table(rows)
     assert "| 1: left image | x |  |  |  |  | 400.0 | 100.0 |" in table
     assert "| 5: full (+ temporal) | x | x | x | x | x | 200.0 | 60.0 |" in table
-    steps = rp.ablation_ordering(rows)
+    steps = tb.ablation_ordering(rows)
     assert [s["to_row"] for s in steps] == [2, 3, 4, 5]
     assert all(s["global_change_mm"] == pytest.approx(-50.0) for s in steps)
-    assert "helps" in rp.ordering_text(steps) and "does not help" not in rp.ordering_text(steps)
+    assert "helps" in tb.ordering_text(steps) and "does not help" not in tb.ordering_text(steps)
 
 
 def test_assemble_groups_runs():
@@ -81,7 +84,7 @@ def test_assemble_groups_runs():
     assert "| ours | annotator | 150.0 | 75.0 | - | - | - % |" in out["tables"]["table5_noisy_labels"]
     assert "| ours | detector | 250.0 | 125.0 | - | - | - % |" in out["tables"]["table5_noisy_labels"]
     assert "| ours | 1 (0) | 4 | 1 | 2.0 | 0.250 | 1.00 |" in out["tables"]["speed"]
-    md = rp.render_markdown(out)
+    md = tb.render_markdown(out)
     assert md.index("Table II") < md.index("Table III") < md.index("Table IV") < md.index("Table V")
 
 
@@ -89,14 +92,14 @@ def test_expected_errors_isotropic():
     """E||N(0, s^2 I3)|| = s sqrt(8/pi); the root-relative error is smaller (the alignment absorbs some)."""
     sigma = 0.01
     truth = np.random.default_rng(1).normal(size=(13, 3)) * 0.4
-    glob, rel = rp.expected_errors(sigma ** 2 * np.eye(39), truth, 4000, np.random.default_rng(0))
+    glob, rel = fl.expected_errors(sigma ** 2 * np.eye(39), truth, 4000, np.random.default_rng(0))
     assert glob.mean() == pytest.approx(sigma * np.sqrt(8 / np.pi), rel=0.02)
     assert np.all(rel < glob)
 
 
 def test_eval_jacobian_hip_is_mid_hips():
     full = np.random.default_rng(0).normal(size=(2, 18, 3, 5))
-    j13 = rp.eval_jacobian(full)
+    j13 = fl.eval_jacobian(full)
     assert j13.shape == (2, 13, 3, 5)
     hip = EVAL_JOINTS.index("hip")
     lh, rh = PEDX_KEYPOINTS.index("lhip"), PEDX_KEYPOINTS.index("rhip")
@@ -150,11 +153,11 @@ def test_ablation_presets_match_rows():
         terms = vars(load_config(FitConfig, path).terms)
         assert terms == ABLATION_ROWS[number - 1].fit_terms() | {k: v for k, v in terms.items()
                                                                if k not in ABLATION_ROWS[0].fit_terms()}
-        assert rp.ablation_row(terms) == number
+        assert runs.ablation_row(terms) == number
         assert terms["pose_prior"] is True
         seen.add(tuple(sorted(terms.items())))
     assert len(seen) == 6
-    assert rp.ablation_row(vars(FitConfig().terms)) == 5
+    assert runs.ablation_row(vars(FitConfig().terms)) == 5
 
 
 def test_detector_preset_loads():

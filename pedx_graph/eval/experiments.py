@@ -26,45 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pedx_graph.eval.detector_noise import DetectorNoiseConfig
+from pedx_graph.eval.runs import ABLATION_ROWS
 from pedx_graph.utils import atomic_write_json
 
 log = logging.getLogger(__name__)
-
-#: Symbols of the switches shown in Table IV, in column order (TermsConfig field -> paper symbol).
-ABLATION_TERM_SYMBOLS = {"left_reprojection": "E_J,l", "right_reprojection": "E_J,r",
-                         "translation_prior": "E_T (+E_D)", "lidar_chamfer": "E_3d", "temporal_prior": "E_tp"}
-
-
-@dataclass(frozen=True)
-class AblationRow:
-    """One row of Table IV: a label and the energy-term switches (``TermsConfig`` fields)."""
-
-    label: str
-    terms: dict
-
-    def fit_terms(self) -> dict:
-        """All ``TermsConfig`` switches of the row (heading follows the translation prior; priors on; a row
-        without the right image uses the primary pair's left camera only, not another pair's too)."""
-        return {**self.terms, "heading_prior": self.terms["translation_prior"], "pose_prior": True,
-                "all_views": self.terms["right_reprojection"]}
-
-
-def _row(label: str, left: bool, right: bool, trans: bool, chamfer: bool, temporal: bool) -> AblationRow:
-    return AblationRow(label, {"left_reprojection": left, "right_reprojection": right, "translation_prior": trans,
-                               "lidar_chamfer": chamfer, "temporal_prior": temporal})
-
-
-#: Table IV rows, cumulative as the paper's ordering claim (stereo, LiDAR translation, 3D distance, temporal
-#: each help), plus the full estimator without the right image.
-ABLATION_ROWS: tuple[AblationRow, ...] = (
-    _row("left image", True, False, False, False, False),
-    _row("stereo", True, True, False, False, False),
-    _row("stereo + LiDAR translation", True, True, True, False, False),
-    _row("stereo + LiDAR translation + 3D distance", True, True, True, True, False),
-    _row("full (+ temporal)", True, True, True, True, True),
-    _row("full without the right image", True, False, True, True, True),
-)
-
 
 @dataclass
 class SceneVariant:
