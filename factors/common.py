@@ -270,3 +270,19 @@ def robustify_groups(white: np.ndarray, kernel: str, scale: float,
         new += (h[:, None] * white)[:, :, None] * rt_j[:, None, :]
         out.append(as_f64(new.reshape(num_g * d, -1)))
     return s, out
+
+
+_GRAMS: dict[tuple[int, int], tuple] = {}
+
+
+def component_grams(mixture: MaxMixture, start: int = 0) -> np.ndarray:
+    """``J_k^T J_k`` (K, D - start, D - start) of every component's max-mixture residual Jacobian, rows and
+    columns from ``start`` on: the Gauss-Newton information of a max-mixture factor whose component k is
+    selected (remembered per mixture and start; read-only)."""
+    hit = _GRAMS.get((id(mixture), start))
+    if hit is None or hit[0] is not mixture:
+        jac = mixture.jacobians(np.arange(mixture.num_components))[:, :, start:]
+        gram = np.swapaxes(jac, 1, 2) @ jac
+        gram.setflags(write=False)
+        hit = _GRAMS[(id(mixture), start)] = (mixture, gram)
+    return hit[1]

@@ -36,7 +36,11 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.common import ROOT_DIM, as_f64, make_noise, set_jacobians
+from factors.common import ROOT_DIM, as_f64, set_jacobians
+from factors.terms import NormalEquations, RowNoise, Term, kernels, rows_normal_equations, stacked
+
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "heading_prior"
 
 #: |f| below this (the body's forward axis is vertical) gives residual 0 and a zero Jacobian.
 MIN_FORWARD_NORM = 1e-6
@@ -162,9 +166,9 @@ def make_heading_prior_factor(key_root: int, level_heading: float | np.ndarray, 
     if not (np.isfinite(trajectory_sigma_rad) and trajectory_sigma_rad >= 0):
         raise ValueError(f"heading prior: trajectory_sigma_rad must be finite and >= 0, got {trajectory_sigma_rad}")
     sigma = float(np.hypot(heading_sigma(speed, sigma0_rad, v0), trajectory_sigma_rad))
-    noise = make_noise(sigma, dim=1, robust=robust, robust_scale=robust_scale)
+    spec = HeadingSpec(h, level, sigma, robust, float(robust_scale))
     if cache is not None:
-        cache.register("heading_prior", [key_root], HeadingSpec(h, level, sigma, robust, float(robust_scale)))
+        cache.register(KIND, [key_root], spec)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         r, jac = heading_prior_error(values.atRot3(this.keys()[0]).matrix(), h, level, H is not None)
@@ -172,4 +176,22 @@ def make_heading_prior_factor(key_root: int, level_heading: float | np.ndarray, 
             set_jacobians(H, [jac], 1, [ROOT_DIM])
         return r
 
-    return gtsam.CustomFactor(noise, [key_root], error)
+    return gtsam.CustomFactor(noise_of(spec).model(), [key_root], error)
+
+
+def noise_of(spec: HeadingSpec) -> RowNoise:
+    """One row, ``sigma_rad`` radians, the kernel on it."""
+    return RowNoise(np.array([spec.sigma_rad]), spec.robust, spec.robust_scale)
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The heading factors ``keys_list`` (column: the root) from their specs and the cache's prefetched
+    rotations, in one :func:`heading_prior_batch` call."""
+    frames = cache.frame_index(keys_list)
+    st = stacked(cache, KIND, keys_list, ("level_heading", "world_R_level", "sigma_rad"))
+    r, jac = heading_prior_batch(cache.frame_arrays["world_R_body"][frames], st["level_heading"], st["world_R_level"])
+    return rows_normal_equations(keys_list, r[:, None], jac[:, None, :] if jacobians else None,
+                                 1.0 / st["sigma_rad"][:, None], kernels(cache, KIND, keys_list, noise_of))
+
+
+TERM = Term(KIND, assemble)

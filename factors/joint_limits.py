@@ -17,6 +17,10 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, as_f64, set_jacobians
+from factors.terms import NormalEquations, RowNoise, Term, concatenate, rows_normal_equations
+
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "joint_limits"
 
 
 @dataclass(frozen=True)
@@ -90,8 +94,9 @@ def make_joint_limit_factor(key_body_pose: int, sigma_rad: float = 0.05,
         if not (0 <= lim.index < BODY_POSE_DIM and lim.lower <= lim.upper):
             raise ValueError(f"joint limit {lim.name}: bad index or bounds {lim}")
     rows = len(limits)
+    spec = JointLimitSpec(tuple(limits), float(sigma_rad))
     if cache is not None:
-        cache.register("joint_limits", [key_body_pose], JointLimitSpec(tuple(limits), float(sigma_rad)))
+        cache.register(KIND, [key_body_pose], spec)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         r, jac = joint_limit_error(values.atVector(this.keys()[0]), limits, H is not None)
@@ -99,4 +104,33 @@ def make_joint_limit_factor(key_body_pose: int, sigma_rad: float = 0.05,
             set_jacobians(H, [jac], rows, [BODY_POSE_DIM])
         return r
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(rows, float(sigma_rad)), [key_body_pose], error)
+    return gtsam.CustomFactor(noise_of(spec).model(), [key_body_pose], error)
+
+
+def noise_of(spec: JointLimitSpec) -> RowNoise:
+    """``sigma_rad`` radians on every limit's row, no kernel."""
+    return RowNoise(np.full(len(spec.limits), spec.sigma_rad))
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The joint-limit factors ``keys_list`` (column: the body pose) from the cache's prefetched poses, one
+    :func:`joint_limit_batch` call per distinct limit set; the Jacobian row of limit l is ``active e_index``."""
+    frames = cache.frame_index(keys_list)
+    specs = cache.specs(KIND)
+    groups: dict[tuple, list[int]] = {}
+    for n, keys in enumerate(keys_list):
+        spec = specs[keys]
+        groups.setdefault((spec.limits, spec.sigma_rad), []).append(n)
+    parts = []
+    for (limits, sigma), members in groups.items():
+        r, idx, active = joint_limit_batch(cache.frame_arrays["pose"][frames[members], 3:], limits)
+        jac = None
+        if jacobians:
+            jac = np.zeros(r.shape + (BODY_POSE_DIM,))
+            jac[:, np.arange(len(idx)), idx] = active
+        parts.append(rows_normal_equations([keys_list[n] for n in members], r, jac, np.full(r.shape, 1.0 / sigma),
+                                           [("none", 1.0)]))
+    return concatenate(parts)
+
+
+TERM = Term(KIND, assemble)

@@ -35,7 +35,11 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list, make_noise, read_frame_state, robustify_groups, set_jacobians)
+                            frame_key_list, read_frame_state, robustify_groups, set_jacobians)
+from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations
+
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "lidar_chamfer"
 
 
 def posed_vertices(model: BodyModelLike, state: FrameState, candidate_vertex_ids: np.ndarray | None) -> np.ndarray:
@@ -108,6 +112,24 @@ class ChamferSpec:
     robust_per_point: bool
 
 
+def noise_of(spec: ChamferSpec) -> RowNoise:
+    """The factor's noise model: unit when robust per point (whitened and robustified inside, by
+    :func:`chamfer_whiten`), else ``sigma_m`` per coordinate row with the kernel per row."""
+    if spec.robust_per_point:
+        return RowNoise(None)
+    return RowNoise(np.array([spec.sigma_m]), spec.robust, spec.robust_scale)
+
+
+def chamfer_whiten(offsets: np.ndarray, blocks: list[np.ndarray] | None, spec: ChamferSpec
+                   ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Per-point robust whitening of point-to-vertex offsets (M, 3) metres and their Jacobian blocks (each
+    (3M, k)): ``s_i = g(|e_i|) e_i`` with ``e_i = offset_i / sigma_m`` (:func:`factors.common.robustify_groups`).
+    Returns ``s`` (3M,) and the transformed blocks (the factor's residual under its unit noise model)."""
+    inv = 1.0 / spec.sigma_m
+    return robustify_groups(np.asarray(offsets, dtype=np.float64).reshape(-1, 3) * inv, spec.robust,
+                            spec.robust_scale, None if blocks is None else [b * inv for b in blocks])
+
+
 def chamfer_residual(model: BodyModelLike, state: FrameState, spec: ChamferSpec, want_jacobians: bool,
                      matches: tuple[np.ndarray, np.ndarray] | None = None, vertex_jacobians=None
                      ) -> tuple[np.ndarray, list[np.ndarray] | None]:
@@ -116,10 +138,49 @@ def chamfer_residual(model: BodyModelLike, state: FrameState, spec: ChamferSpec,
     r, blocks = lidar_chamfer_error(model, state, spec.world_points, spec.candidate_vertex_ids, want_jacobians,
                                     matches, vertex_jacobians)
     if spec.robust_per_point:
-        inv = 1.0 / spec.sigma_m
-        r, blocks = robustify_groups(r.reshape(-1, 3) * inv, spec.robust, spec.robust_scale,
-                                     None if blocks is None else [b * inv for b in blocks])
+        r, blocks = chamfer_whiten(r, blocks, spec)
     return r, blocks
+
+
+def chamfer_normal_equations(group: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened normal equations of a term cache's chamfer group: per factor ``(A^T A, A^T b, b^T b)``.
+
+    ``group["a"]`` (P, 3, D) the points' whitened, robustified rows over the factor's columns,
+    ``group["s"]`` (P, 3) their whitened residuals, ``group["offsets"]`` (F + 1,) where each factor's
+    points start.  Every factor's points are padded with zero rows to the largest count, so all factors
+    take one batched product.  Returns hess (F, D, D), grad (F, D) = ``-A^T s``, cost (F,) = ``s^T s``."""
+    offsets, a, s = group["offsets"], group["a"], group["s"]
+    counts = np.diff(offsets)
+    num, width = len(counts), int(counts.max())
+    frame = np.repeat(np.arange(num), counts)
+    slot = np.arange(len(a)) - offsets[frame]
+    rows = np.zeros((num, width, 3, a.shape[2]))
+    rhs = np.zeros((num, width, 3))
+    rows[frame, slot] = a
+    rhs[frame, slot] = s
+    rows = rows.reshape(num, 3 * width, a.shape[2])
+    rows_t = np.swapaxes(rows, 1, 2)
+    return (rows_t @ rows, -(rows_t @ rhs.reshape(num, 3 * width, 1))[:, :, 0],
+            np.bincount(frame, weights=np.sum(s * s, axis=1), minlength=num))
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The chamfer factors ``keys_list`` at the cache's last prefetch: from its all-frames group (rows
+    already whitened and robustified per point) when it holds exactly these factors, else factor by factor."""
+    groups = cache.batch(KIND)
+    if {k for g in groups for k in g["keys"]} != set(keys_list) or (jacobians and any(g["a"] is None for g in groups)):
+        return factor_normal_equations(cache, KIND, keys_list, noise_of, jacobians)
+    parts = []
+    for g in groups:
+        counts = np.diff(g["offsets"])
+        error = 0.5 * np.bincount(np.repeat(np.arange(len(counts)), counts), weights=np.sum(g["s"] ** 2, axis=1),
+                                  minlength=len(counts))
+        if jacobians:
+            hess, grad, bb = chamfer_normal_equations(g)
+            parts.append(NormalEquations(list(g["keys"]), error, hess, grad, bb))
+        else:
+            parts.append(NormalEquations(list(g["keys"]), error))
+    return concatenate(parts)
 
 
 def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, world_points: np.ndarray,
@@ -148,10 +209,10 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
     spec = ChamferSpec(pts, cand, float(sigma_m), robust, float(robust_scale), bool(robust_per_point))
     cache = getattr(model, "term_cache", None)
     if cache is not None:
-        cache.register("lidar_chamfer", frame_key_list(keys), spec)
+        cache.register(KIND, frame_key_list(keys), spec)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        hit = None if cache is None else cache.lookup("lidar_chamfer", this.keys(), values, H is not None)
+        hit = None if cache is None else cache.lookup(KIND, this.keys(), values, H is not None)
         if hit is not None:
             r, blocks = hit
         else:
@@ -167,8 +228,7 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
             set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, np.shape(blocks[3])[1]])
         return r
 
-    if robust_per_point:
-        noise = gtsam.noiseModel.Unit.Create(rows)
-    else:
-        noise = make_noise(sigma_m, dim=rows, robust=robust, robust_scale=robust_scale)
-    return gtsam.CustomFactor(noise, frame_key_list(keys), error)
+    return gtsam.CustomFactor(noise_of(spec).model(rows), frame_key_list(keys), error)
+
+
+TERM = Term(KIND, assemble)

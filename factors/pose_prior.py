@@ -18,7 +18,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import BODY_POSE_DIM, MaxMixture, as_f64, set_jacobians
+from factors.common import BODY_POSE_DIM, MaxMixture, as_f64, component_grams, set_jacobians
+from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations
+
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "pose_prior"
 
 
 def pose_prior_error(body_pose: np.ndarray, mixture: MaxMixture,
@@ -47,10 +51,10 @@ def make_pose_prior_factor(key_body_pose: int, weights: np.ndarray | None = None
     rows = mixture.dim + 1
 
     if cache is not None:
-        cache.register("pose_prior", [key_body_pose], mixture)
+        cache.register(KIND, [key_body_pose], mixture)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        hit = None if cache is None else cache.lookup("pose_prior", this.keys(), values, H is not None)
+        hit = None if cache is None else cache.lookup(KIND, this.keys(), values, H is not None)
         if hit is not None:
             r, blocks = hit
             jac = None if blocks is None else blocks[0]
@@ -60,4 +64,36 @@ def make_pose_prior_factor(key_body_pose: int, weights: np.ndarray | None = None
             set_jacobians(H, [jac], rows, [mixture.dim])
         return as_f64(r)
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), [key_body_pose], error)
+    return gtsam.CustomFactor(noise_of(mixture).model(rows), [key_body_pose], error)
+
+
+def noise_of(mixture: MaxMixture) -> RowNoise:
+    """Unit noise: the mixture whitens (its spec is the mixture itself)."""
+    return RowNoise(None)
+
+
+def mixture_normal_equations(mixture: MaxMixture, r: np.ndarray, best: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Normal equations of G max-mixture factors (unit noise) with residuals ``r`` (G, D + 1) and selected
+    components ``best`` (G,): ``A^T A`` = the component's Gram matrix, ``A^T b = -L_k r[:D]`` (the Jacobian is
+    ``[L_k^T; 0]``), ``b^T b``."""
+    grad = -np.einsum("fri,fr->fi", mixture.lt[best], r[:, :mixture.dim])
+    return component_grams(mixture)[best], grad, np.sum(r * r, axis=1)
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The pose-prior factors ``keys_list`` (column: the body pose) from the cache's batched residuals (one
+    group per mixture), else factor by factor."""
+    groups = cache.batch(KIND)
+    if {k for g in groups for k in g["keys"]} != set(keys_list):
+        return factor_normal_equations(cache, KIND, keys_list, noise_of, jacobians)
+    parts = []
+    for g in groups:
+        error = 0.5 * np.sum(g["r"] ** 2, axis=1)
+        ne = NormalEquations(list(g["keys"]), error)
+        if jacobians:
+            ne.hess, ne.grad, ne.bb = mixture_normal_equations(g["mixture"], g["r"], g["best"])
+        parts.append(ne)
+    return concatenate(parts)
+
+
+TERM = Term(KIND, assemble)

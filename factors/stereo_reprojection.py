@@ -37,15 +37,39 @@ and used by :mod:`pedx_graph.graph.batch`, :mod:`pedx_graph.solvers.batched` and
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping, Sequence
+from typing import Iterable, Mapping, Protocol, Sequence
 
 import gtsam
 import numpy as np
 
 from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list, make_noise, read_frame_state, row_loss_and_weight, set_jacobians)
-from pedx_graph.data.types import StereoCalibration, View2D
+                            frame_key_list, read_frame_state, set_jacobians)
+from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations, robust_rows
 from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "stereo_reprojection"
+
+
+class StereoCalibration(Protocol):
+    """What the term reads of a stereo pair's calibration (``pedx_graph.data.types.StereoCalibration``)."""
+
+    name: str
+    left_P_rect: np.ndarray
+    """(3, 4) rectified left projection (pixels from points of the rectified left frame)."""
+    right_P_rect: np.ndarray
+    """(3, 4) rectified right projection (same frame)."""
+    rect_T_world: np.ndarray
+    """(4, 4) world (LiDAR) -> rectified left frame."""
+
+
+class View2D(Protocol):
+    """What the term reads of one image's labels (``pedx_graph.data.types.View2D``)."""
+
+    keypoints: np.ndarray
+    """(18, 2) pixels, NaN where not labelled."""
+    visible: np.ndarray
+    """(18,) bool."""
 
 NUM_KEYPOINTS = len(PEDX_KEYPOINTS)
 
@@ -336,11 +360,7 @@ def reprojection_whiten(uv: np.ndarray, meas: np.ndarray, inv_sigma: np.ndarray,
     num = len(kernels)
     white = ((uv - meas) * inv_sigma).reshape(num, -1)
     inv = inv_sigma.reshape(num, -1)
-    if len(set(kernels)) == 1:
-        loss, weight = row_loss_and_weight(white, *kernels[0])
-    else:
-        pairs = [row_loss_and_weight(white[n], *kernels[n]) for n in range(num)]
-        loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
+    loss, weight = robust_rows(white, kernels)
     return white, loss * (inv > 0), weight, inv
 
 
@@ -402,12 +422,13 @@ def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLi
     if setup.rows == 0:
         return None
     rows = setup.rows
+    term = StereoTerm(setup, robust, float(robust_scale))
     cache = getattr(model, "term_cache", None)
     if cache is not None:
-        cache.register("stereo_reprojection", frame_key_list(keys), StereoTerm(setup, robust, float(robust_scale)))
+        cache.register(KIND, frame_key_list(keys), term)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        hit = None if cache is None else cache.lookup("stereo_reprojection", this.keys(), values, H is not None)
+        hit = None if cache is None else cache.lookup(KIND, this.keys(), values, H is not None)
         if hit is not None:
             r, blocks = hit
         else:
@@ -417,8 +438,7 @@ def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLi
             set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, np.shape(blocks[3])[1]])
         return r
 
-    noise = make_noise(setup.sigmas, robust=robust, robust_scale=robust_scale)
-    return gtsam.CustomFactor(noise, frame_key_list(keys), error)
+    return gtsam.CustomFactor(noise_of(term).model(), frame_key_list(keys), error)
 
 
 def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
@@ -429,3 +449,34 @@ def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: Body
     """:func:`make_reprojection_factor` of one stereo pair's left and right images."""
     return make_reprojection_factor(keys, model, measurement.images(calibration), sigma_px, sigma_occluded_px,
                                     keypoint_weights, robust, robust_scale, min_depth)
+
+
+def noise_of(spec: StereoTerm) -> RowNoise:
+    """Per-row sigmas in pixels (``setup.sigmas``), the kernel per row."""
+    return RowNoise(spec.setup.sigmas, spec.robust, spec.robust_scale)
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The reprojection factors ``keys_list`` from the cache's batched pixels, through their keypoints
+    (:func:`reprojection_normal_equations`), when its groups hold exactly these factors; else factor by factor."""
+    groups = cache.batch(KIND)
+    if {k for g in groups for k in g["keys"]} != set(keys_list) or (jacobians and not cache.has_jacobians):
+        return factor_normal_equations(cache, KIND, keys_list, noise_of, jacobians)
+    parts = []
+    for g in groups:
+        keys = tuple(g["keys"])
+
+        def rows(keys=keys, k=g["uv"].shape[1]):
+            specs = cache.specs(KIND)
+            meas, inv_sigma = reprojection_rows([specs[fk].setup for fk in keys], k)
+            return meas, inv_sigma, [noise_of(specs[fk]).kernel for fk in keys]
+
+        white, loss, weight, inv = reprojection_whiten(g["uv"], *cache.memo((KIND, keys, g["uv"].shape[1]), rows))
+        ne = NormalEquations(list(keys), loss.sum(axis=1))
+        if jacobians:
+            ne.hess, ne.grad, ne.bb = reprojection_normal_equations(g["d_uv"], g["jac"], white, weight, inv)
+        parts.append(ne)
+    return concatenate(parts)
+
+
+TERM = Term(KIND, assemble)

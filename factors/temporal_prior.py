@@ -26,10 +26,13 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, set_jacobians
+from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, component_grams, set_jacobians
+from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations
 from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
 from pedx_graph.priors.difference import temporal_difference
 
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "temporal_prior"
 #: Dimension of the temporal difference.
 TEMPORAL_DIM = TRANS_DIM + ROOT_DIM + BODY_POSE_DIM          # 75
 _DIMS = [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BODY_POSE_DIM]
@@ -143,11 +146,11 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
 
     keys = [key_root_i, key_trans_i, key_body_pose_i, key_root_j, key_trans_j, key_body_pose_j]
     if cache is not None:
-        cache.register("temporal_prior", keys, (mixture, gap))
+        cache.register(KIND, keys, (mixture, gap))
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         k = this.keys()
-        hit = None if cache is None else cache.lookup("temporal_prior", k, values, H is not None)
+        hit = None if cache is None else cache.lookup(KIND, k, values, H is not None)
         if hit is not None:
             r, blocks = hit
             if H is not None:
@@ -161,4 +164,73 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
             set_jacobians(H, blocks, rows, _DIMS)
         return r
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), keys, error)
+    return gtsam.CustomFactor(noise_of((mixture, gap)).model(rows), keys, error)
+
+
+def noise_of(spec: tuple[MaxMixture, int]) -> RowNoise:
+    """Unit noise: the mixture whitens (the spec is ``(mixture, frame_gap)``)."""
+    return RowNoise(None)
+
+
+def pair_normal_equations(r: np.ndarray, blocks: list[np.ndarray], mixture: MaxMixture, best: np.ndarray,
+                          gap: np.ndarray) -> dict[str, np.ndarray]:
+    """Normal equations of P temporal factors in the compact form of their Jacobian ``A = [U_i, -L, U_j, L]``
+    (U: the root and translation columns of frames i and j, (76, 6) each; L: the body-pose columns, the same
+    up to sign for both frames, ``L = J_k[:, 6:] / gap`` of the selected component k):
+    ``utu = U^T U`` (P, 12, 12), ``utl = U^T L`` (P, 12, 69), ``ltl = L^T L`` (P, 69, 69, from the
+    component's Gram matrix), ``ub = -U^T r`` (P, 12), ``lb = L^T r`` (P, 69) (= ``(-L)^T b`` with b = -r).
+    ``r`` (P, 76) and the six blocks of :func:`temporal_prior_batch`."""
+    u = np.concatenate([blocks[0], blocks[1], blocks[3], blocks[4]], axis=2)          # (P, 76, 12)
+    lm = blocks[2]                                      # -L (P, 76, 69), contiguous (a strided view, like
+    u_t = np.swapaxes(u, 1, 2)                          # blocks[5], would make the batched matmul skip BLAS)
+    utl = u_t @ lm
+    utl *= -1.0
+    ltl = component_grams(mixture, TRANS_DIM + ROOT_DIM)[best]
+    if np.any(gap != 1.0):
+        ltl = ltl / (gap ** 2)[:, None, None]
+    return {"utu": u_t @ u, "utl": utl, "ltl": ltl, "ub": -(u_t @ r[:, :, None])[:, :, 0],
+            "lb": (np.swapaxes(lm, 1, 2) @ r[:, :, None])[:, :, 0]}
+
+
+def pair_dense(pair: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pair_normal_equations` as dense ``A^T A`` (P, 150, 150) and ``A^T b`` (P, 150) over the keys
+    ``[root_i, trans_i, body_pose_i, root_j, trans_j, body_pose_j]``."""
+    utu, utl, ltl, ub, lb = pair["utu"], pair["utl"], pair["ltl"], pair["ub"], pair["lb"]
+    si, pi, sj, pj = slice(0, 6), slice(6, 75), slice(75, 81), slice(81, 150)
+    hess = np.empty((len(utu), 150, 150))
+    hess[:, si, si], hess[:, si, sj] = utu[:, :6, :6], utu[:, :6, 6:]
+    hess[:, sj, si], hess[:, sj, sj] = utu[:, 6:, :6], utu[:, 6:, 6:]
+    hess[:, si, pi], hess[:, si, pj] = -utl[:, :6], utl[:, :6]
+    hess[:, sj, pi], hess[:, sj, pj] = -utl[:, 6:], utl[:, 6:]
+    hess[:, pi, si], hess[:, pj, si] = np.swapaxes(hess[:, si, pi], 1, 2), np.swapaxes(hess[:, si, pj], 1, 2)
+    hess[:, pi, sj], hess[:, pj, sj] = np.swapaxes(hess[:, sj, pi], 1, 2), np.swapaxes(hess[:, sj, pj], 1, 2)
+    hess[:, pi, pi], hess[:, pj, pj] = ltl, ltl
+    hess[:, pi, pj], hess[:, pj, pi] = -ltl, -ltl
+    return hess, np.concatenate([ub[:, :6], -lb, ub[:, 6:], lb], axis=1)
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The temporal factors ``keys_list`` from the cache's batched pairs (one group per mixture) in the compact
+    form of :func:`pair_normal_equations` (``structure``; ``hess`` left None: :func:`pair_dense` forms it), else
+    factor by factor (dense)."""
+    groups = cache.batch(KIND)
+    if {k for g in groups for k in g["keys"]} != set(keys_list):
+        return factor_normal_equations(cache, KIND, keys_list, noise_of, jacobians)
+    parts = []
+    for g in groups:
+        ne = NormalEquations(list(g["keys"]), 0.5 * np.sum(g["r"] ** 2, axis=1))
+        if jacobians:
+            ne.structure = pair_normal_equations(g["r"], g["blocks"], g["mixture"], g["best"], g["gap"])
+            ne.bb = np.sum(g["r"] ** 2, axis=1)
+        parts.append(ne)
+    if len(parts) == 1:
+        return parts[0]
+    out = concatenate(parts)           # several mixtures: one dense system
+    if jacobians:
+        dense = [pair_dense(p.structure) for p in parts]
+        out.hess, out.grad = np.concatenate([h for h, _ in dense]), np.concatenate([g for _, g in dense])
+        out.bb = np.concatenate([p.bb for p in parts])
+    return out
+
+
+TERM = Term(KIND, assemble, own_frame=False)

@@ -27,7 +27,11 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.common import TRANS_DIM, BodyModelLike, as_f64, make_noise, set_jacobians
+from factors.common import TRANS_DIM, BodyModelLike, as_f64, set_jacobians
+from factors.terms import NormalEquations, RowNoise, Term, kernels, rows_normal_equations, stacked
+
+#: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
+KIND = "translation_prior"
 
 
 def sensor_ray_frame(world_p_mean: np.ndarray, world_p_sensor: np.ndarray, world_up: np.ndarray) -> np.ndarray:
@@ -127,11 +131,9 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
     offsets = np.array([depth_offset_m, 0.0, height_offset_m], dtype=np.float64)
     pelvis_rest, pelvis_dirs = pelvis_shape_basis(model, num_betas)
     sigmas = np.array([sigma_ray_m, sigma_lateral_m, sigma_vertical_m], dtype=np.float64)
-    noise = make_noise(sigmas, robust=robust, robust_scale=robust_scale)
+    spec = TranslationSpec(mean, world_R_ray, offsets, pelvis_rest, pelvis_dirs, sigmas, robust, float(robust_scale))
     if cache is not None:
-        cache.register("translation_prior", [key_trans, key_betas],
-                       TranslationSpec(mean, world_R_ray, offsets, pelvis_rest, pelvis_dirs, sigmas, robust,
-                                       float(robust_scale)))
+        cache.register(KIND, [key_trans, key_betas], spec)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         k = this.keys()
@@ -141,4 +143,26 @@ def make_translation_prior_factor(key_trans: int, key_betas: int, model: BodyMod
             set_jacobians(H, blocks, 3, [TRANS_DIM, num_betas])
         return r
 
-    return gtsam.CustomFactor(noise, [key_trans, key_betas], error)
+    return gtsam.CustomFactor(noise_of(spec).model(), [key_trans, key_betas], error)
+
+
+def noise_of(spec: TranslationSpec) -> RowNoise:
+    """Per-axis sigmas (ray, lateral, vertical) in metres, the kernel per row."""
+    return RowNoise(spec.sigmas, spec.robust, spec.robust_scale)
+
+
+def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The translation factors ``keys_list`` (columns ``[trans, betas]``) from their specs and the cache's
+    prefetched states, in one :func:`translation_prior_batch` call."""
+    frames = cache.frame_index(keys_list)
+    arrays = cache.frame_arrays
+    spec = cache.specs(KIND)[keys_list[0]]
+    st = stacked(cache, KIND, keys_list, ("world_p_mean", "world_R_ray", "offsets", "sigmas"))
+    r, d_trans, d_betas = translation_prior_batch(arrays["trans"][frames], arrays["betas"][frames], spec.pelvis_rest,
+                                                  spec.pelvis_shapedirs, st["world_p_mean"], st["world_R_ray"],
+                                                  st["offsets"])
+    jac = np.concatenate([d_trans, d_betas], axis=2) if jacobians else None
+    return rows_normal_equations(keys_list, r, jac, 1.0 / st["sigmas"], kernels(cache, KIND, keys_list, noise_of))
+
+
+TERM = Term(KIND, assemble)

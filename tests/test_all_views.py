@@ -44,7 +44,7 @@ def _moved(problem, seed=0):
 
 
 def _image_counts(problem):
-    specs = problem.body._specs["stereo_reprojection"]
+    specs = problem.body.specs("stereo_reprojection")
     return [specs[tuple(k.as_list())].setup.num_images for k in problem.keys]
 
 

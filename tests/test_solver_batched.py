@@ -13,7 +13,7 @@ import pytest
 
 from factors.stereo_reprojection import StereoKeypoints, build_stereo_setup, stereo_reprojection_batch
 from factors.temporal_prior import temporal_prior_batch, temporal_prior_error
-from factors.testing import make_test_calibration
+from factors.testing import make_test_calibration, random_rot3
 from pedx_graph.graph.build import build_track_graph
 from pedx_graph.solvers.batched import BatchedLinearizer
 from pedx_graph.solvers.chain import ChainLayout, NotAChainError, solve_chain
@@ -67,18 +67,63 @@ def test_layout_rejects_a_factor_linking_distant_frames(problem_and_point):
         layout.segments((int(k0.trans), int(k2.trans)))
 
 
+def _fresh(track, ctx, kinds_dropped=()):
+    """The same track's graph built again, never prefetched, its term cache switched off: every factor's
+    callback computes its own residual and Jacobians (``calls`` counts the refused look-ups)."""
+    fresh = build_track_graph(track, ctx, synthetic_config())
+    if kinds_dropped:
+        fresh = fresh.without(kinds_dropped)
+    calls = []
+    fresh.body.lookup = lambda *args, **kwargs: calls.append(args[0])       # always None: never served
+    return fresh, calls
+
+
+def _random_point(problem, seed):
+    """Random non-identity values: every root a random rotation, translations, body poses and betas random."""
+    rng = np.random.default_rng(seed)
+    values = gtsam.Values(problem.initial)
+    for k in problem.keys:
+        values.update(k.root, random_rot3(rng, max_angle=2.5))
+        values.update(k.trans, values.atVector(k.trans) + rng.normal(scale=0.1, size=3))
+        values.update(k.body_pose, rng.normal(scale=0.3, size=69))
+    key = problem.keys[0].betas
+    values.update(key, rng.normal(scale=0.8, size=values.atVector(key).shape[0]))
+    return values
+
+
 @pytest.mark.parametrize("coarse", [False, True])
-def test_batched_linearizer_equals_graph_linearize(problem_and_point, coarse):
-    _, _, full, values = problem_and_point
-    problem = full.without({"lidar_chamfer"}) if coarse else full
+@pytest.mark.parametrize("seed", [0, 1])
+def test_batched_linearizer_equals_a_fresh_gtsam_graph(problem_and_point, coarse, seed):
+    """The batched linearizer's error and chain system equal GTSAM's linearisation of the same track built
+    again and never prefetched (its factors compute their own rows), at random non-identity values."""
+    ctx, track, full, _ = problem_and_point
+    dropped = {"lidar_chamfer"} if coarse else set()
+    problem = full.without(dropped) if coarse else full
+    values = _random_point(problem, seed)
     lin = BatchedLinearizer(problem)
     served = sum(len(v) for v in lin.served.values())
     assert served >= 3 * len(problem.keys) - 1          # stereo, pose prior, temporal (+ chamfer) are batched
     err = lin.error(values)
     system = lin.system(values)
-    assert err == pytest.approx(problem.graph.error(values), rel=1e-10)
-    reference = problem.layout.assemble(problem.graph.linearize(values))
+    fresh, calls = _fresh(track, ctx, dropped)
+    reference_error = fresh.graph.error(values)
+    reference = fresh.layout.assemble(fresh.graph.linearize(values))
+    cached = sum(len(lin.served[k]) for k in ("stereo_reprojection", "lidar_chamfer", "pose_prior", "temporal_prior"))
+    assert len(calls) == 2 * cached                     # error + linearize: every cached factor computed its rows
+    assert err == pytest.approx(reference_error, rel=1e-10)
     _assert_systems_equal(system, reference)
+
+
+def test_batched_linearizer_sees_a_changed_term(problem_and_point):
+    """The comparison can fail: a reprojection noise that differs between the two graphs shows."""
+    ctx, track, problem, _ = problem_and_point
+    values = _random_point(problem, 2)
+    config = synthetic_config()
+    config.noise.keypoint_sigma_px *= 1.1
+    other = build_track_graph(track, ctx, config)
+    other.body.lookup = lambda *args, **kwargs: None
+    lin = BatchedLinearizer(problem)
+    assert lin.error(values) != pytest.approx(other.graph.error(values), rel=1e-3)
 
 
 def test_batched_linearizer_with_active_joint_limits(problem_and_point):

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.common import FrameKeys, FrameState, read_frame_state, robustify_groups
-from factors.lidar_chamfer import chamfer_residual, nearest_indices, nearest_vertices
+from factors.common import FrameKeys, FrameState, read_frame_state
+from factors.lidar_chamfer import chamfer_residual, chamfer_whiten, nearest_indices, nearest_vertices
 from factors.stereo_reprojection import stereo_blocks, stereo_pixels, stereo_select
 from factors.temporal_prior import temporal_prior_batch
 from pedx_graph.body import BodyModel
@@ -82,6 +82,8 @@ class BatchedBodyModel:
         self._key_bytes: dict[int, bytes] = {}
         self._root_keys: set[int] = set()
         self._last_signature: tuple | None = None
+        self._memo: dict = {}
+        self._frame_of: dict[int, int] = {}
         self._last_jacobians = False
         self.frame_states: tuple[list[FrameKeys], list[FrameState]] = ([], [])
         """The frame keys and states of the last prefetch."""
@@ -101,10 +103,51 @@ class BatchedBodyModel:
         """The object the factors register their terms with (this one)."""
         return self
 
-    # -- term cache ----------------------------------------------------------------------------------
+    # -- term cache: the public API the factors and the solvers use -----------------------------------
     def register(self, kind: str, keys, spec) -> None:
         """A factor of ``kind`` on ``keys`` with its fixed measurement ``spec`` (see the module docstring)."""
         self._specs.setdefault(kind, {})[tuple(int(k) for k in keys)] = spec
+        self._memo.clear()
+
+    def clear_registry(self) -> None:
+        """Forget every registered factor (the stream files one sample's specs at a time)."""
+        self._specs = {}
+        self._memo.clear()
+
+    def specs(self, kind: str) -> dict[tuple[int, ...], object]:
+        """The registered factors of ``kind``: their key tuples -> specs (do not modify)."""
+        return self._specs.get(kind, {})
+
+    def kinds(self) -> list[str]:
+        """The kinds with registered factors."""
+        return [kind for kind, specs in self._specs.items() if specs]
+
+    @property
+    def has_jacobians(self) -> bool:
+        """Whether the last prefetch evaluated the terms with their Jacobians."""
+        return self._terms_have_jacobians
+
+    def factor_terms(self, kind: str, keys: tuple[int, ...]) -> tuple:
+        """``(residual, blocks)`` of one registered factor at the last prefetch (what its GTSAM callback
+        returns there; ``blocks`` None without Jacobians).  KeyError when the prefetch did not evaluate it."""
+        hit = self._terms.get((kind, keys))
+        if hit is None:
+            hit = self._terms[(kind, keys)] = self._materialise(kind, *self._where[(kind, keys)])
+        return hit
+
+    def frame_index(self, keys_list) -> np.ndarray:
+        """The frame (position in the last prefetch's keys) of each factor of ``keys_list``, by its first
+        root, translation or body-pose key."""
+        where = self._frame_of
+        return np.array([next(where[k] for k in keys if k in where) for keys in keys_list], dtype=np.int64)
+
+    def memo(self, name, build):
+        """``build()``, remembered under ``name`` until the registry changes (for arrays derived from the
+        fixed specs, e.g. stacked measurements)."""
+        hit = self._memo.get(name)
+        if hit is None:
+            hit = self._memo[name] = build()
+        return hit
 
     def lookup(self, kind: str, keys, values: gtsam.Values, jacobians: bool):
         """``(residual, blocks)`` of the factor ``kind`` on ``keys`` prefetched at exactly ``values``, or None."""
@@ -162,18 +205,14 @@ class BatchedBodyModel:
         offsets = np.concatenate([[0], np.cumsum(counts)])
         points = np.concatenate([sp.world_points for _, sp in chamfer])
         verts = np.concatenate([m[1] for m in matches])
-        inv = 1.0 / spec.sigma_m
-        white = (verts - points) * inv
         a = None
         if vjac is not None:
             frame_idx = np.repeat(np.arange(len(matches)), counts)
             a = np.concatenate([vjac.d_root[frame_idx, local], vjac.d_trans[frame_idx, local],
                                 vjac.d_body_pose[frame_idx, local], vjac.d_betas[frame_idx, local]], axis=2)
-            a *= inv
-            s_flat, (a_flat,) = robustify_groups(white, spec.robust, spec.robust_scale, [a.reshape(-1, a.shape[2])])
-            a = a_flat.reshape(a.shape)
-        else:
-            s_flat, _ = robustify_groups(white, spec.robust, spec.robust_scale)
+        s_flat, blocks = chamfer_whiten(verts - points, None if a is None else [a.reshape(-1, a.shape[2])], spec)
+        if a is not None:
+            a = blocks[0].reshape(a.shape)
         self._add_batch("lidar_chamfer", {"keys": [fk for fk, _ in chamfer], "offsets": offsets,
                                           "s": s_flat.reshape(-1, 3), "a": a})
 
@@ -295,6 +334,7 @@ class BatchedBodyModel:
         self.frame_arrays = {"pose": pose, "betas": betas, "trans": trans,
                              "world_R_body": np.stack([st.world_R_body for st in states])}
         self._root_keys = {k.root for k in keys}
+        self._frame_of = {int(key): i for i, k in enumerate(keys) for key in (k.root, k.trans, k.body_pose)}
         for k, st in zip(keys, states):
             self._key_bytes[k.root] = np.ascontiguousarray(st.world_R_body).tobytes()
             self._key_bytes[k.trans] = st.trans.tobytes()

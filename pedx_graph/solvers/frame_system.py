@@ -1,17 +1,15 @@
 """The Gauss-Newton system of new frames' own factors, for all pedestrians of a sample in one batched pass.
 
-A streamed frame's own factors (stereo reprojection, LiDAR chamfer, translation, heading, pose and
-joint-limit priors: those on its root, translation and body pose and at most the shape) are linearised
-twice per frame: for the presolve (at the initial values, without the chamfer) and for iSAM2 (at the
-presolved values).  Through ``graph.linearize`` each factor is a GTSAM callback that evaluates its term for
-one frame.  Here the terms of every pedestrian of the sample are evaluated together instead, by the
-batched body model's term cache (:class:`pedx_graph.graph.batch.BatchedBodyModel`: stereo pixels, chamfer
-matches and matched-vertex Jacobians, pose-prior residuals of all frames in batched calls; the small priors
-from their specs), and each frame's whitened normal equations ``(A^T A, A^T b, b^T b)`` over its columns
-``[root (3), trans (3), body_pose (69), betas (B)]`` are formed in batched products, whitened exactly as
-the factors' GTSAM noise models do (the same arithmetic as
-:class:`pedx_graph.solvers.batched.BatchedLinearizer`).  The result equals the ``HessianFactor`` of
-``graph.linearize`` at the same point (tested to round-off).
+A streamed frame's own factors (every registered term acting on one frame's root, translation and body
+pose and at most the shape: :data:`factors.registry.OWN_FRAME_KINDS`) are linearised twice per frame: for
+the presolve (at the initial values, without the chamfer) and for iSAM2 (at the presolved values).  Through
+``graph.linearize`` each factor is a GTSAM callback that evaluates its term for one frame.  Here the terms
+of every pedestrian of the sample are evaluated together instead, by the batched body model's term cache
+(:class:`pedx_graph.graph.batch.BatchedBodyModel`), and each term's assembler (the same one the batch
+linearizer uses, :class:`factors.terms.Term`) gives the whitened normal equations ``(A^T A, A^T b, b^T b)``
+of all its factors, added here into each frame's columns ``[root (3), trans (3), body_pose (69),
+betas (B)]``.  The result equals the ``HessianFactor`` of ``graph.linearize`` at the same point (tested to
+round-off).
 
 The streamed frames of different tracks use the same keys (``r0``, ``t0``, ...), so the factors register
 their specs with a per-frame :class:`SpecRecorder` (given to the factors through :class:`RecordingBody`),
@@ -24,17 +22,13 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, FrameKeys, row_loss_and_weight
-from factors.heading_prior import heading_prior_batch
-from factors.joint_limits import joint_limit_batch
-from factors.stereo_reprojection import reprojection_normal_equations, reprojection_rows, reprojection_whiten
+from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, FrameKeys
+from factors.registry import OWN_FRAME_KINDS, TERMS
 from factors.temporal_prior import temporal_prior_batch
-from factors.translation_prior import translation_prior_batch
-from pedx_graph.solvers.batched import chamfer_normal_equations
 
-#: Factor kinds whose frame systems are formed here (a frame's own factors).
-OWN_KINDS = ("stereo_reprojection", "lidar_chamfer", "translation_prior", "heading_prior", "pose_prior",
-             "joint_limits")
+#: Factor kinds whose frame systems are formed here (a frame's own factors: every registered term that acts
+#: on one frame's variables).
+OWN_KINDS = OWN_FRAME_KINDS
 _FRAME_DIM = ROOT_DIM + TRANS_DIM + BODY_POSE_DIM          # 75: the columns before the shape's
 
 
@@ -83,7 +77,7 @@ def register_sample(body, frames: list[tuple[FrameKeys, list]]) -> list[FrameKey
     """Replace ``body``'s term registry with the own-factor specs of one sample's frames: ``frames`` holds
     per pedestrian its real keys and its recorder's specs; pedestrian ``j``'s specs are filed under
     ``FrameKeys.for_frame(j, j)``.  Returns those keys."""
-    body._specs = {}
+    body.clear_registry()
     out = []
     for j, (real, specs) in enumerate(frames):
         fake = FrameKeys.for_frame(j, j)
@@ -95,22 +89,22 @@ def register_sample(body, frames: list[tuple[FrameKeys, list]]) -> list[FrameKey
     return out
 
 
-def _kernels(specs) -> list[tuple[str, float]]:
-    return [(sp.robust, sp.robust_scale) for sp in specs]
-
-
-def _weights(white: np.ndarray, kernels: list[tuple[str, float]]) -> np.ndarray:
-    """IRLS weights of whitened rows ``white`` (F, m), one kernel per frame."""
-    if len(set(kernels)) == 1:
-        return row_loss_and_weight(white, *kernels[0])[1]
-    return np.stack([row_loss_and_weight(white[n], *kernels[n])[1] for n in range(len(kernels))])
+def _columns(keys: tuple[int, ...], frame_keys: FrameKeys, num_betas: int) -> np.ndarray:
+    """The columns of a frame system ``[root, trans, body_pose, betas]`` of a factor's keys (in their order)."""
+    starts = {int(frame_keys.root): (0, ROOT_DIM), int(frame_keys.trans): (ROOT_DIM, TRANS_DIM),
+              int(frame_keys.body_pose): (ROOT_DIM + TRANS_DIM, BODY_POSE_DIM),
+              int(frame_keys.betas): (_FRAME_DIM, num_betas)}
+    return np.concatenate([np.arange(starts[k][0], starts[k][0] + starts[k][1]) for k in keys])
 
 
 def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The whitened normal equations of the registered factors of ``kinds`` of each frame of ``keys`` at the
     body's last prefetch (which must have evaluated these kinds, with Jacobians): ``H`` (F, D, D),
-    ``g = A^T b`` (F, D) and ``f = b^T b`` (F,), columns ``[root, trans, body_pose, betas]`` (D = 75 + B).
-    None when the cache does not hold them all in batched form (then linearise with GTSAM)."""
+    ``g = A^T b`` (F, D) and ``f = b^T b`` (F,), columns ``[root, trans, body_pose, betas]`` (D = 75 + B),
+    each kind's factors from its term's assembler (:data:`factors.registry.TERMS`).  None when the prefetch
+    had no Jacobians (then linearise with GTSAM)."""
+    if not body.has_jacobians:
+        return None
     num_betas = int(body.num_betas)
     dim = _FRAME_DIM + num_betas
     n = len(keys)
@@ -118,112 +112,17 @@ def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.nd
     position: dict[int, int] = {}
     for j, k in enumerate(keys):
         position[int(k.root)] = position[int(k.trans)] = position[int(k.body_pose)] = j
-    registry = body._specs
-    arrays = body.frame_arrays
     for kind in kinds:
-        specs = registry.get(kind)
-        if not specs:
+        keys_list = list(body.specs(kind))
+        if not keys_list:
             continue
-        if kind in ("translation_prior", "heading_prior", "joint_limits"):
-            fkeys = list(specs)
-            frames = np.array([position[fk[0]] for fk in fkeys], dtype=np.int64)
-            _add_direct(kind, [specs[fk] for fk in fkeys], frames, arrays, hess, grad, const)
-            continue
-        groups = body.batch(kind)
-        if {fk for g in groups for fk in g["keys"]} != set(specs):
-            return None
-        for group in groups:
-            frames = np.array([position[fk[0]] for fk in group["keys"]], dtype=np.int64)
-            if kind == "stereo_reprojection":
-                h, gr, f = _stereo(group, [specs[fk] for fk in group["keys"]])
-            elif kind == "lidar_chamfer":
-                if group.get("a") is None:
-                    return None
-                h, gr, f = chamfer_normal_equations(group)
-            elif kind == "pose_prior":
-                h, gr, f = _pose_prior(group)
-                hess[frames, ROOT_DIM + TRANS_DIM:_FRAME_DIM, ROOT_DIM + TRANS_DIM:_FRAME_DIM] += h
-                grad[frames, ROOT_DIM + TRANS_DIM:_FRAME_DIM] += gr
-                const[frames] += f
-                continue
-            else:
-                return None
-            hess[frames] += h
-            grad[frames] += gr
-            const[frames] += f
+        ne = TERMS[kind].assemble(body, keys_list, True)
+        frames = np.array([position[next(k for k in fk if k in position)] for fk in ne.keys], dtype=np.int64)
+        cols = _columns(ne.keys[0], keys[frames[0]], num_betas)
+        np.add.at(hess, (frames[:, None, None], cols[None, :, None], cols[None, None, :]), ne.hess)
+        np.add.at(grad, (frames[:, None], cols[None, :]), ne.grad)
+        np.add.at(const, frames, ne.bb)
     return hess, grad, const
-
-
-def _stereo(group: dict, specs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reprojection factors through their keypoints, by the factor module's own batched normal equations
-    (:func:`factors.stereo_reprojection.reprojection_normal_equations`, as the batch linearizer)."""
-    meas, inv_sigma = reprojection_rows([sp.setup for sp in specs], group["uv"].shape[1])
-    white, _, weight, inv = reprojection_whiten(group["uv"], meas, inv_sigma, _kernels(specs))
-    return reprojection_normal_equations(group["d_uv"], group["jac"], white, weight, inv)
-
-
-_GRAMS: dict[int, tuple] = {}
-
-
-def _gram(mixture) -> np.ndarray:
-    """``J_k^T J_k`` (K, D, D) of every component's residual Jacobian (cached per mixture)."""
-    hit = _GRAMS.get(id(mixture))
-    if hit is None or hit[0] is not mixture:
-        jac = mixture.jacobians(np.arange(mixture.num_components))
-        hit = _GRAMS[id(mixture)] = (mixture, np.swapaxes(jac, 1, 2) @ jac)
-    return hit[1]
-
-
-def _pose_prior(group: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pose-prior factors (max-mixture, unit noise): the body-pose block only."""
-    mixture, best, r = group["mixture"], group["best"], group["r"]
-    jac_t = np.swapaxes(mixture.jacobians(best), 1, 2)                  # (G, D, D+1)
-    return _gram(mixture)[best], -(jac_t @ r[:, :, None])[:, :, 0], np.sum(r * r, axis=1)
-
-
-def _add_direct(kind: str, specs: list, frames: np.ndarray, arrays: dict, hess: np.ndarray, grad: np.ndarray,
-                const: np.ndarray) -> None:
-    """Translation / heading / joint-limit factors from their specs and the prefetched states, whitened as
-    their GTSAM noise models (as ``BatchedLinearizer._direct``)."""
-    if kind == "joint_limits":
-        groups: dict[tuple, list[int]] = {}
-        for n, spec in enumerate(specs):
-            groups.setdefault((spec.limits, spec.sigma_rad), []).append(n)
-        for (limits, sigma), members in groups.items():
-            rows = frames[np.array(members)]
-            r, idx, active = joint_limit_batch(arrays["pose"][rows, 3:], limits)       # (G, L)
-            coef = active / sigma
-            cols = np.broadcast_to(ROOT_DIM + TRANS_DIM + idx, r.shape)
-            at = np.broadcast_to(rows[:, None], r.shape)
-            np.add.at(hess, (at, cols, cols), coef * coef)
-            np.add.at(grad, (at, cols), coef * (-r / sigma))
-            np.add.at(const, rows, np.sum((r / sigma) ** 2, axis=1))
-        return
-    if kind == "heading_prior":
-        r, jac = heading_prior_batch(arrays["world_R_body"][frames], np.stack([sp.level_heading for sp in specs]),
-                                     np.stack([sp.world_R_level for sp in specs]))
-        jac, r = jac[:, None, :], r[:, None]
-        sig = np.array([sp.sigma_rad for sp in specs])[:, None]
-        cols = np.arange(ROOT_DIM)
-    else:                                                                # translation_prior
-        sp = specs[0]
-        r, d_trans, d_betas = translation_prior_batch(
-            arrays["trans"][frames], arrays["betas"][frames], sp.pelvis_rest, sp.pelvis_shapedirs,
-            np.stack([s.world_p_mean for s in specs]), np.stack([s.world_R_ray for s in specs]),
-            np.stack([s.offsets for s in specs]))
-        jac = np.concatenate([d_trans, d_betas], axis=2)
-        sig = np.stack([s.sigmas for s in specs])
-        cols = np.concatenate([np.arange(ROOT_DIM, ROOT_DIM + TRANS_DIM),
-                               np.arange(_FRAME_DIM, _FRAME_DIM + d_betas.shape[2])])
-    white = r / sig
-    weight = _weights(white, _kernels(specs))
-    scale = np.sqrt(weight)
-    a = jac * (scale / sig)[:, :, None]
-    b = -scale * white
-    a_t = np.swapaxes(a, 1, 2)
-    np.add.at(hess, (frames[:, None, None], cols[None, :, None], cols[None, None, :]), a_t @ a)
-    np.add.at(grad, (frames[:, None], cols[None, :]), (a_t @ b[:, :, None])[:, :, 0])
-    np.add.at(const, frames, np.sum(b * b, axis=1))
 
 
 def temporal_terms(pairs: list[tuple]) -> list[tuple[np.ndarray, list[np.ndarray]]]:

@@ -65,36 +65,13 @@ from scipy.linalg import cho_factor, cho_solve, LinAlgError
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM
 from pedx_graph.solvers.chain import FRAME_DIM, ChainLayout, ChainSystem, NotAChainError
+from pedx_graph.graph.config import MarginalsConfig  # noqa: F401  (defined with the fit's config)
 
 log = logging.getLogger(__name__)
 
 ROOT_SLICE = slice(0, 3)
 TRANS_SLICE = slice(3, 6)
 POSE_SLICE = slice(6, FRAME_DIM)
-
-
-@dataclass
-class MarginalsConfig:
-    """How marginal covariances are computed and reported."""
-
-    method: str = "chain"
-    """``chain`` (forward-backward over the frames, fast) or ``gtsam`` (``gtsam.Marginals`` per frame)."""
-    diffuse_information: float = 1e-6
-    """Added to the diagonal of a frame's information block that is not positive definite (units^-2)."""
-    max_trans_sigma_m: float = 5.0
-    """Above this translation standard deviation (m) a frame's covariances are reported as null."""
-    max_root_sigma_rad: float = 1.5
-    """Above this root-orientation standard deviation (rad) a frame's covariances are reported as null."""
-    body_pose_blocks: bool = True
-    """Write the body pose covariance as 23 per-joint (3, 3) blocks (the full (69, 69) is in the API)."""
-    chamfer_information: str = "point_to_plane"
-    """Information of the LiDAR chamfer factors: ``point_to_plane`` (each point constrains only along the
-    surface normal of its matched vertex, as the re-matched cost the solver minimises; see the module
-    docstring) or ``point_to_point`` (the factor's fixed-correspondence linearisation as is, overconfident
-    along the surface).  Needs the factor kinds and the body model (``compute_marginals``'s
-    ``factor_kinds`` and ``model``); without them the linearisation is used as is."""
-    vertex_match_tol_m: float = 1e-6
-    """A chamfer point's decoded vertex position must lie this close (m) to a posed mesh vertex."""
 
 
 #: The information of a track in chain + arrow block form (75-d frames, one B-d shape): the ``frame``,
@@ -226,7 +203,7 @@ def add_chamfer_plane_information(system, linearizer, model) -> bool:
     if not keys_list:
         return True
     body = linearizer.body
-    specs = body._specs["lidar_chamfer"]
+    specs = body.specs("lidar_chamfer")
     if not all(specs[keys].robust_per_point and keys in body.chamfer_matches for keys in keys_list):
         return False
     fkeys, states = body.frame_states
@@ -253,7 +230,7 @@ def add_chamfer_plane_information(system, linearizer, model) -> bool:
     row_of = {int(v): i for i, v in enumerate(matched)}
     hess = []
     for n, keys in enumerate(keys_list):
-        _, blocks = linearizer._factor("lidar_chamfer", keys)
+        _, blocks = body.factor_terms("lidar_chamfer", keys)
         a = np.concatenate(blocks, axis=1)
         m = a.shape[0] // 3
         a = a.reshape(m, 3, -1)
@@ -263,7 +240,7 @@ def add_chamfer_plane_information(system, linearizer, model) -> bool:
         w = np.linalg.norm(np.einsum("mij,mj->mi", weight, nrm), axis=1)
         rows = w[:, None] * np.einsum("mi,min->mn", x, a)                            # |M n| n^T M^-1 A
         hess.append(rows.T @ rows)
-    linearizer._scatter(system, keys_list, np.stack(hess), np.zeros((len(keys_list), hess[0].shape[0])))
+    linearizer.scatter(system, keys_list, np.stack(hess), np.zeros((len(keys_list), hess[0].shape[0])))
     return True
 
 
