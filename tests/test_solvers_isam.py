@@ -222,27 +222,29 @@ def test_stream_factors_match_batch_graph(ctx):
 def test_stream_initial_body_pose_and_presolve_subset(ctx):
     """Constant joint-angle velocity from the two previous estimates (at most one step ahead); the presolve
     leaves the excluded kinds out."""
-    from pedx_graph.solvers.stream import StreamConfig, StreamingEstimator, _ActiveTrack
+    from pedx_graph.solvers.stream import StreamConfig
+    from pedx_graph.solvers.stream.estimator import presolve_factors
+    from pedx_graph.solvers.stream.prediction import predicted_body_pose
+    from pedx_graph.solvers.stream.state import ActiveTrack
 
     track, _ = synthetic_track(ctx, 3, seed=2)
-    est = StreamingEstimator(ctx, synthetic_config(), StreamConfig())
-    state = _ActiveTrack(sequence="s", tracking_id="p", calibrations={}, smoother=None,
-                         rng=np.random.default_rng(0), frames=list(track.frames))
+    state = ActiveTrack(sequence="s", tracking_id="p", calibrations={}, smoother=None,
+                        rng=np.random.default_rng(0), frames=list(track.frames))
     p0, p1 = np.zeros(69), np.full(69, 0.1)
     state.before_previous = (np.eye(3), np.zeros(3), p0, np.zeros(10))
     state.previous = (np.eye(3), np.zeros(3), p1, np.zeros(10))
-    np.testing.assert_allclose(est._predicted_body_pose(state, 2), np.full(69, 0.2))
+    np.testing.assert_allclose(predicted_body_pose(state, 2), np.full(69, 0.2))
     state.frames[2].timestamp = state.frames[1].timestamp + 5 * (state.frames[1].timestamp - state.frames[0].timestamp)
-    np.testing.assert_allclose(est._predicted_body_pose(state, 2), np.full(69, 0.2))     # capped at one step
-    est.stream_config.predict_body_pose = False
-    np.testing.assert_allclose(est._predicted_body_pose(state, 2), p1)
+    np.testing.assert_allclose(predicted_body_pose(state, 2), np.full(69, 0.2))     # capped at one step
+    np.testing.assert_allclose(predicted_body_pose(state, 2, constant_velocity=False), p1)
     graph = gtsam.NonlinearFactorGraph()
     noise = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
     for j in range(3):
         graph.add(gtsam.PriorFactorVector(j, np.zeros(1), noise))
-    sub = est._presolve_factors(graph, ["stereo_reprojection", "lidar_chamfer", "pose_prior"])
+    exclude = StreamConfig().presolve_exclude
+    sub = presolve_factors(graph, ["stereo_reprojection", "lidar_chamfer", "pose_prior"], exclude)
     assert sub.size() == 2 and list(sub.keyVector()) == [0, 2]
-    assert est._presolve_factors(graph, ["stereo_reprojection", "pose_prior", "pose_prior"]) is None
+    assert presolve_factors(graph, ["stereo_reprojection", "pose_prior", "pose_prior"], exclude) is None
 
 
 def test_streaming_holds_shape_and_old_frames(ctx):
