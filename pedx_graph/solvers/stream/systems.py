@@ -60,7 +60,7 @@ def form_systems(body: BatchedBodyModel, steps: list[Step], presolve: bool, stre
         prefetch_states(body, states, jacobians=True, vertices=not presolve, kinds=frozenset(kinds))
         systems = frame_systems(body, keys, kinds)
     finally:
-        body._specs = {}
+        body.clear_registry()
     # the temporal priors to the tracks' previous frames, batched: in the presolve their rows on the new
     # frame (previous frame held at its estimate); for the update served to the factors' callbacks at
     # the point iSAM2 linearises them (the previous frame's linearisation point)
