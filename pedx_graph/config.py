@@ -52,6 +52,15 @@ def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix
     return cls(**kwargs)
 
 
+def _list_element(tp: Any) -> type | None:
+    """The dataclass of the elements of ``list[X]`` / ``tuple[X, ...]`` (None for anything else)."""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) in (list, tuple) and args and _is_dataclass_type(args[0]) \
+            and (typing.get_origin(tp) is list or args[1:] in ((), (Ellipsis,))):
+        return args[0]
+    return None
+
+
 def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
     origin = typing.get_origin(tp)
     try:
@@ -76,6 +85,13 @@ def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
             return value
         if tp is str and isinstance(value, str):
             return value
+        if tp in (tuple, list) and isinstance(value, (list, tuple)):       # bare ``tuple`` / ``list``
+            return tp(value)
+        element = _list_element(tp)
+        if element is not None and isinstance(value, (list, tuple)):   # a list of sections
+            items = [v if isinstance(v, element) else from_dict(element, v, source=source, prefix=f"{key}[{i}].")
+                     for i, v in enumerate(value)]
+            return tuple(items) if origin is tuple else items
         if origin in (tuple,) and isinstance(value, (list, tuple)):
             args = typing.get_args(tp)
             if len(args) == 2 and args[1] is Ellipsis:

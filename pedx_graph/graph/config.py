@@ -188,6 +188,72 @@ class SolverConfig:
 
 
 @dataclass
+class MarginalsConfig:
+    """How marginal covariances are computed and reported."""
+
+    method: str = "chain"
+    """``chain`` (forward-backward over the frames, fast) or ``gtsam`` (``gtsam.Marginals`` per frame)."""
+    diffuse_information: float = 1e-6
+    """Added to the diagonal of a frame's information block that is not positive definite (units^-2)."""
+    max_trans_sigma_m: float = 5.0
+    """Above this translation standard deviation (m) a frame's covariances are reported as null."""
+    max_root_sigma_rad: float = 1.5
+    """Above this root-orientation standard deviation (rad) a frame's covariances are reported as null."""
+    body_pose_blocks: bool = True
+    """Write the body pose covariance as 23 per-joint (3, 3) blocks (the full (69, 69) is in the API)."""
+    chamfer_information: str = "point_to_plane"
+    """Information of the LiDAR chamfer factors: ``point_to_plane`` (each point constrains only along the
+    surface normal of its matched vertex, as the re-matched cost the solver minimises; see
+    :mod:`pedx_graph.solvers.marginals`) or ``point_to_point`` (the factor's fixed-correspondence linearisation as is, overconfident
+    along the surface).  Needs the factor kinds and the body model (``compute_marginals``'s
+    ``factor_kinds`` and ``model``); without them the linearisation is used as is."""
+    vertex_match_tol_m: float = 1e-6
+    """A chamfer point's decoded vertex position must lie this close (m) to a posed mesh vertex."""
+
+
+@dataclass
+class DiagnosticsConfig:
+    """Thresholds and reference scales of the diagnostics."""
+
+    outlier_weight: float = 0.25
+    """A residual row counts as an outlier when its robust weight is below this."""
+    ref_root_rad: float = 0.1
+    """Reference scale of the root orientation when ranking weak directions, radians."""
+    ref_trans_m: float = 0.05
+    """Reference scale of the translation, metres."""
+    ref_body_pose_rad: float = 0.2
+    """Reference scale of the body pose, radians."""
+    ref_shape: float = 0.5
+    """Reference scale of the shape coefficients."""
+    worst_frames: int = 5
+    """How many frames to list as the worst (highest chi2 per row) in the track summary."""
+    consistency_quantile: float = 0.999
+    """A non-robust factor with ``chi2`` above this quantile of ``chi2(rows)`` marks its frame inconsistent."""
+
+
+@dataclass
+class AdmmConfig:
+    """ADMM settings (defaults: the paper's)."""
+
+    rho: float = 2.0
+    """Penalty of the consensus term rho/2 ||beta_k - beta + u_k||^2."""
+    primal_tol: float = 0.05
+    """Stop when every ||beta_k - beta|| is below this (and the dual residual too)."""
+    dual_tol: float = 0.05
+    """Stop when rho ||beta^t - beta^{t+1}|| is below this (and the primal residuals too)."""
+    max_iterations: int = 50
+    """Maximum ADMM iterations."""
+    inner_iterations: int = 10
+    """At most this many Levenberg-Marquardt iterations per frame subproblem and ADMM iteration (warm-started;
+    stops earlier when the error decreases by less than ``inner_relative_tol``): each frame problem is
+    solved to convergence, as in the paper.  Fewer iterations give an inexact, faster ADMM."""
+    inner_relative_tol: float = 1e-3
+    """Relative error decrease below which a frame subproblem counts as solved."""
+    workers: int = 1
+    """Processes solving the frames of one colour in parallel (1: in this process)."""
+
+
+@dataclass
 class FitConfig:
     """Everything the batch fit needs besides the data."""
 
@@ -234,6 +300,14 @@ class FitConfig:
     plausibility: PlausibilityConfig = field(default_factory=PlausibilityConfig)
     """Limits of a plausible fitted track; a track outside them is recorded as failed with the reason and not
     written (:mod:`pedx_graph.solvers.plausibility`)."""
+    marginals: MarginalsConfig = field(default_factory=MarginalsConfig)
+    """How the marginal covariances are computed and when they are reported as null (with ``covariances``;
+    also the stream's, :mod:`pedx_graph.solvers.marginals`)."""
+    diagnostics_thresholds: DiagnosticsConfig = field(default_factory=DiagnosticsConfig)
+    """Outlier threshold and reference scales of the per-track diagnostics (with ``diagnostics``;
+    :mod:`pedx_graph.solvers.diagnostics`)."""
+    admm: AdmmConfig = field(default_factory=AdmmConfig)
+    """Settings of the ADMM reference solver (``pedx-graph fit --solver admm``, :mod:`pedx_graph.solvers.admm`)."""
 
     def reader_config(self) -> ReaderConfig:
         """The :class:`~pedx_graph.data.reader.ReaderConfig` this fit reads its dataset with (fps, ground,

@@ -33,32 +33,10 @@ import gtsam
 import numpy as np
 
 from factors.shape_prior import consensus_shape
-from pedx_graph.graph.config import FitConfig
+from pedx_graph.graph.config import AdmmConfig, FitConfig
 from pedx_graph.solvers.isam import local_lm
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class AdmmConfig:
-    """ADMM settings (defaults: the paper's)."""
-
-    rho: float = 2.0
-    """Penalty of the consensus term rho/2 ||beta_k - beta + u_k||^2."""
-    primal_tol: float = 0.05
-    """Stop when every ||beta_k - beta|| is below this (and the dual residual too)."""
-    dual_tol: float = 0.05
-    """Stop when rho ||beta^t - beta^{t+1}|| is below this (and the primal residuals too)."""
-    max_iterations: int = 50
-    """Maximum ADMM iterations."""
-    inner_iterations: int = 10
-    """At most this many Levenberg-Marquardt iterations per frame subproblem and ADMM iteration (warm-started;
-    stops earlier when the error decreases by less than ``inner_relative_tol``): each frame problem is
-    solved to convergence, as in the paper.  Fewer iterations give an inexact, faster ADMM."""
-    inner_relative_tol: float = 1e-3
-    """Relative error decrease below which a frame subproblem counts as solved."""
-    workers: int = 1
-    """Processes solving the frames of one colour in parallel (1: in this process)."""
 
 
 @dataclass
@@ -144,7 +122,7 @@ def admm_solve(problem, config: FitConfig, admm: AdmmConfig | None = None, track
                ) -> tuple[gtsam.Values, AdmmReport]:
     """Run ADMM on a built track problem.  ``track`` and ``ctx`` are needed only for ``admm.workers > 1``
     (each worker rebuilds the graph: CustomFactors cannot be pickled)."""
-    admm = admm or AdmmConfig()
+    admm = admm or config.admm
     t0 = time.perf_counter()
     keys = problem.keys
     n = len(keys)

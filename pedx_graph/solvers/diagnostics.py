@@ -44,7 +44,6 @@ two cameras and none has LiDAR points, so its depth rests on the body-size prior
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -52,26 +51,7 @@ import numpy as np
 from factors.translation_prior import sensor_ray_frame
 from pedx_graph.data.ground import GroundFrame
 from pedx_graph.solvers.marginals import FRAME_DIM, POSE_SLICE, ROOT_SLICE, TRANS_SLICE
-
-
-@dataclass
-class DiagnosticsConfig:
-    """Thresholds and reference scales of the diagnostics."""
-
-    outlier_weight: float = 0.25
-    """A residual row counts as an outlier when its robust weight is below this."""
-    ref_root_rad: float = 0.1
-    """Reference scale of the root orientation when ranking weak directions, radians."""
-    ref_trans_m: float = 0.05
-    """Reference scale of the translation, metres."""
-    ref_body_pose_rad: float = 0.2
-    """Reference scale of the body pose, radians."""
-    ref_shape: float = 0.5
-    """Reference scale of the shape coefficients."""
-    worst_frames: int = 5
-    """How many frames to list as the worst (highest chi2 per row) in the track summary."""
-    consistency_quantile: float = 0.999
-    """A non-robust factor with ``chi2`` above this quantile of ``chi2(rows)`` marks its frame inconsistent."""
+from pedx_graph.graph.config import DiagnosticsConfig
 
 
 def _factor_residual(factor, values: gtsam.Values, outlier_weight: float,
@@ -255,6 +235,9 @@ def track_extras(problem, values: gtsam.Values, ctx, marginals: bool = True, dia
     from pedx_graph.graph.build import extract_estimate
     from pedx_graph.solvers.marginals import marginals_to_fields, problem_marginals
 
+    if fit_config is not None:                  # the fit's config sections unless given explicitly
+        marginals_config = marginals_config or fit_config.marginals
+        diagnostics_config = diagnostics_config or fit_config.diagnostics_thresholds
     per_frame: list[dict] = [{} for _ in problem.keys]
     track: dict = {}
     est = extract_estimate(problem, values, ctx)
