@@ -48,9 +48,13 @@ def test_distance_and_floor_ratio_tables():
     assert "| m | 10.0 / 9.0 | 10.0 / 9.0 |" in ratio
 
 
-def test_distance_table_empty_bin_is_a_dash():
+def test_distance_table_leaves_empty_bins_out():
     table = tb.distance_table({"m": constant_summary(100, 50, distances=(10.0,))})
-    assert "| m | 100.0 / 50.0 | - / - | - / - | - / - |" in table
+    assert "| method | 5-15 m |" in table and "15-25" not in table and "nan" not in table
+    assert "| m | 100.0 / 50.0 |" in table
+    both = tb.distance_table({"m": constant_summary(100, 50, distances=(10.0,)),
+                              "n": constant_summary(90, 40, distances=(20.0,))})
+    assert "| m | 100.0 / 50.0 | - / - |" in both and "25-35" not in both
 
 
 def test_ablation_table_and_ordering():

@@ -134,13 +134,16 @@ def collect_runs(results_dirs, truth, model=None) -> list[dict]:
 def assemble(runs: list[dict], floor: dict | None = None, calibrations: dict | None = None) -> dict:
     """All tables as data + markdown from evaluated runs (pure; no file access)."""
     methods = {r["label"]: r["eval"] for r in runs if r["group"] == "methods" and r["labels"] == "clean"}
-    ablation = []
+    matched = []
     for r in runs:
         if r["labels"] != "clean" or r["kind"] != "fit":
             continue
         row = r.get("ablation_row") or ablation_row(r.get("terms"))
         if row is not None:
-            ablation.append((int(row), ABLATION_ROWS[int(row) - 1].label, r["terms"], r["eval"]))
+            matched.append((int(row), r))
+    shared = {n for n, _ in matched if sum(m == n for m, _ in matched) > 1}
+    ablation = [(n, ABLATION_ROWS[n - 1].label + (f" ({r['name']})" if n in shared else ""), r["terms"], r["eval"])
+                for n, r in matched]                     # runs sharing a row keep their own names
     ablation.sort(key=lambda t: t[0])
     noisy = []
     clean_by_label = {r["label"]: r["eval"] for r in runs if r["labels"] == "clean"}
@@ -174,17 +177,56 @@ def assemble(runs: list[dict], floor: dict | None = None, calibrations: dict | N
             "tables": tables}
 
 
-def build_report(results_dirs, truth: str | os.PathLike, out: str | os.PathLike,
+def no_truth_sections(results_dirs, out: Path, config: "ReportConfig", model) -> tuple[dict, dict, list[str]]:
+    """Per results folder: the :func:`~pedx_graph.eval.results_summary.summarise_results` record, its markdown
+    tables (keys ``results_<name>_<table>``) and, with ``config.figures``, the top views of each track and one
+    overlay per camera written by the export (``out/export/<name>/``; links relative to ``out``)."""
+    from pedx_graph.eval.results_summary import results_tables, summarise_results
+
+    stats, tables, pictures = {}, {}, []
+    for path in results_dirs:
+        path = Path(path)
+        if not (path / "summary.json").is_file():
+            continue
+        record = summarise_results(path)
+        stats[path.name] = record
+        for key, text in results_tables(record).items():
+            tables[f"results_{path.name}_{key}"] = text
+        if config.figures and (path / "fit_config.yaml").is_file():
+            from pedx_graph.export.run import ExportConfig, export_results
+
+            target = out / "export" / path.name
+            try:
+                export_results(path, target, None, ExportConfig(meshes=False, animations=False,
+                                                                overlay_every=10 ** 6, overlay_scale=0.5), model)
+            except (OSError, ValueError) as exc:       # pictures are optional: say why they are missing
+                log.warning("%s: no pictures: %s", path, exc)
+                continue
+            pictures += sorted(str(p.relative_to(out)) for p in target.rglob("*.png"))
+            pictures += sorted(str(p.relative_to(out)) for p in target.rglob("*.jpg"))
+    return stats, tables, pictures
+
+
+def build_report(results_dirs, truth: str | os.PathLike | None, out: str | os.PathLike,
                  config: ReportConfig | None = None, model=None, preamble: str = "",
                  figure_prefix: str = "figures") -> dict:
-    """Evaluate ``results_dirs`` against ``truth`` and write ``report.json``, ``report.md`` and figures
-    (``out/figures/*.png``) into ``out``.  Returns the report dict."""
+    """Write ``report.json``, ``report.md`` and figures (``out/figures/*.png``) into ``out`` for
+    ``results_dirs``: always what the results say about themselves (:func:`no_truth_sections`: residuals,
+    covariances per distance, per-track diagnostics, pictures); with ``truth`` (a simulated dataset) also the
+    accuracy tables, the error floor and the covariance calibration.  Returns the report dict."""
     from pedx_graph.body import BodyModel
 
     config = config or ReportConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model = model or BodyModel.load()
+    stats, result_tables, pictures = no_truth_sections(results_dirs, out, config, model)
+    if truth is None:
+        report = {"tables": result_tables, "results": stats, "truth": None, "pictures": pictures,
+                  "runs": [describe_run(p) for p in results_dirs], "figures": []}
+        atomic_write_json(out / "report.json", report)
+        atomic_write_text(out / "report.md", render_markdown(report, preamble=preamble))
+        return report
     runs = collect_runs(results_dirs, truth, model)
     floor = None
     if config.floor:
@@ -209,6 +251,9 @@ def build_report(results_dirs, truth: str | os.PathLike, out: str | os.PathLike,
         figures = plots.write_figures(report, runs, truth, out / figure_prefix, model)
         figures = [str(Path(figure_prefix) / Path(f).name) for f in figures]
     report["figures"] = figures
+    report["tables"].update(result_tables)
+    report["results"] = stats
+    report["pictures"] = pictures
     atomic_write_json(out / "report.json", report)
     atomic_write_text(out / "report.md", render_markdown(report, preamble=preamble))
     return report

@@ -8,13 +8,16 @@ from pathlib import Path
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "report", help="paper tables, error floor, calibration and figures for several results folders",
-        description="Score RESULTS_DIRS (fit / baseline output) against a simulated DATASET and write "
-                    "report.md, report.json and figures/*.png into --out: per-joint tables (paper Tables "
-                    "II/III), the ablation (IV), detector labels (V), distance bins, speed, covariance "
-                    "calibration and the error floor.")
+        "report", help="residuals, covariances, diagnostics and pictures of results folders; accuracy tables with --truth",
+        description="Write report.md and report.json into --out for RESULTS_DIRS (fit / baseline output): "
+                    "residuals, marginal covariances per distance, per-track diagnostics and plausibility, and "
+                    "pictures (pedx-graph export); with --truth (a simulated dataset) also per-joint tables "
+                    "(paper Tables II/III), the ablation (IV), detector labels (V), distance bins, speed, "
+                    "covariance calibration and the error floor.")
     p.add_argument("results", nargs="+", metavar="RESULTS_DIRS", help="results folders (distinct names)")
-    p.add_argument("--truth", required=True, help="dataset with ground truth (simulated)")
+    p.add_argument("--truth", default=None,
+                   help="dataset with ground truth (simulated): adds the accuracy tables, error floor and "
+                        "calibration (default: none, the report of what the results say about themselves)")
     p.add_argument("--out", required=True, help="report folder")
     p.add_argument("--model", default=None, help="body model of the ground truth (default: the open model)")
     p.add_argument("--no-floor", action="store_true", help="skip the error floor")

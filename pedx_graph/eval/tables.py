@@ -40,9 +40,17 @@ def per_joint_table(summaries: dict[str, dict], metric: str, floor: dict | None 
     return "\n".join(lines) + "\n"
 
 
+def filled_bins(summaries: dict[str, dict]) -> list[str]:
+    """The distance bins (``"lo-hi"`` keys of :data:`DISTANCE_BINS`) in which some summary has frames (the
+    tables leave empty bins out)."""
+    keys = [f"{lo:g}-{hi:g}" for lo, hi in DISTANCE_BINS]
+    return [b for b in keys if any(s["per_distance"].get(b, {}).get("frames") for s in summaries.values())]
+
+
 def distance_table(summaries: dict[str, dict], floor: dict | None = None) -> str:
-    """Markdown: methods as rows, distance bins as columns, ``global / root-relative`` MPJPE (mm) per cell."""
-    bins = [f"{lo:g}-{hi:g}" for lo, hi in DISTANCE_BINS]
+    """Markdown: methods as rows, distance bins with frames as columns, ``global / root-relative`` MPJPE (mm)
+    per cell (``-`` where a method has no frame in a bin)."""
+    bins = filled_bins(summaries)
     rows = dict(summaries)
     if floor:
         rows["floor"] = floor
@@ -57,8 +65,9 @@ def distance_table(summaries: dict[str, dict], floor: dict | None = None) -> str
 
 
 def floor_ratio_table(summaries: dict[str, dict], floor: dict) -> str:
-    """Markdown: each method's MPJPE divided by the floor's, overall and per distance bin (global / rel)."""
-    bins = [f"{lo:g}-{hi:g}" for lo, hi in DISTANCE_BINS]
+    """Markdown: each method's MPJPE divided by the floor's, overall and per distance bin with frames
+    (global / rel)."""
+    bins = filled_bins(summaries)
     lines = ["| method | overall | " + " | ".join(f"{b} m" for b in bins) + " |",
              "|---|---:|" + "---:|" * len(bins)]
 
@@ -173,11 +182,14 @@ def speed_table(runs: list[dict]) -> str:
 
 
 def calibration_table(cal: dict) -> str:
-    """Markdown: NEES / dof and 95 % coverage overall, visible/occluded and per distance bin."""
+    """Markdown: NEES / dof and 95 % coverage overall, visible/occluded and per distance bin (rows without
+    keypoints left out)."""
     lines = ["| keypoints | n | mean NEES/3 | median NEES/3 | inside 95 % ellipsoid |", "|---|---:|---:|---:|---:|"]
     rows = [("all", cal["overall"]), ("visible", cal["visible"]), ("occluded", cal["occluded"])]
     rows += [(f"{k} m", v) for k, v in cal["per_distance"].items()]
     for name, s in rows:
+        if not s["n"]:
+            continue
         lines.append(f"| {name} | {s['n']} | {_fmt(s['mean_nees_over_dof'], 2)} | "
                      f"{_fmt(s['median_nees_over_dof'], 2)} | {_fmt(100 * s['coverage95'] if s['n'] else None)} % |")
     return "\n".join(lines) + "\n"
@@ -211,4 +223,19 @@ def render_markdown(report: dict, title: str = "pedx-graph evaluation report", p
                       "mean NEES/3 = 1, 95 % inside the 95 % ellipsoid).", "", text]
     for fig in report.get("figures", []):
         lines += [f"![{Path(fig).stem}]({fig})", ""]
+    for name in report.get("results") or {}:
+        lines += [f"## Results without ground truth: {name}", ""]
+        for part, heading in _RESULT_SECTIONS:
+            text = tables.get(f"results_{name}_{part}")
+            if text:
+                lines += [f"### {heading}", "", text]
+    pictures = report.get("pictures") or []
+    if pictures:
+        lines += ["## Pictures (pedx-graph export)", ""]
+        lines += [f"![{Path(p).stem}]({p})" + "\n" for p in pictures]
     return "\n".join(lines).rstrip() + "\n"
+
+
+_RESULT_SECTIONS = (("residuals", "Residuals (chi-square per row at the fit, summed over tracks)"),
+                    ("uncertainty", "Marginal covariances per distance (SD = sqrt(trace / 3))"),
+                    ("tracks", "Per-track diagnostics and plausibility"))
