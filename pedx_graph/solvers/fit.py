@@ -97,11 +97,15 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
     config = config or FitConfig()
     ctx = context or _context(config)
     t0 = time.perf_counter()
+    report_ctx = ctx                          # results: PedX keypoints of the original model, whatever the labels
+    if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
+        from pedx_graph.detections.fit_layout import fit_layout
+        track, ctx, config = fit_layout(track, ctx, config)
     if len(track.frames) == 1:
         problem, values, report = _single_frame_search(track, ctx, config)
     else:
         problem, values, report = solve_staged(track, ctx, config)
-    est = extract_estimate(problem, values, ctx)
+    est = extract_estimate(problem, values, report_ctx)
     seconds = time.perf_counter() - t0
     from pedx_graph.solvers.diagnostics import track_extras
 

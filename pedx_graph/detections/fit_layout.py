@@ -1,0 +1,137 @@
+"""Fit a track labelled in a detector's keypoint set with the PedX-ordered fit (the 18-row layout of the terms).
+
+The reprojection term, the initialisation (torso, triangulation), the flip search and the body-size depth index
+keypoints by PedX name in 18 rows.  A track in another set (``coco17``, ``body25``, ...) is fitted through an
+18-row *fit layout*: row ``i`` holds the set's keypoint that is PedX keypoint ``i``'s body point
+(``KeypointSet.pedx_equivalent``: same joint / same face point), and the body model used for the graph
+projects, in that row, the set's **own** definition of the point (``BodyModel.for_keypoint_set``) — never
+PedX's.  COCO's and OpenPose's surface hips have no PedX equivalent (PedX's hips are SMPL's joints): they fill
+the ``lhip`` / ``rhip`` rows with their own surface definition, so the hip rows project the right 3D point
+and the steps that look up "the hips" (torso initialisation, flips) use the nearest thing the set has.  A
+PedX row the set lacks (``head``, ``mouth`` in COCO) stays unlabelled.  Set keypoints without any PedX row
+(ears, toes, heels, OpenPose's mid-shoulder Neck and MidHip) are not used by the fit yet (the reprojection
+term takes 18 rows).
+
+Per-keypoint noise: the label files' ``sigma_px`` (from the detector's confidences, per image) enter as the
+track's per-row click noise (``NoiseConfig.keypoint_sigma_px_per_keypoint``: the median over the track's
+images of each row's ``sigma_px``); rows without one keep the config's ``keypoint_sigma_px``.
+
+Results are reported with the original model: the world keypoints of a result are always PedX's 18.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+
+from pedx_graph.body.keypoint_defs import KeypointMap, load_keypoint_set
+from pedx_graph.data.types import Track, TrackFrame, View2D
+from pedx_graph.keypoints import PEDX_KEYPOINTS
+
+#: Set points filling a PedX row although they are not PedX's body point (their own definition is projected).
+NEAREST_ROWS: dict[str, tuple[str, ...]] = {"lhip": ("left_hip", "LHip"), "rhip": ("right_hip", "RHip")}
+
+
+def row_sources(set_name: str) -> np.ndarray:
+    """(18,) index into the set's keypoints of each PedX row's keypoint, -1 where the set has none."""
+    kset = load_keypoint_set(set_name)
+    out = np.full(len(PEDX_KEYPOINTS), -1, dtype=np.int64)
+    for row, pedx_name in enumerate(PEDX_KEYPOINTS):
+        index = kset.index_of(pedx_name)
+        if index is None:
+            for candidate in NEAREST_ROWS.get(pedx_name, ()):
+                if candidate in kset.keypoints:
+                    index = kset.keypoints.index(candidate)
+        if index is not None:
+            out[row] = index
+    return out
+
+
+def layout_map(model, set_name: str) -> KeypointMap:
+    """An 18-row :class:`KeypointMap`: the set's definitions in the rows it fills, PedX's elsewhere."""
+    pedx = model.keypoint_set_map("pedx18")
+    own = model.keypoint_set_map(set_name)
+    src = row_sources(set_name)
+    used = sorted(set(pedx.vertex_ids.tolist()) | set(own.vertex_ids.tolist()))
+    col = {v: i for i, v in enumerate(used)}
+    vertex_coeffs = np.zeros((len(PEDX_KEYPOINTS), len(used)))
+    joint_coeffs = np.zeros((len(PEDX_KEYPOINTS), pedx.joint_coeffs.shape[1]))
+    for row in range(len(PEDX_KEYPOINTS)):
+        kmap, k = (own, int(src[row])) if src[row] >= 0 else (pedx, row)
+        for v, c in zip(kmap.vertex_ids, kmap.vertex_coeffs[k]):
+            vertex_coeffs[row, col[int(v)]] += c
+        joint_coeffs[row] = kmap.joint_coeffs[k]
+    return KeypointMap(names=PEDX_KEYPOINTS, vertex_ids=np.array(used, dtype=np.int64), vertex_coeffs=vertex_coeffs,
+                       joint_coeffs=joint_coeffs, source=f"{set_name}:fit-layout")
+
+
+def layout_model(model, set_name: str):
+    """The body model whose 18 keypoints are :func:`layout_map` (cached on ``model``)."""
+    from pedx_graph.body.model import BodyModel
+
+    cache = model.__dict__.setdefault("_layout_models", {})
+    if set_name not in cache:
+        cache[set_name] = BodyModel(model.data, layout_map(model, set_name))
+    return cache[set_name]
+
+
+def layout_view(view: View2D | None) -> View2D | None:
+    """A view of the set's keypoints in the 18 PedX rows (rows without a source unlabelled)."""
+    if view is None or view.keypoint_set == "pedx18":
+        return view
+    src = row_sources(view.keypoint_set)
+    has = src >= 0
+    keypoints = np.full((len(PEDX_KEYPOINTS), 2), np.nan)
+    visible = np.zeros(len(PEDX_KEYPOINTS), dtype=bool)
+    keypoints[has] = view.keypoints[src[has]]
+    visible[has] = view.visible[src[has]]
+    sigma = None
+    if view.sigma_px is not None:
+        sigma = np.full(len(PEDX_KEYPOINTS), np.nan)
+        sigma[has] = view.sigma_px[src[has]]
+    return View2D(keypoints=keypoints, visible=visible, polygon=view.polygon, keypoint_set="pedx18", sigma_px=sigma)
+
+
+def layout_track(track: Track) -> Track:
+    """``track`` with every view in the 18-row layout (:func:`layout_view`)."""
+    frames = []
+    for fr in track.frames:
+        frames.append(dataclasses.replace(
+            fr, left=layout_view(fr.left), right=layout_view(fr.right),
+            other_views={pair: (layout_view(a), layout_view(b)) for pair, (a, b) in fr.other_views.items()}))
+    return dataclasses.replace(track, frames=frames)
+
+
+def track_row_sigmas(track: Track) -> np.ndarray | None:
+    """(18,) median over the track's images of each row's ``sigma_px`` (NaN where none), or None."""
+    stacks = [view.sigma_px for fr in track.frames for _, _, view in fr.labelled_views()
+              if view.sigma_px is not None]
+    if not stacks:
+        return None
+    stacked = np.stack(stacks)
+    with np.errstate(all="ignore"):
+        out = np.full(stacked.shape[1], np.nan)
+        ok = np.any(np.isfinite(stacked), axis=0)
+        out[ok] = np.nanmedian(stacked[:, ok], axis=0)
+    return out
+
+
+def fit_layout(track: Track, ctx, config):
+    """``(track, ctx, config)`` to fit a track of another keypoint set with the 18-row fit (module docstring);
+    the same objects for a ``pedx18`` track."""
+    set_name = track.keypoint_set
+    if set_name == "pedx18":
+        return track, ctx, config
+    laid = layout_track(track)
+    fit_ctx = dataclasses.replace(ctx, model=layout_model(ctx.model, set_name))
+    sigmas = track_row_sigmas(laid)
+    if sigmas is not None:
+        config = copy.deepcopy(config)
+        clicks = np.where(np.isfinite(sigmas), sigmas, float(config.noise.keypoint_sigma_px))
+        config.noise.keypoint_sigma_px_per_keypoint = [float(v) for v in clicks]
+    return laid, fit_ctx, config
+
+
+__all__ = ["fit_layout", "layout_map", "layout_model", "layout_track", "layout_view", "row_sources",
+           "track_row_sigmas", "TrackFrame"]
