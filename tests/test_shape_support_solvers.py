@@ -15,7 +15,8 @@ import pytest
 from pedx_graph.graph.build import build_track_graph
 from pedx_graph.solvers.admm import AdmmConfig, admm_solve
 from pedx_graph.solvers.batched import BatchedLinearizer
-from pedx_graph.solvers.isam import IsamConfig, isam_solve
+from pedx_graph.solvers.isam import IsamConfig
+from pedx_graph.solvers.isam_batch import isam_solve
 from pedx_graph.solvers.lm import python_lm
 from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
 

@@ -6,8 +6,9 @@ import pytest
 from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
 from pedx_graph.graph.build import build_track_graph, extract_estimate
 from pedx_graph.graph.config import SolverConfig
-from pedx_graph.solvers.isam import IsamConfig, gauss_newton_step, isam_solve, local_lm
-from pedx_graph.solvers.lm import python_lm
+from pedx_graph.solvers.isam import IsamConfig
+from pedx_graph.solvers.isam_batch import isam_solve
+from pedx_graph.solvers.lm import gauss_newton_step, local_config, python_lm
 from pedx_graph.solvers.marginals import gtsam_marginals, isam_frame_covariance
 
 TIGHT = SolverConfig(max_iterations=100, relative_error_tol=1e-8)
@@ -60,7 +61,7 @@ def test_isam_marginals_equal_batch_marginals(smooth_case):
                                    gtsam.Marginals(problem.graph, theta).marginalCovariance(keys.trans), rtol=1e-6)
 
 
-def test_local_lm_holds_fixed_keys():
+def test_lm_over_free_keys_holds_the_others():
     graph = gtsam.NonlinearFactorGraph()
     noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
     graph.add(gtsam.BetweenFactorVector(1, 2, np.array([1.0, 0.0]), noise))
@@ -68,13 +69,14 @@ def test_local_lm_holds_fixed_keys():
     values = gtsam.Values()
     values.insert(1, np.zeros(2))
     values.insert(2, np.zeros(2))
-    out, error, _ = local_lm(graph, values, [2], max_iterations=10)
+    out, _ = python_lm(graph, values, local_config(10), free_keys=[2])
     np.testing.assert_allclose(out.atVector(1), [0.0, 0.0])
     np.testing.assert_allclose(out.atVector(2), [3.0, 2.5], atol=1e-4)     # midway: x1 + (1, 0) and (5, 5)
 
 
 def test_gauss_newton_step_is_first_local_lm_iteration():
-    """The cheap presolve step equals local_lm's first (accepted) iteration, held keys untouched."""
+    """The cheap presolve step equals the first (accepted) iteration of LM over the free keys, held keys
+    untouched."""
     graph = gtsam.NonlinearFactorGraph()
     noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
     graph.add(gtsam.BetweenFactorVector(1, 2, np.array([1.0, 0.0]), noise))
@@ -86,7 +88,7 @@ def test_gauss_newton_step_is_first_local_lm_iteration():
     values.insert(2, np.zeros(2))
     values.insert(3, gtsam.Rot3())
     values.insert(4, np.ones(2))
-    lm, _, _ = local_lm(graph, values, [2, 3], max_iterations=1)
+    lm, _ = python_lm(graph, values, local_config(1), free_keys=[2, 3])
     gn = gauss_newton_step(graph, values, [2, 3])
     np.testing.assert_allclose(gn.atVector(2), lm.atVector(2), atol=1e-9)
     np.testing.assert_allclose(gtsam.Rot3.Logmap(gn.atRot3(3)), gtsam.Rot3.Logmap(lm.atRot3(3)), atol=1e-9)
@@ -254,7 +256,8 @@ def test_streaming_holds_shape_and_old_frames(ctx):
     track, _ = synthetic_track(ctx, 6, seed=4)
     problem = build_track_graph(track, ctx, config)
     cfg = IsamConfig(relinearize_skip=1, relinearize_window=2, finalize="isam")
-    from pedx_graph.solvers.isam import IncrementalTrack, frame_factor_groups, initial_frame_values
+    from pedx_graph.solvers.isam import IncrementalTrack
+    from pedx_graph.solvers.isam_batch import frame_factor_groups, initial_frame_values
 
     smoother = IncrementalTrack.create(cfg, betas_key=problem.keys[0].betas)
     groups = frame_factor_groups(problem)
@@ -283,7 +286,8 @@ def test_frame_factors_enter_isam_linearised_and_are_relinearised_in_the_window(
     """A frame's own factors enter iSAM2 as one Gaussian factor at the presolved point; within the
     relinearisation window the point follows the estimate, after it never changes; finalising with iSAM2
     gives iSAM2 the nonlinear factors back."""
-    from pedx_graph.solvers.isam import IncrementalTrack, frame_factor_groups, initial_frame_values
+    from pedx_graph.solvers.isam import IncrementalTrack
+    from pedx_graph.solvers.isam_batch import frame_factor_groups, initial_frame_values
 
     ctx = synthetic_context()
     track, _ = synthetic_track(ctx, 6, seed=5)

@@ -177,7 +177,8 @@ def test_wildfire_threshold_keeps_the_newest_frame_and_the_final_start_exact(ctx
     frame's estimate (the causal output) is still exact, and :meth:`IncrementalTrack.estimate` (the
     finalisation's start) is the full back-substitution."""
     from pedx_graph.graph.build import build_track_graph
-    from pedx_graph.solvers.isam import IsamConfig, frame_factor_groups, initial_frame_values
+    from pedx_graph.solvers.isam import IsamConfig
+    from pedx_graph.solvers.isam_batch import frame_factor_groups, initial_frame_values
 
     track, _ = synthetic_track(ctx, 12, seed=1)
     problem = build_track_graph(track, ctx, synthetic_config(lidar_chamfer=False))

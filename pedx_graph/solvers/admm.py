@@ -34,7 +34,7 @@ import numpy as np
 
 from factors.shape_prior import consensus_shape
 from pedx_graph.graph.config import AdmmConfig, FitConfig
-from pedx_graph.solvers.isam import local_lm
+from pedx_graph.solvers.lm import local_config, python_lm
 
 log = logging.getLogger(__name__)
 
@@ -97,8 +97,9 @@ class _FrameSolver:
             values.insert(keys[i].body_pose, np.asarray(body_pose, float))
         values.insert(betas_key, np.asarray(beta_k, float))
         free = [keys[k].root, keys[k].trans, keys[k].body_pose, betas_key]
-        values, error, _ = local_lm(graph, values, free, max_iterations=self.admm.inner_iterations,
-                                    relative_tol=self.admm.inner_relative_tol)
+        values, report = python_lm(graph, values, local_config(self.admm.inner_iterations,
+                                                               self.admm.inner_relative_tol), free_keys=free)
+        error = report.final_error
         state = (values.atRot3(keys[k].root).matrix(), np.asarray(values.atVector(keys[k].trans), float),
                  np.asarray(values.atVector(keys[k].body_pose), float))
         return state, np.asarray(values.atVector(betas_key), float), error

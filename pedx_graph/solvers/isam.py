@@ -13,12 +13,13 @@ update, so the estimate moves, only the Jacobians of old frames are not recomput
 newest ``relinearize_window`` frames may be relinearised, so no streaming update re-runs more than that
 many frames' factors however long the track.
 
-:meth:`IncrementalTrack.finalize` runs further iSAM2 updates with ``force_relinearize`` and no held keys
-until the graph error stops decreasing: the smoothed estimate of the whole track (the batch optimum, up to
-the relinearisation thresholds).
+:meth:`IncrementalTrack.finalize` smooths the whole track: batch LM over all its factors warm-started from
+the iSAM2 estimate (``finalize = "lm"``), or further iSAM2 updates with ``force_relinearize`` and no held
+keys until the graph error stops decreasing (the batch optimum, up to the relinearisation thresholds).
 
-:func:`isam_solve` feeds a batch :class:`~pedx_graph.graph.build.TrackProblem` frame by frame (the same
-factors as batch LM: used to check that both reach the same estimate).
+The local solves (the presolve's Gauss-Newton step or LM, the ``lm`` finalisation) are those of
+:mod:`pedx_graph.solvers.lm`; :mod:`pedx_graph.solvers.isam_batch` feeds a batch problem through this
+class frame by frame.
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ import numpy as np
 
 from factors.common import BODY_POSE_DIM, FrameKeys
 from pedx_graph.solvers.frame_system import hessian_factor
+from pedx_graph.solvers.lm import gauss_newton_step, local_config, python_lm
 
 
 @dataclass
@@ -68,8 +70,8 @@ class IsamConfig:
     one iSAM2 update per frame starts near the optimum; 0 disables."""
     presolve_method: str = "gn"
     """``gn``: each presolve iteration is one lightly damped Gauss-Newton step (one linearisation of the new
-    factors, a dense solve, no error evaluation); ``lm``: :func:`local_lm` (evaluates the error before and
-    after each step and rejects steps that increase it: two more passes over the new factors)."""
+    factors, a dense solve, no error evaluation); ``lm``: LM over the new variables (:func:`pedx_graph.solvers.lm.python_lm`
+    with ``free_keys``; evaluates the error before and after each step and rejects steps that increase it: two more passes over the new factors)."""
     linearize_frame_factors: bool = True
     """Enter a frame's own factors (those on its root, translation and body pose and at most the shape:
     stereo, chamfer, translation, heading, pose and joint-limit terms) into iSAM2 as one Gaussian factor in
@@ -107,154 +109,6 @@ def make_isam(config: IsamConfig) -> gtsam.ISAM2:
     params.relinearizeSkip = int(config.relinearize_skip)
     params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(float(config.wildfire_threshold)))
     return gtsam.ISAM2(params)
-
-
-def local_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys, max_iterations: int = 5,
-             lambda_initial: float = 1e-2, relative_tol: float = 1e-3, lambda_max: float = 1e6
-             ) -> tuple[gtsam.Values, float, int]:
-    """Levenberg-Marquardt over ``free_keys`` only; every other key of ``values`` is held fixed.
-
-    Held keys get a stiff unit-noise prior on their delta (``1e6 I``) in the damped linear system and a
-    zero step.  Returns ``(values, final error, accepted iterations)``.
-    """
-    free = {int(k) for k in free_keys}
-    zero = values.zeroVectors()
-    dims = {int(k): int(zero.at(k).shape[0]) for k in values.keys()}
-    err = graph.error(values)
-    lam = lambda_initial
-    accepted_iterations = 0
-    for _ in range(max_iterations):
-        linear = graph.linearize(values)
-        accepted = False
-        while lam <= lambda_max:
-            damped = linear.clone()
-            for key, d in dims.items():
-                weight = np.sqrt(lam) if key in free else 1e6
-                damped.add(gtsam.JacobianFactor(key, weight * np.eye(d), np.zeros(d), gtsam.noiseModel.Unit.Create(d)))
-            try:
-                delta = damped.optimize()
-            except RuntimeError:
-                lam *= 10.0
-                continue
-            step = gtsam.VectorValues()
-            for key, d in dims.items():
-                step.insert(key, delta.at(key) if key in free else np.zeros(d))
-            candidate = values.retract(step)
-            new_err = graph.error(candidate)
-            if np.isfinite(new_err) and new_err <= err:
-                decrease = err - new_err
-                values, err, accepted = candidate, new_err, True
-                lam = max(lam / 10.0, 1e-9)
-                break
-            lam *= 10.0
-        if not accepted:
-            break
-        accepted_iterations += 1
-        if decrease <= relative_tol * max(err, 1e-12):
-            break
-    return values, float(err), accepted_iterations
-
-
-def _free_normal_equations(linear: gtsam.GaussianFactorGraph, free: list[int], dims: list[int],
-                           zero: gtsam.VectorValues) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """``(A_f^T A_f, A_f^T b)`` of the Jacobian factors of ``linear`` restricted to the columns of the
-    ``free`` keys (dimensions ``dims``): the free block of the Gauss-Newton system, without forming the
-    held keys' blocks.  ``(None, None)`` when a factor is not a ``JacobianFactor``."""
-    offsets = dict(zip(free, np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(int)))
-    n = int(sum(dims))
-    rows, rhs_rows = [], []
-    for j in range(linear.size()):
-        factor = linear.at(j)
-        if not isinstance(factor, gtsam.JacobianFactor):
-            return None, None
-        keys = [int(k) for k in factor.keys()]
-        if not any(k in offsets for k in keys):
-            continue
-        a, b = factor.getA(), factor.getb()
-        block = np.zeros((a.shape[0], n))
-        col = 0
-        for key in keys:
-            d = int(zero.at(key).shape[0])
-            if key in offsets:
-                block[:, offsets[key]:offsets[key] + d] = a[:, col:col + d]
-            col += d
-        rows.append(block)
-        rhs_rows.append(b)
-    if not rows:
-        return np.zeros((n, n)), np.zeros(n)
-    a_f, b = np.vstack(rows), np.concatenate(rhs_rows)
-    return a_f.T @ a_f, a_f.T @ b
-
-
-def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, free_keys,
-                      damping: float = 1e-2, system: tuple | None = None) -> gtsam.Values:
-    """One damped Gauss-Newton step over ``free_keys``; every other key of ``values`` is held fixed.
-
-    Solves ``(H_ff + damping I) delta_f = eta_f`` densely (``H``, ``eta``: the graph linearised at
-    ``values``; ``f``: the free keys) and retracts the free keys.  This is :func:`local_lm`'s first
-    iteration (the same damping) without its error evaluations, i.e. the step is not checked.
-    ``system``: ``(keys, H, eta)``, the normal equations of further factors at ``values`` over the columns
-    of ``keys`` in that order (e.g. factors linearised in a batch elsewhere), added to the graph's.
-    Returns the updated ``values`` (a copy).
-    """
-    in_graph = {int(k) for k in graph.keyVector()}
-    seen = in_graph | ({int(k) for k in system[0]} if system is not None else set())
-    free = [int(k) for k in free_keys if int(k) in seen]          # a key no factor sees does not move
-    free_set = set(free)
-    held = [k for k in in_graph if k not in free_set]
-    zero = values.zeroVectors()
-    step = gtsam.VectorValues()
-    for key in values.keys():
-        if int(key) not in free_set:
-            step.insert(key, np.zeros(int(zero.at(key).shape[0])))
-    if not free:
-        return values.retract(step)
-    dims = [int(zero.at(k).shape[0]) for k in free]
-    n = int(sum(dims))
-    if graph.size():
-        linear = graph.linearize(values)
-        h_ff, rhs = _free_normal_equations(linear, free, dims, zero)
-        if h_ff is None:               # not all Jacobian factors: gtsam's dense Hessian of every key
-            ordering = gtsam.Ordering()
-            graph_free = [k for k in free if k in in_graph]
-            for key in graph_free + held:
-                ordering.push_back(key)
-            hessian, eta = linear.hessian(ordering)
-            m = int(sum(int(zero.at(k).shape[0]) for k in graph_free))
-            cols = _columns(free, dims, graph_free)
-            h_ff, rhs = np.zeros((n, n)), np.zeros(n)
-            h_ff[np.ix_(cols, cols)] = hessian[:m, :m]
-            rhs[cols] = np.asarray(eta, float).reshape(-1)[:m]
-    else:
-        h_ff, rhs = np.zeros((n, n)), np.zeros(n)
-    if system is not None:
-        keys, h_sys, eta_sys = system
-        keys = [int(k) for k in keys]
-        sys_dims = [int(zero.at(k).shape[0]) for k in keys]
-        both = [k for k in keys if k in free_set]
-        cols, sys_cols = _columns(free, dims, both), _columns(keys, sys_dims, both)
-        h_ff[np.ix_(cols, cols)] += h_sys[np.ix_(sys_cols, sys_cols)]
-        rhs[cols] += eta_sys[sys_cols]
-    h_ff = h_ff + damping * np.eye(n)
-    try:
-        delta = np.linalg.solve(h_ff, rhs)
-    except np.linalg.LinAlgError:
-        delta = np.linalg.lstsq(h_ff, rhs, rcond=None)[0]
-    offset = 0
-    for key, d in zip(free, dims):
-        step.insert(key, delta[offset:offset + d])
-        offset += d
-    return values.retract(step)
-
-
-def _columns(keys: list[int], dims: list[int], subset: list[int]) -> np.ndarray:
-    """The column indices of the keys ``subset`` (in that order) in a system over ``keys`` (dimensions
-    ``dims``)."""
-    starts = dict(zip(keys, np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(int)))
-    width = dict(zip(keys, dims))
-    if not subset:
-        return np.zeros(0, dtype=np.int64)
-    return np.concatenate([np.arange(starts[k], starts[k] + width[k]) for k in subset])
 
 
 @dataclass
@@ -495,7 +349,7 @@ class IncrementalTrack:
         if system is not None and (self.config.presolve_method != "gn" or self.config.presolve_iterations != 1):
             raise ValueError("a presolve with a precomputed system takes one Gauss-Newton iteration")
         if self.config.presolve_method == "lm":
-            local, _, _ = local_lm(factors, local, free, max_iterations=self.config.presolve_iterations)
+            local, _ = python_lm(factors, local, local_config(self.config.presolve_iterations), free_keys=free)
         elif self.config.presolve_method == "gn":
             for _ in range(self.config.presolve_iterations):
                 local = gauss_newton_step(factors, local, free, system=system)
@@ -526,8 +380,6 @@ class IncrementalTrack:
         """Smooth the whole track (``config.finalize``): batch LM from the iSAM2 estimate, or extra forced
         iSAM2 updates (shape not held) until the error stops decreasing."""
         if self.config.finalize == "lm":
-            from pedx_graph.solvers.lm import python_lm
-
             t0 = time.perf_counter()
             values, report = python_lm(self.factors, self.isam.calculateBestEstimate(), solver_config)
             self.updates.append(UpdateStats(seconds=time.perf_counter() - t0, relinearized=-1,
@@ -550,64 +402,3 @@ class IncrementalTrack:
         self.finalized = True
         self.final_values = self.isam.calculateBestEstimate()
         return self.final_values
-
-
-@dataclass
-class IsamReport:
-    """What :func:`isam_solve` did."""
-
-    initial_error: float
-    final_error: float
-    update_seconds: list[float]
-    """Wall time of each per-frame update (the streaming latency)."""
-    finalize_seconds: float
-    finalize_updates: int
-    seconds: float
-
-
-def frame_factor_groups(problem) -> list[gtsam.NonlinearFactorGraph]:
-    """The factors of ``problem`` grouped by frame (track-level factors, the shape prior, go to frame 0)."""
-    groups = [gtsam.NonlinearFactorGraph() for _ in problem.keys]
-    for j, frame in enumerate(problem.factor_frames):
-        groups[max(frame, 0)].add(problem.graph.at(j))
-    return groups
-
-
-def initial_frame_values(problem, i: int, previous: tuple | None) -> gtsam.Values:
-    """Initial values of frame ``i``'s new variables: translation from the problem's (LiDAR) initialisation,
-    root and body pose carried over from the previous frame's current estimate (``previous``)."""
-    keys = problem.keys[i]
-    values = gtsam.Values()
-    if previous is None:
-        values.insert(keys.root, problem.initial.atRot3(keys.root))
-        values.insert(keys.body_pose, np.asarray(problem.initial.atVector(keys.body_pose)))
-    else:
-        rot, _, body_pose, _ = previous
-        values.insert(keys.root, gtsam.Rot3(rot))
-        values.insert(keys.body_pose, np.asarray(body_pose))
-    values.insert(keys.trans, np.asarray(problem.initial.atVector(keys.trans)))
-    if i == 0:
-        values.insert(keys.betas, np.asarray(problem.initial.atVector(keys.betas)))
-    return values
-
-
-def isam_solve(problem, config: IsamConfig | None = None, solver_config=None
-               ) -> tuple[gtsam.Values, IsamReport, IncrementalTrack]:
-    """Solve a batch problem with iSAM2, one frame per update, then finalise; same factors as batch LM."""
-    config = config or IsamConfig()
-    t0 = time.perf_counter()
-    track = IncrementalTrack.create(config, betas_key=problem.keys[0].betas)
-    previous = None
-    groups = frame_factor_groups(problem)
-    for i, keys in enumerate(problem.keys):
-        track.add_frame(keys, groups[i], initial_frame_values(problem, i, previous))
-        previous = track.frame_estimate(keys)
-    n_updates = len(track.updates)
-    t1 = time.perf_counter()
-    values = track.finalize(solver_config)
-    return values, IsamReport(initial_error=float(problem.graph.error(problem.initial)),
-                              final_error=float(problem.graph.error(values)),
-                              update_seconds=[u.seconds for u in track.updates[:n_updates]],
-                              finalize_seconds=time.perf_counter() - t1,
-                              finalize_updates=len(track.updates) - n_updates,
-                              seconds=time.perf_counter() - t0), track

@@ -11,7 +11,7 @@ from pedx_graph.data.types import Track
 from pedx_graph.graph.build import select_template_poses
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import FrameMeasurements, initialise_from_measurements
-from pedx_graph.solvers.isam import local_lm
+from pedx_graph.solvers.lm import local_config, python_lm
 from pedx_graph.solvers.stream.prediction import predicted_body_pose, predicted_init
 from pedx_graph.solvers.stream.state import ActiveTrack, FrameInit
 
@@ -82,7 +82,7 @@ def best_facing(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: F
     for turn in (0.0, np.pi):
         candidate = gtsam.Values(values)
         candidate.update(keys.root, gtsam.Rot3.Rz(turn).compose(values.atRot3(keys.root)))
-        solved, error, _ = local_lm(graph, candidate, list(candidate.keys()), max_iterations=iterations)
-        if best is None or error < best[1]:
-            best = (solved, error)
+        solved, report = python_lm(graph, candidate, local_config(iterations), free_keys=candidate.keys())
+        if best is None or report.final_error < best[1]:
+            best = (solved, report.final_error)
     return best[0]
