@@ -263,6 +263,45 @@ RULES: dict[str, Range | Choice] = {
     "DetectorNoiseConfig.polygon_shift_frac": NON_NEGATIVE,
     "DetectorNoiseConfig.polygon_vertex_noise_px": NON_NEGATIVE,
     "DetectorNoiseConfig.segment_depth_gate_m": NON_NEGATIVE,
+    # pedx_graph.detections.association.AssociationConfig, tracker.TrackerConfig, lidar_cut.LidarCutConfig
+    "AssociationConfig.min_confidence": FRACTION,
+    "AssociationConfig.min_shared_keypoints": Range(2.0, integer=True),
+    "AssociationConfig.duplicate_frac": NON_NEGATIVE,
+    "AssociationConfig.keypoint_sigma_px": POSITIVE,
+    "AssociationConfig.keypoint_sigma_frac": NON_NEGATIVE,
+    "AssociationConfig.size_sigma": POSITIVE,
+    "AssociationConfig.gate_sigmas": POSITIVE,
+    "AssociationConfig.min_depth_m": POSITIVE,
+    "AssociationConfig.max_depth_m": POSITIVE,
+    "AssociationConfig.merge_distance_m": NON_NEGATIVE,
+    "AssociationConfig.merge_min_shared_frames": COUNT,
+    "AssociationConfig.min_distance_m": NON_NEGATIVE,
+    "AssociationConfig.max_distance_m": Range(0.0, allow_inf=True),
+    "AssociationConfig.lidar_min_points": COUNT,
+    "TrackerConfig.frame_interval_s": POSITIVE,
+    "TrackerConfig.keypoint_sigma_px": POSITIVE,
+    "TrackerConfig.motion_frac": NON_NEGATIVE,
+    "TrackerConfig.lateral_sigma_m": POSITIVE,
+    "TrackerConfig.accel_sigma_mps": NON_NEGATIVE,
+    "TrackerConfig.max_speed_mps": POSITIVE,
+    "TrackerConfig.gate_sigmas": POSITIVE,
+    "TrackerConfig.min_box_iou": FRACTION,
+    "TrackerConfig.velocity_smoothing": Range(0.0, 1.0, lo_open=True),
+    "TrackerConfig.birth_min_score": FRACTION,
+    "TrackerConfig.confirm_hits": COUNT,
+    "TrackerConfig.tentative_max_misses": COUNT,
+    "TrackerConfig.max_misses": COUNT,
+    "TrackerConfig.min_track_frames": COUNT,
+    "TrackerConfig.min_mean_score": FRACTION,
+    "LidarCutConfig.dilate_frac": NON_NEGATIVE,
+    "LidarCutConfig.dilate_px": NON_NEGATIVE,
+    "LidarCutConfig.min_keypoints": Range(3.0, integer=True),
+    "LidarCutConfig.gate_front_m": POSITIVE,
+    "LidarCutConfig.gate_back_m": POSITIVE,
+    "LidarCutConfig.cluster_gap_m": POSITIVE,
+    "LidarCutConfig.min_cluster_points": COUNT,
+    "LidarCutConfig.ground_clearance_m": ANY,
+    "LidarCutConfig.min_depth_m": NON_NEGATIVE,
     # pedx_graph.priors.train.TrainConfig
     "TrainConfig.fps": POSITIVE,
     "TrainConfig.pose_fps": POSITIVE,
@@ -283,11 +322,13 @@ RULES: dict[str, Range | Choice] = {
 CROSS_CHECKS: list[tuple[str, Callable[[Any], bool], str]] = [
     ("CalibrationLimits", lambda c: c.min_fov_deg < c.max_fov_deg, "'min_fov_deg' < 'max_fov_deg'"),
     ("CalibrationLimits", lambda c: c.min_baseline_m < c.max_baseline_m, "'min_baseline_m' < 'max_baseline_m'"),
+    ("AssociationConfig", lambda c: c.min_depth_m < c.max_depth_m, "'min_depth_m' < 'max_depth_m'"),
+    ("AssociationConfig", lambda c: c.min_distance_m < c.max_distance_m, "'min_distance_m' < 'max_distance_m'"),
 ]
 
 #: Config classes whose fields are not in :data:`RULES` because the class checks itself (``validate``).
 SELF_CHECKED = ("SimConfig", "SceneConfig", "StereoPairConfig", "CamerasConfig", "LidarConfig", "LabelConfig",
-                "MotionConfig", "OutputFrameConfig")
+                "MotionConfig", "OutputFrameConfig", "DetectorOutputConfig")
 
 
 class _Problem(Exception):

@@ -87,30 +87,37 @@ def instance_height_px(keypoints: np.ndarray, polygon: np.ndarray | None) -> flo
 
 def corrupt_keypoints(uv0: np.ndarray, labelled: np.ndarray, visible: np.ndarray, height_px: float,
                       box: tuple[np.ndarray, np.ndarray], config: DetectorNoiseConfig,
-                      rng: np.random.Generator, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+                      rng: np.random.Generator, image_size: tuple[int, int],
+                      swap_index: tuple[tuple[int, int], ...] | None = None,
+                      sigma_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Detector keypoints of one instance in one image.
 
-    ``uv0`` (18, 2) noise-free (or clean) pixels, ``labelled`` / ``visible`` (18,) bool, ``box`` (lo, hi)
-    the instance's pixel box.  Returns ((18, 2) pixels with NaN = not detected, (18,) visible flags).
+    ``uv0`` (K, 2) noise-free (or clean) pixels, ``labelled`` / ``visible`` (K,) bool, ``box`` (lo, hi)
+    the instance's pixel box.  Returns ((K, 2) pixels with NaN = not detected, (K,) visible flags).
+    K = 18 (PEDX_KEYPOINTS) unless another keypoint set is given by ``swap_index`` (its left/right index
+    pairs) and ``sigma_scale`` ((K,) factor on each keypoint's noise; None = 1).
     Draws are made for every joint in a fixed order whatever the flags (reproducible from the seed).
     """
-    n = len(PEDX_KEYPOINTS)
+    n = len(uv0)
+    if swap_index is None:
+        swap_index = tuple((_IDX[a], _IDX[b]) for a, b in SWAP_PAIRS)
     unit = rng.normal(size=(n, 2))
     miss_draw = rng.random(n)
-    swap_draw = rng.random(len(SWAP_PAIRS))
+    swap_draw = rng.random(len(swap_index))
     outlier_draw = rng.random(n)
     outlier_pos = rng.random((n, 2))
     sigma = np.hypot(config.sigma_px, config.sigma_height_frac * height_px)
     sigmas = np.where(visible, sigma, sigma * config.occluded_sigma_factor)
+    if sigma_scale is not None:
+        sigmas = sigmas * np.asarray(sigma_scale, dtype=float)
     uv = np.asarray(uv0, dtype=float) + sigmas[:, None] * unit
     lo, hi = box
     outlier = outlier_draw < config.outlier_prob
     uv[outlier] = lo + outlier_pos[outlier] * (hi - lo)
     vis = np.asarray(visible, dtype=bool).copy()
     lab = np.asarray(labelled, dtype=bool).copy()
-    for (a, b), draw in zip(SWAP_PAIRS, swap_draw):
+    for (ia, ib), draw in zip(swap_index, swap_draw):
         if draw < config.swap_prob:
-            ia, ib = _IDX[a], _IDX[b]
             uv[[ia, ib]] = uv[[ib, ia]]
             vis[[ia, ib]] = vis[[ib, ia]]
             lab[[ia, ib]] = lab[[ib, ia]]

@@ -29,6 +29,9 @@ def register(subparsers) -> None:
     p.add_argument("--config", default=None,
                    help="YAML read on top of the rig preset (e.g. configs/sim_default.yaml, configs/sim_pedx.yaml)")
     p.add_argument("--body-model", default=None, help="SMPL-format .npz (default: the package's open model)")
+    p.add_argument("--detections", default=None, metavar="FORMATS",
+                   help="also write detector files on distorted raw images, comma-separated: openpose_body25, "
+                        "openpose_body25b, openpose_coco18, coco (config: detections.formats)")
     p.add_argument("--workers", type=int, default=1, help="processes over frames (same files for any count)")
     p.add_argument("--overwrite", action="store_true", help="replace a simulation already in OUT")
     p.add_argument("--images", action="store_true",
@@ -55,6 +58,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
         config.motion.split = args.split
     if args.body_model is not None:
         config.body_model = args.body_model
+    if args.detections is not None:
+        config.detections.formats = tuple(f.strip() for f in args.detections.split(",") if f.strip())
     if args.images:
         config.images.enabled = True
     if args.image_scale is not None:

@@ -31,6 +31,7 @@ import numpy as np
 
 from pedx_graph.config import ConfigError, from_dict, read_yaml, to_dict
 from pedx_graph.sim.render import ImageConfig
+from pedx_graph.eval.detector_noise import DetectorNoiseConfig
 
 #: Stereo pair names of the release: forward and left-facing pairs.
 FORWARD_PAIR = "ylw79D0-red707B"
@@ -296,6 +297,62 @@ class OutputFrameConfig:
         return output_T_sim
 
 
+#: Detector output formats the simulator can write (``DetectorOutputConfig.formats``) -> keypoint set.
+DETECTOR_FORMATS: dict[str, str] = {"openpose_body25": "body25", "openpose_body25b": "body25b",
+                                    "openpose_coco18": "coco18", "coco": "coco17"}
+
+
+@dataclass
+class DetectorOutputConfig:
+    """Detector files written beside the labels (:mod:`pedx_graph.sim.detections`): raw distorted images, no ids."""
+
+    formats: tuple[str, ...] = ()
+    """Formats to write (keys of :data:`DETECTOR_FORMATS`); empty = none (and undistorted calibration files)."""
+    keypoint_noise: DetectorNoiseConfig = field(default_factory=lambda: DetectorNoiseConfig(use_truth=True))
+    """Per-keypoint noise, misses, left/right swaps and outliers (the detector model of
+    :mod:`pedx_graph.eval.detector_noise`; its polygon and segment fields are not used here)."""
+    person_miss_prob: float = 0.03
+    """Probability that a detectable person is not detected at all in one image."""
+    occluded_miss_prob: float = 0.5
+    """Extra miss probability times the fraction of the person's in-image keypoints that are occluded."""
+    min_height_px: float = 40.0
+    """People whose keypoints span fewer pixels vertically are never detected."""
+    min_visible_keypoints: int = 4
+    """People with fewer visible in-image keypoints are never detected."""
+    clutter_per_image: float = 0.3
+    """Mean number (Poisson) of false person detections at random places per image."""
+    fragment_prob: float = 0.05
+    """Probability that a detected person also yields a second, partial detection (its legs or its upper
+    body, slightly off): the bystander-like clutter of bottom-up detectors."""
+    confidence_visible: float = 0.9
+    """Confidence of a visible keypoint detected exactly on a large person."""
+    confidence_occluded: float = 0.45
+    """Confidence of an occluded keypoint detected exactly on a large person."""
+    confidence_error_sigmas: float = 2.0
+    """The confidence falls by ``exp(-e^2 / 2)``, ``e`` = the keypoint's error in units of this many of its
+    own noise sigmas (a keypoint far off gets a low confidence)."""
+    confidence_half_height_px: float = 30.0
+    """Confidence is scaled by ``h / (h + this)``, ``h`` the person's image height in pixels."""
+    confidence_noise: float = 0.06
+    """Std. dev. of the noise added to every confidence."""
+    distortion_k1: tuple[float, float] = (-0.12, -0.03)
+    """Range of the first radial coefficient ``k1`` drawn per camera (barrel distortion)."""
+    distortion_k2: tuple[float, float] = (0.0, 0.04)
+    """Range of ``k2`` drawn per camera."""
+    distortion_tangential: float = 5e-4
+    """``p1``, ``p2`` drawn uniformly within +- this per camera."""
+    raw_focal_jitter: float = 0.02
+    """The raw focal lengths differ from the rectified one by up to this fraction (per camera and axis)."""
+    raw_principal_jitter_px: float = 12.0
+    """The raw principal point differs from the rectified one by up to this many pixels per axis."""
+
+    def __post_init__(self) -> None:
+        for name in ("formats", "distortion_k1", "distortion_k2"):
+            value = getattr(self, name)
+            if isinstance(value, list):
+                setattr(self, name, tuple(value))
+
+
 #: Named rig presets (:func:`rig_config`).
 RIGS = ("default", "pedx")
 
@@ -323,6 +380,8 @@ class SimConfig:
     """Body model ``.npz`` path; None = the package's default open model."""
     images: ImageConfig = field(default_factory=ImageConfig)
     """Rendered camera images under ``images/`` (:mod:`pedx_graph.sim.render`), off by default."""
+    detections: DetectorOutputConfig = field(default_factory=DetectorOutputConfig)
+    """Detector files on distorted raw images (OpenPose / COCO), off by default."""
 
     def validate(self, source: str = "<config>") -> "SimConfig":
         """Check ranges; raise :class:`ConfigError` naming the field. Returns self."""
@@ -352,6 +411,28 @@ class SimConfig:
             ("output_frame.output_up", _unit_ok(self.output_frame.output_up)),
             ("output_frame.output_forward", _unit_ok(self.output_frame.output_forward)
              and _unit_ok(np.cross(self.output_frame.output_up, self.output_frame.output_forward))),
+        ]
+        det = self.detections
+        checks += [
+            ("detections.formats", all(f in DETECTOR_FORMATS for f in det.formats)),
+            ("detections.person_miss_prob", 0 <= det.person_miss_prob <= 1),
+            ("detections.occluded_miss_prob", 0 <= det.occluded_miss_prob <= 1),
+            ("detections.min_height_px", det.min_height_px >= 0),
+            ("detections.min_visible_keypoints", det.min_visible_keypoints >= 1),
+            ("detections.clutter_per_image", 0 <= det.clutter_per_image <= 100),
+            ("detections.fragment_prob", 0 <= det.fragment_prob <= 1),
+            ("detections.confidence_visible", 0 < det.confidence_visible <= 1),
+            ("detections.confidence_occluded", 0 < det.confidence_occluded <= 1),
+            ("detections.confidence_error_sigmas", det.confidence_error_sigmas > 0),
+            ("detections.confidence_half_height_px", det.confidence_half_height_px >= 0),
+            ("detections.confidence_noise", 0 <= det.confidence_noise <= 1),
+            ("detections.distortion_k1", len(det.distortion_k1) == 2 and -0.5 <= min(det.distortion_k1)
+             and max(det.distortion_k1) <= 0.5 and det.distortion_k1[0] <= det.distortion_k1[1]),
+            ("detections.distortion_k2", len(det.distortion_k2) == 2 and -0.5 <= min(det.distortion_k2)
+             and max(det.distortion_k2) <= 0.5 and det.distortion_k2[0] <= det.distortion_k2[1]),
+            ("detections.distortion_tangential", 0 <= det.distortion_tangential <= 0.01),
+            ("detections.raw_focal_jitter", 0 <= det.raw_focal_jitter <= 0.2),
+            ("detections.raw_principal_jitter_px", 0 <= det.raw_principal_jitter_px <= 500),
         ]
         for slot, pair in (("forward", self.cameras.forward), ("left", self.cameras.left)):
             checks.append((f"cameras.{slot}.focal_px", pair.focal_px > 0))

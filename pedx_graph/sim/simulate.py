@@ -220,6 +220,7 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
                     "scene_true_range": sweep.true_range_m.astype(np.float32)}
     truth_people = {}
     projection = {}
+    labelled_tids: set[str] = set()
     for person in present:
         tid = person.tracking_id
         body = bodies[tid]
@@ -255,6 +256,8 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
                                            view=labels.make_view(uv, flags, vl.polygon), frame_id=frame))
                 counts["labels_2d"] += 1
         record["labelled"] = bool(labelled_views)
+        if labelled_views:
+            labelled_tids.add(tid)
         if labelled_views:
             # Segment: points inside the polygon of every left image the person is labelled in (with
             # segment_cameras == "any" and no left image: of every right image).
@@ -292,12 +295,17 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
         write_frame_images(out, seq, frame, [v for c in calibs.values() for v in cameras.camera_views(c)],
                            ctx.scene.ground_z, meshes, {o.object_id: o.kind for o in ctx.scene.objects},
                            config.images)
+    detections = None
+    if config.detections.formats:
+        from pedx_graph.sim.detections import frame_detections
+
+        detections = frame_detections(ctx, k, ray_scene, bodies, present, labelled_tids)
     truth_dir = out / "truth" / seq
     atomic_write_bytes(truth_dir / f"{seq}_{frame:07d}.npz", npz_bytes(truth_arrays))
     write_json_compact(truth_dir / f"{seq}_{frame:07d}.json",
                        {"frame": frame, "time_s": time_s, "n_lidar_points": len(scene_points),
                         "n_dropped": sweep.n_dropped, "people": truth_people})
-    return {**counts, "instances": instances}
+    return {**counts, "instances": instances, "detections": detections}
 
 
 def read_truth_frame(out_dir: str | Path, frame: int, sequence: str | None = None) -> dict:
@@ -382,7 +390,8 @@ def instance_summary(instances: list, calibs: dict, label_cameras: dict) -> dict
 
 
 #: What :func:`simulate` writes directly under ``out_dir`` (removed first with ``overwrite=True``).
-OUTPUT_ENTRIES = ("calib", "labels", "pointclouds", "timestamps", "truth", "sim_config.yaml", "summary.json")
+OUTPUT_ENTRIES = ("calib", "labels", "pointclouds", "timestamps", "truth", "sim_config.yaml", "summary.json",
+                  "detections")
 
 
 def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0, body_model=None,
@@ -417,6 +426,10 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     scene = build_scene(config, scene_rng)
     output_T_sim = config.output_frame.output_T_sim()
     calibs: dict[str, StereoCalibration] = cameras.rig_calibrations(config)    # sim frame
+    if config.detections.formats:              # raw distorted images for the detector files (K_0x, D_0x)
+        from pedx_graph.sim.detections import raw_cameras
+
+        calibs = raw_cameras(calibs, config.detections, seed)
     for calib in calibs.values():
         write_calibration(out, cameras.output_calibration(calib, output_T_sim))
     people = plan_pedestrians(config, scene, body_model, ped_rng, clip_source)
@@ -442,6 +455,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
 
     counts = dict.fromkeys(COUNT_KEYS, 0)
     instances = []
+    detections: dict[str, list] = {}
     frame_seconds = {sc.first_frame + k: k / sc.fps for k in range(sc.n_frames)}
     workers = max(1, min(int(workers), sc.n_frames))
     pool = None
@@ -459,6 +473,8 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
             results = tqdm(results, total=sc.n_frames, desc="simulate", unit="frame", disable=None)  # off unless a TTY
         for frame_counts in results:
             instances.extend(frame_counts.pop("instances"))
+            for fmt, items in (frame_counts.pop("detections") or {}).items():
+                detections.setdefault(fmt, []).extend(items)
             for key, value in frame_counts.items():
                 counts[key] += value
     finally:
@@ -486,6 +502,11 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
                   for n, c in calibs.items()},
     }
     atomic_write_json(out / "truth" / "meta.json", meta)
+    detection_counts = None
+    if config.detections.formats:
+        from pedx_graph.sim.detections import write_sequence_files
+
+        detection_counts = write_sequence_files(out, config, calibs, detections)
     atomic_write_text(out / "sim_config.yaml",
                       f"# seed: {int(seed)}\n" + yaml.safe_dump(to_dict(config), sort_keys=False))
     summary = {"seed": int(seed), "sequence": seq, "rig": config.rig, "frames": sc.n_frames,
@@ -493,6 +514,8 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
                "segment_precision": (counts["segment_points_on_person"] / counts["segment_points"]
                                      if counts["segment_points"] else None),
                **instance_summary(instances, calibs, label_cameras)}
+    if detection_counts is not None:
+        summary["detections"] = detection_counts
     atomic_write_json(out / "summary.json", summary)
     summary["seconds"] = time.perf_counter() - t_start
     return summary

@@ -1,0 +1,101 @@
+"""Score associated tracks against the simulator's detector truth: recovered tracks, identity switches, false tracks.
+
+The simulator writes, per detector format, what every written detection is (``truth/detections/<seq>/<fmt>.json``,
+:mod:`pedx_graph.sim.detections`): a person (its tracking id, labelled or a bystander), a fragment of a person,
+or clutter.  :func:`detection_truth` finds the record of a read detection from its ``source`` (OpenPose:
+``<file>#people[i]`` = the i-th person of that image; COCO results: ``<file>#[n]`` = the n-th result).
+:func:`score_tracks` then counts, over the output of :func:`pedx_graph.detections.association.associate`:
+
+* each output track's *owner*: the person contributing most of its detections (``None`` when clutter or
+  fragments are the majority) and its purity (owner's share of the detections);
+* **false tracks**: owner None, or purity below ``min_purity`` (a track made of noise or of several people);
+* **bystander tracks**: owned by a person never labelled in the sequence (a real person outside the labelled
+  set: reported, not false);
+* **recovered**: labelled people (at least ``min_frames`` labelled frames with distance in the bin) owning at
+  least one track;
+* **identity switches**: per labelled person, over its frames in time order, the number of times the track
+  holding its detections changes (a frame whose detections sit in two tracks counts the change once) — plus
+  **fragmentation**: the number of distinct tracks beyond the first.
+"""
+from __future__ import annotations
+
+import json
+import re
+from collections import Counter, defaultdict
+from pathlib import Path
+
+_OPENPOSE_SOURCE = re.compile(r"#people\[(\d+)\]$")
+_COCO_SOURCE = re.compile(r"#\[(\d+)\]$")
+
+
+def read_detection_truth(root: str | Path, sequence: str, fmt: str) -> list[dict]:
+    """The truth records of one format (``truth/detections/<seq>/<fmt>.json``)."""
+    return json.loads((Path(root) / "truth" / "detections" / sequence / f"{fmt}.json").read_text())
+
+
+def detection_truth(det, records: list[dict], index: dict | None = None) -> dict:
+    """The truth record of a read detection (module docstring); KeyError when it has none."""
+    match = _OPENPOSE_SOURCE.search(det.source)
+    if match:
+        if index is None:
+            index = {(r["camera"], r["frame"], r["index"]): r for r in records}
+        return index[(det.camera, det.frame, int(match.group(1)))]
+    match = _COCO_SOURCE.search(det.source)
+    if match:
+        return records[int(match.group(1))]
+    raise KeyError(f"{det.source}: no truth index in the source")
+
+
+def _who(record: dict) -> str | None:
+    return record["tracking_id"] if record["kind"] == "person" else None
+
+
+def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int, float]],
+                 min_purity: float = 0.5, min_frames: int = 3) -> dict:
+    """Counts of :func:`score_tracks` (module docstring).
+
+    ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack` s; ``records``: the format's truth
+    records; ``labelled``: tracking id -> {frame: horizontal distance (m)} of the labelled instances.
+    Returns ``{"tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people",
+    "id_switches", "fragmentations", "owners": {track id: owner}}``.
+    """
+    index = {(r["camera"], r["frame"], r["index"]): r for r in records}
+    owners, false, bystander = {}, 0, 0
+    per_person_frames: dict[str, dict[int, set]] = defaultdict(lambda: defaultdict(set))
+    for track in tracks:
+        votes = Counter()
+        for fr in track.frames:
+            for det in fr.detections.values():
+                who = _who(detection_truth(det, records, index))
+                votes[who] += 1
+                if who is not None:
+                    per_person_frames[who][fr.frame].add(track.track_id)
+        owner, count = max(votes.items(), key=lambda kv: (kv[1], kv[0] is not None, str(kv[0])))
+        purity = count / max(sum(votes.values()), 1)
+        if owner is None or purity < min_purity:
+            false += 1
+            owners[track.track_id] = None
+            continue
+        owners[track.track_id] = owner
+        if owner not in labelled:
+            bystander += 1
+    switches, fragmentations, recovered, eligible = 0, 0, 0, 0
+    for tid, frames in labelled.items():
+        if len(frames) < min_frames:
+            continue
+        eligible += 1
+        if tid in owners.values():
+            recovered += 1
+        seen = per_person_frames.get(tid, {})
+        previous = None
+        used = set()
+        for frame in sorted(seen):
+            ids = seen[frame]
+            used |= ids
+            if previous is not None and previous not in ids:
+                switches += 1
+            previous = previous if previous in ids else min(ids)
+        fragmentations += max(len(used) - 1, 0)
+    return {"tracks": len(tracks), "false_tracks": false, "bystander_tracks": bystander,
+            "recovered": recovered, "labelled_people": eligible, "id_switches": switches,
+            "fragmentations": fragmentations, "owners": owners}

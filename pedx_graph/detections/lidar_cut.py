@@ -1,0 +1,209 @@
+"""LiDAR for detections: cut each detected person's points out of the frame's full scene cloud.
+
+Detector output has no per-person LiDAR segment, only the scene clouds (``pointclouds/<seq>/<seq>_<frame>.ply``).
+The labelling path cuts a segment with the annotator's polygon (:func:`pedx_graph.sim.labels.
+segment_indices_from_projection`: scene points in front of the camera projecting inside the polygon); here the
+polygon is the detection's *hull*:
+
+* the convex hull (OpenCV) of the detection's rectified keypoints, grown about its centroid by
+  ``dilate_frac`` of the person's image height plus ``dilate_px`` (keypoints are joints and surface points;
+  the silhouette reaches past them: head top, feet, arms' width);
+* **depth gate**: with a depth ``Z`` for the person (stereo, along the rectified optical axis) only points with
+  ``Z - gate_front_m <= z <= Z + gate_back_m`` are kept; without one, the nearest cluster of the cut along
+  the ray (depths sorted, split at gaps over ``cluster_gap_m``, the first with ``min_cluster_points``);
+* **ground**: points less than ``ground_clearance_m`` above the ground plane of the sequence's
+  :class:`~pedx_graph.data.ground.GroundFrame` are removed (kept when its ground height is unknown);
+* non-finite points (the release's ``inf`` dropouts) never enter.
+
+:func:`write_track_segments` writes the cuts of :class:`~pedx_graph.detections.association.DetectedTrack` s in
+the release layout (``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply``), one file per track and frame
+with points (union over the images that saw the person: the left images, else the right ones).
+"""
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+import cv2
+import numpy as np
+
+from pedx_graph.data.ground import GroundFrame
+from pedx_graph.data.types import StereoCalibration
+from pedx_graph.sim.labels import segment_indices_from_projection
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LidarCutConfig:
+    """How a detection's LiDAR points are cut from the scene cloud (pixels, metres)."""
+
+    dilate_frac: float = 0.08
+    """The keypoint hull grows by this fraction of the person's image height (keypoints lie inside the
+    silhouette)."""
+    dilate_px: float = 4.0
+    """... plus this many pixels."""
+    min_keypoints: int = 3
+    """A detection with fewer usable keypoints is not cut."""
+    gate_front_m: float = 0.6
+    """Points nearer than the person's depth by more than this are dropped, metres (half a body's depth
+    plus stereo depth noise)."""
+    gate_back_m: float = 0.8
+    """Points farther than the person's depth by more than this are dropped, metres (background seen past
+    the silhouette)."""
+    cluster_gap_m: float = 0.5
+    """Without a depth: a gap this large between consecutive point depths separates two clusters, metres."""
+    min_cluster_points: int = 5
+    """Without a depth: the nearest cluster with at least this many points is the person."""
+    ground_clearance_m: float = 0.08
+    """Points lower than this above the ground plane are removed (ground at the feet), metres."""
+    min_depth_m: float = 0.5
+    """Only points at least this far in front of the camera are projected, metres."""
+
+
+def hull_polygon(rect_uv: np.ndarray, config: LidarCutConfig) -> np.ndarray | None:
+    """(H, 2) dilated convex hull of the present keypoints of (K, 2) rectified pixels, or None when fewer
+    than ``min_keypoints``."""
+    present = rect_uv[np.all(np.isfinite(rect_uv), axis=1)]
+    if len(present) < max(config.min_keypoints, 3):
+        return None
+    hull = cv2.convexHull(present.astype(np.float32)).reshape(-1, 2).astype(float)
+    height = float(np.ptp(present[:, 1]))
+    centre = hull.mean(axis=0)
+    offset = hull - centre
+    norm = np.maximum(np.linalg.norm(offset, axis=1, keepdims=True), 1e-9)
+    grown = hull + offset / norm * (config.dilate_frac * height + config.dilate_px)
+    if len(hull) < 3:                               # collinear keypoints: a thin box around the segment
+        lo, hi = present.min(axis=0), present.max(axis=0)
+        pad = config.dilate_frac * max(height, float(np.ptp(present[:, 0]))) + config.dilate_px
+        grown = np.array([[lo[0] - pad, lo[1] - pad], [hi[0] + pad, lo[1] - pad], [hi[0] + pad, hi[1] + pad],
+                          [lo[0] - pad, hi[1] + pad]])
+    return grown
+
+
+def _nearest_cluster(depth: np.ndarray, config: LidarCutConfig) -> np.ndarray:
+    """Bool mask of the nearest depth cluster with enough points (all False when none)."""
+    order = np.argsort(depth, kind="stable")
+    sorted_depth = depth[order]
+    breaks = np.flatnonzero(np.diff(sorted_depth) > config.cluster_gap_m) + 1
+    keep = np.zeros(len(depth), dtype=bool)
+    for chunk in np.split(np.arange(len(depth)), breaks):
+        if len(chunk) >= config.min_cluster_points:
+            keep[order[chunk]] = True
+            break
+    return keep
+
+
+def cut_person(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_points: np.ndarray,
+               ground: GroundFrame, config: LidarCutConfig | None = None, depth_m: float | None = None,
+               projection: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(M, 3) world points of one detected person (module docstring).
+
+    ``rect_uv``: (K, 2) rectified pixels of the detection in the pair's ``side`` (``"left"``/``"right"``)
+    image, NaN where absent; ``world_points``: (N, 3) scene cloud (world frame, may hold ``inf``);
+    ``depth_m``: the person's depth along the rectified optical axis (None: nearest cluster);
+    ``projection``: precomputed ``(uv (N, 2), depth (N,))`` of ``world_points`` in that image.
+    """
+    config = config or LidarCutConfig()
+    return world_points[cut_indices(rect_uv, calib, side, world_points, ground, config, depth_m, projection)]
+
+
+def project_cloud(calib: StereoCalibration, side: str, world_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(uv (N, 2), depth (N,))`` of world points in the pair's rectified ``side`` image (non-finite points get
+    NaN pixels and depth)."""
+    world_points = np.asarray(world_points, dtype=float)
+    finite = np.all(np.isfinite(world_points), axis=1)
+    uv = np.full((len(world_points), 2), np.nan)
+    depth = np.full(len(world_points), np.nan)
+    if finite.any():
+        rect_p = calib.world_to_rect(world_points[finite])
+        P = calib.left_P_rect if side == "left" else calib.right_P_rect
+        hom = rect_p @ P[:, :3].T + P[:, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv[finite] = hom[:, :2] / hom[:, 2:3]
+        depth[finite] = rect_p[:, 2]
+    return uv, depth
+
+
+def cut_indices(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_points: np.ndarray,
+                ground: GroundFrame, config: LidarCutConfig, depth_m: float | None = None,
+                projection: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Sorted row indices into ``world_points`` of :func:`cut_person`'s points."""
+    polygon = hull_polygon(np.asarray(rect_uv, dtype=float), config)
+    if polygon is None or len(world_points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    uv, depth = projection if projection is not None else project_cloud(calib, side, world_points)
+    safe_depth = np.where(np.isfinite(depth), depth, -1.0)
+    index = segment_indices_from_projection(np.where(np.isfinite(uv), uv, -1e9), safe_depth, polygon,
+                                            config.min_depth_m)
+    if len(index) == 0:
+        return index
+    if ground.ground_offset_m is not None:
+        index = index[ground.height(world_points[index]) >= config.ground_clearance_m]
+    if len(index) == 0:
+        return index
+    z = depth[index]
+    if depth_m is not None and np.isfinite(depth_m):
+        index = index[(z >= depth_m - config.gate_front_m) & (z <= depth_m + config.gate_back_m)]
+    else:
+        index = index[_nearest_cluster(z, config)]
+    return np.sort(index)
+
+
+def track_frame_points(frame, calibrations: Mapping[str, StereoCalibration], world_points: np.ndarray,
+                       ground: GroundFrame, config: LidarCutConfig | None = None,
+                       rectify: Callable | None = None) -> np.ndarray:
+    """(M, 3) points of one :class:`~pedx_graph.detections.association.DetectedTrackFrame`: the union of the
+    cuts of its left-image detections (else its right-image ones), gated around its centre's depth."""
+    from pedx_graph.detections.undistort import find_camera, rectified
+
+    config = config or LidarCutConfig()
+    rectify = rectify or rectified
+    views = []
+    for camera, det in sorted(frame.detections.items()):
+        calib, side = find_camera(calibrations, camera)
+        views.append((side, camera, calib, det))
+    chosen = [v for v in views if v[0] == "left"] or views
+    index = []
+    for side, _, calib, det in chosen:
+        uv = rectify(det, calibrations)
+        uv = np.where((np.asarray(det.confidence) > 0)[:, None], uv, np.nan)
+        depth = None
+        if frame.world_p is not None:
+            depth = float(calib.world_to_rect(np.asarray(frame.world_p, dtype=float))[2])
+        index.append(cut_indices(uv, calib, side, world_points, ground, config, depth))
+    if not index:
+        return np.zeros((0, 3))
+    return world_points[np.unique(np.concatenate(index))]
+
+
+def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
+                         calibrations: Mapping[str, StereoCalibration], ground: GroundFrame,
+                         read_cloud: Callable[[int], np.ndarray], config: LidarCutConfig | None = None) -> dict:
+    """Write every track's per-frame cut as ``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply`` under
+    ``root``; ``read_cloud(frame)`` gives the frame's (N, 3) scene (an exception: the frame is skipped with a
+    warning).  Returns counts (``segments``, ``points``, ``frames_without_cloud``)."""
+    from pedx_graph.data.writer import write_segment
+
+    config = config or LidarCutConfig()
+    by_frame: dict[int, list] = {}
+    for track in tracks:
+        for fr in track.frames:
+            by_frame.setdefault(fr.frame, []).append((track.track_id, fr))
+    counts = {"segments": 0, "points": 0, "frames_without_cloud": 0}
+    for frame in sorted(by_frame):
+        try:
+            cloud = np.asarray(read_cloud(frame), dtype=float).reshape(-1, 3)
+        except Exception as exc:  # noqa: BLE001 - a missing or bad cloud costs this frame its segments only
+            log.warning("%s frame %d: no scene cloud (%s); no segments cut", sequence, frame, exc)
+            counts["frames_without_cloud"] += 1
+            continue
+        for track_id, fr in by_frame[frame]:
+            points = track_frame_points(fr, calibrations, cloud, ground, config)
+            if len(points):
+                write_segment(root, sequence, frame, track_id, points)
+                counts["segments"] += 1
+                counts["points"] += int(len(points))
+    return counts
