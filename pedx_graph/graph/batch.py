@@ -90,6 +90,9 @@ class BatchedBodyModel:
         self.frame_arrays: dict[str, np.ndarray] = {}
         """The states of the last prefetch stacked over frames: ``pose`` (T, 72), ``betas`` (T, B), ``trans``
         (T, 3), ``world_R_body`` (T, 3, 3)."""
+        self.keypoint_arrays: dict[str, np.ndarray] = {}
+        """The keypoints of every frame of the last prefetch: ``points`` (T, K, 3) and, with Jacobians,
+        ``d_root``, ``d_trans`` (T, K, 3, 3), ``d_body_pose`` (T, K, 3, 69), ``d_betas`` (T, K, 3, B)."""
         self.chamfer_matches: dict[tuple[int, ...], np.ndarray] = {}
         """Chamfer factor keys -> the matched vertex id (M,) of each of its points at the last prefetch."""
 
@@ -344,11 +347,14 @@ class BatchedBodyModel:
         if jacobians:                 # kinematics and derivative bases shared by every Jacobian below
             setup = self.model.jacobian_setup(pose, betas)
             jac = self.model.point_jacobians(pose, betas, trans, setup=setup)
+            self.keypoint_arrays = {name: getattr(jac, name)
+                                    for name in ("points", "d_root", "d_trans", "d_body_pose", "d_betas")}
             for i, tag in enumerate(tags):
                 self._keypoint_jacobians[tag] = _FrameJacobians(jac.points[i], jac.d_root[i], jac.d_body_pose[i],
                                                                 jac.d_trans[i], jac.d_betas[i])
         else:
             kps = self.model.keypoints(pose, betas, trans)
+            self.keypoint_arrays = {"points": kps}
             for i, tag in enumerate(tags):
                 self._keypoints[tag] = kps[i]
         verts = None

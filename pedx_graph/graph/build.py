@@ -27,6 +27,7 @@ from factors.heading_prior import make_heading_prior_factor
 from factors.joint_limits import make_joint_limit_factor
 from factors.lidar_chamfer import make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
+from factors.registry import frame_terms
 from factors.shape_prior import shape_factors
 from factors.stereo_reprojection import images_from_views, make_reprojection_factor
 from factors.temporal_prior import make_temporal_prior_factor
@@ -37,6 +38,7 @@ from pedx_graph.data.noise_estimate import chamfer_sigma_m, keypoint_row_sigmas_
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
 from pedx_graph.graph.batch import BatchedBodyModel
 from pedx_graph.graph.config import FitConfig
+from pedx_graph.graph.layout import ChainLayout
 from pedx_graph.graph.monocular import BodySizePrior, body_size_prior
 from pedx_graph.graph.init import TrackInit, initialise_track, world_R_body_from_yaw
 from pedx_graph.keypoints import PEDX_KEYPOINTS
@@ -163,9 +165,8 @@ class TrackProblem:
 
     @property
     def layout(self):
-        """The chain + arrow layout of this track's keys (:class:`pedx_graph.solvers.chain.ChainLayout`)."""
+        """The chain + arrow layout of this track's keys (:class:`pedx_graph.graph.layout.ChainLayout`)."""
         if self._layout is None:
-            from pedx_graph.solvers.chain import ChainLayout
             self._layout = ChainLayout(self.keys, int(self.initial.atVector(self.keys[0].betas).shape[0]))
         return self._layout
 
@@ -308,6 +309,8 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
         add(make_temporal_prior_factor(kp.root, kp.trans, kp.body_pose, k.root, k.trans, k.body_pose,
                                        mixture=ctx.temporal_mixture, frame_gap=gap,
                                        cache=getattr(model, "term_cache", None)), "temporal_prior")
+    for term in frame_terms():          # registered terms that build their own factor (factors/registry.py)
+        add(term.frame_factor(k, fr, model, ctx, config, ground), term.kind)
     return out
 
 
