@@ -40,8 +40,8 @@ def test_admm_reaches_the_joint_optimum(ctx):
     assert admm.primal_residuals[-1] < 0.05 and admm.dual_residuals[-1] < 0.05
     assert admm.final_error == pytest.approx(report.final_error, rel=0.01)
     a, b = extract_estimate(problem, batch, ctx), extract_estimate(problem, values, ctx)
-    assert np.linalg.norm(a.betas - b.betas) < 0.2
-    assert np.max(np.linalg.norm(a.world_keypoints - b.world_keypoints, axis=-1)) < 0.03
+    assert np.linalg.norm(a.betas - b.betas) < 0.18                                     # measured 0.121
+    assert np.max(np.linalg.norm(a.world_keypoints - b.world_keypoints, axis=-1)) < 0.027   # measured 0.018 m
     # tighter tolerances bring the shape closer
     values_t, admm_t = admm_solve(problem, config, AdmmConfig(primal_tol=0.005, dual_tol=0.005, max_iterations=80))
     assert np.linalg.norm(extract_estimate(problem, values_t, ctx).betas - a.betas) < np.linalg.norm(a.betas - b.betas)
@@ -59,7 +59,7 @@ def test_admm_full_graph_is_a_stationary_point(ctx):
     polished, polish = python_lm(problem.graph, values, TIGHT)
     assert polish.final_error >= admm.final_error * 0.99
     shift = extract_estimate(problem, polished, ctx).betas - extract_estimate(problem, values, ctx).betas
-    assert np.linalg.norm(shift) < 0.2
+    assert np.linalg.norm(shift) < 0.17                                 # measured 0.114
 
 
 def test_admm_process_pool_matches_serial(ctx):
