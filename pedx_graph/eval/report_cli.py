@@ -89,7 +89,7 @@ def _run_experiments(args: argparse.Namespace) -> int:
 
     from pedx_graph.config import load_config
     from pedx_graph.eval.experiments import ExperimentConfig, run_experiments
-    from pedx_graph.eval.report import render_markdown
+    from pedx_graph.eval.tables import render_markdown
 
     config = load_config(ExperimentConfig, args.config)
     if config.fit_config:                                   # the presets it names, checked before anything runs
@@ -115,7 +115,12 @@ def _run_experiments(args: argparse.Namespace) -> int:
                    + (f" --config {args.config}" if args.config else "") + f" --docs {args.docs}")
         from pedx_graph.utils import atomic_write_text
 
+        from pedx_graph.eval.benchmark_tables import benchmark_block
+
         text = render_markdown(report, title="Results", preamble=docs_preamble(record, command))
+        bench = Path(__file__).resolve().parents[2] / "benchmarks" / "results"   # solvers, real rig (JSON)
+        if bench.is_dir():
+            text = text.rstrip("\n") + "\n\n" + benchmark_block(bench)
         atomic_write_text(docs / "results.md", text + kept_notes(docs / "results.md"))
         print(f"wrote {docs / 'results.md'}")
     return 0

@@ -1,0 +1,96 @@
+"""The solver and real-rig sections of docs/results.md, rendered from the benchmarks' JSON (no typed figure).
+
+:func:`solver_section` reads ``benchmarks/results/bench_solvers.json``: the batch LM fit, the iSAM2 stream
+(final estimate and causal, i.e. each frame as first estimated) on every track, and the ADMM reference beside
+LM and iSAM2 on the subset ADMM runs on.  :func:`realrig_section` reads ``bench_realrig.json``: each variant
+of the real-rig scenes, overall and per distance bin (bins without frames left out).  :func:`benchmark_block`
+joins them between the markers ``<!-- benchmarks -->`` / ``<!-- /benchmarks -->``; a test checks that the
+committed docs/results.md holds exactly this block for the committed JSON.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+BEGIN, END = "<!-- benchmarks -->", "<!-- /benchmarks -->"
+
+
+def _f(value, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def solver_section(data: dict) -> str:
+    """Markdown: batch LM, iSAM2 stream (final and causal) and the ADMM reference (bench_solvers.json)."""
+    rows = {r["solver"]: r for r in data["all_tracks"]}
+    goal = data["goals"]["streamed_final_within_5pct_of_batch"]
+    lines = [f"### Solvers (`{data['command'].strip()}`: seed {data['seed']}, {data['pedestrians']} pedestrians x "
+             f"{data['frames']} frames, {data['motion']})", "",
+             f"All {data['tracks']} tracks; MPJPE in mm over the 13 joints.", "",
+             "| solver | tracks | frames | global | root-relative | ms per frame |", "|---|---:|---:|---:|---:|---:|"]
+    for name, label in (("lm", "batch fit (LM)"), ("isam2", "iSAM2 stream, final"),
+                        ("lm without flip search", "batch fit without the flip search")):
+        r = rows.get(name)
+        if r:
+            lines.append(f"| {label} | {r['tracks']} | {r['frames']} | {_f(r['global_mm'])} | "
+                         f"{_f(r['root_relative_mm'])} | {_f(r['ms_per_frame'])} |")
+    lines.append(f"| iSAM2 stream, causal (each frame as first estimated) | {data['tracks']} | "
+                 f"{rows['isam2']['frames']} | {_f(goal['causal_global_mm'])} | "
+                 f"{_f(goal['causal_root_relative_mm'])} | - |")
+    lines += ["", f"The ADMM reference on the {data['admm_subset'][0]['tracks']} tracks it runs on:", "",
+              "| solver | frames | global | root-relative | ms per frame |", "|---|---:|---:|---:|---:|"]
+    for r in data["admm_subset"]:
+        lines.append(f"| {r['solver']} | {r['frames']} | {_f(r['global_mm'])} | {_f(r['root_relative_mm'])} | "
+                     f"{_f(r['ms_per_frame'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def realrig_section(data: dict) -> str:
+    """Markdown: every variant of the real-rig scenes (bench_realrig.json), overall and per distance bin."""
+    variants = data["variants"]
+    bins = []
+    for v in variants.values():
+        for key, b in v["eval"]["per_distance"].items():
+            if b.get("frames") and key not in bins:
+                bins.append(key)
+    lines = [f"### Real-rig scenes (`{data['command'].strip()}`: {data['motion']})", "",
+             "MPJPE in mm, global / root-relative; keypoint NEES/3 and 95 % coverage of the covariances.", "",
+             "| variant | frames | overall | " + " | ".join(f"{b} m" for b in bins) + " | NEES/3 | inside 95 % |",
+             "|---|---:|---:|" + "---:|" * len(bins) + "---:|---:|"]
+    for name, v in variants.items():
+        ev = v["eval"]
+        cells = []
+        for b in bins:
+            d = ev["per_distance"].get(b) or {}
+            cells.append(f"{_f(d.get('global_mm'))} / {_f(d.get('root_relative_mm'))}" if d.get("frames") else "-")
+        cal = (v.get("calibration") or {}).get("overall") or {}
+        coverage = cal.get("coverage95")
+        lines.append(f"| {name} | {ev['frames']} | {_f(ev['overall']['global_mm'])} / "
+                     f"{_f(ev['overall']['root_relative_mm'])} | " + " | ".join(cells) +
+                     f" | {_f(cal.get('mean_nees_over_dof'), 2)} | "
+                     f"{_f(None if coverage is None else 100 * coverage)} % |")
+    return "\n".join(lines) + "\n"
+
+
+def benchmark_block(results_dir: str | os.PathLike) -> str:
+    """The generated block (markers included) from ``results_dir`` (``benchmarks/results``); sections whose
+    JSON is absent are left out."""
+    results_dir = Path(results_dir)
+    parts = [BEGIN, "## Solvers and real-rig scenes (generated from benchmarks/results/*.json)", ""]
+    solvers, realrig = results_dir / "bench_solvers.json", results_dir / "bench_realrig.json"
+    if solvers.is_file():
+        parts.append(solver_section(json.loads(solvers.read_text())))
+    if realrig.is_file():
+        parts.append(realrig_section(json.loads(realrig.read_text())))
+    parts.append(END)
+    return "\n".join(parts) + "\n"
+
+
+def replace_block(text: str, block: str) -> str:
+    """``text`` with its benchmark block replaced by ``block`` (inserted before the notes, else appended)."""
+    if BEGIN in text and END in text:
+        return text[:text.index(BEGIN)] + block.rstrip("\n") + text[text.index(END) + len(END):]
+    marker = "<!-- notes -->"
+    if marker in text:
+        return text[:text.index(marker)] + block + "\n" + text[text.index(marker):]
+    return text.rstrip("\n") + "\n\n" + block
