@@ -43,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
     simulate(scene, sim_config, seed=args.seed, overwrite=True)   # the demo owns its folder: a re-run replaces it
     t1 = time.perf_counter()
     print(f"simulated {args.pedestrians} pedestrians x {args.frames} frames in {t1 - t0:.1f} s -> {scene}")
-    summary = fit_dataset(scene, results, config, workers=args.workers, overwrite=True)  # a re-run replaces them
+    summary = fit_dataset(scene, results, config, workers=args.workers, overwrite=True,   # a re-run replaces them
+                          progress=True)                    # a bar per track when stderr is a terminal
     t2 = time.perf_counter()
     print(f"fitted {len(summary['tracks'])} tracks ({summary['total_frames']} frames) in {t2 - t1:.1f} s "
           f"({1000 * (t2 - t1) / max(summary['total_frames'], 1):.0f} ms per frame, {args.workers} workers); "
@@ -61,4 +62,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"picture: {out / 'export' / 'animation' / seq / f'{seq}_{first}.gif'} "
               f"(top view: {out / 'export' / 'topview' / seq / f'{seq}_{first}.png'}; all tracks: "
               f"pedx-graph export {results})")
+    print("next: fit your own data (README, 'Use your own data') or from Python (README, 'Python API'; "
+          "examples/fit_simulated_scene.py)")
     return 0 if summary["tracks"] else 1
