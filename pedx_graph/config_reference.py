@@ -56,7 +56,11 @@ COMMAND_CONFIGS = (
     CommandEntry("baseline", "pedx_graph.baselines.run:BaselineConfig",
                   "`pedx-graph baseline --config FILE`", "`baseline_config.yaml` in the results folder"),
     CommandEntry("experiments", "pedx_graph.eval.experiments:ExperimentConfig",
-                  "`pedx-graph experiments --config FILE`", "`experiments.json` (key `config`) in the experiment folder"),
+                  "`pedx-graph experiments --config FILE`",
+                  "`experiments.json` (key `config`) in the experiment folder"),
+    CommandEntry("import", "pedx_graph.detections.importer:ImportConfig",
+                  "`pedx-graph import --config FILE`",
+                  "not saved (the written labels carry each keypoint's `sigma_px` and `confidence`)"),
     CommandEntry("train-prior", "pedx_graph.priors.train:TrainConfig",
                   "`pedx-graph train-prior --config FILE` (flags given override the file)",
                   "`provenance.json` (key `config`) beside the trained priors"),
@@ -245,7 +249,8 @@ def preset_yaml(name: str = "fit") -> str:
     entry = command_config(name)
     cls = entry.cls()
     header = (f"# Complete {entry.name} config ({cls.__module__}.{cls.__name__}), every option at its default.\n"
-              f"# Given with: {entry.option.replace('`', '')}.  Options: docs/config.md or `pedx-graph config {entry.name}`.\n")
+              f"# Given with: {entry.option.replace('`', '')}.\n"
+              f"# Every option: docs/config.md or `pedx-graph config {entry.name}`.\n")
     return header + yaml.safe_dump(to_dict(cls()), sort_keys=False)
 
 
