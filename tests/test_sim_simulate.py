@@ -229,8 +229,7 @@ def test_same_seed_same_bytes(tmp_path, body):
 
 
 def test_figure_renders(sim_run, tmp_path):
-    pytest.importorskip("matplotlib")
-    from pedx_graph.sim.figure import render_frame
+    from pedx_graph.sim.figure import render_frame      # matplotlib: a test dependency (pyproject [test])
 
     out, cfg, _ = sim_run
     png = render_frame(out, cfg.scene.first_frame + 2, tmp_path / "frame.png", dpi=40)
