@@ -27,6 +27,8 @@ import numpy as np
 from pedx_graph.data.calib import read_calibrations
 from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
+from pedx_graph.detections.association import AssociationConfig
+from pedx_graph.detections.lidar_cut import LidarCutConfig
 from pedx_graph.detections.noise import DetectionNoiseConfig
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import rectified
@@ -48,6 +50,10 @@ class ImportConfig:
     """Group detections by the ids in the files (every detection must have one) instead of associating them."""
     min_keypoints: int = 3
     """A detection with fewer kept keypoints (after the threshold) is not written."""
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    """Who is who when the files carry no ids (stereo matching, tracking, merging across pairs)."""
+    lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
+    """How each person's LiDAR points are cut from the scene clouds."""
 
 
 def calibration_dir(source: str | os.PathLike) -> Path:
@@ -173,7 +179,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     else:
         from pedx_graph.data.ground import ground_from_calibrations
         ground = ground_from_calibrations(dict(calibrations), seq)
-        tracks = associate(known, calibrations, clouds=clouds or None, ground=ground)
+        tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground)
         for track in tracks:
             people[track.track_id] = {fr.frame: dict(fr.detections) for fr in track.frames}
     written = 0
@@ -193,7 +199,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations,
                                                   ground_from_calibrations(dict(calibrations), seq),
-                                                  lambda frame: clouds[frame])
+                                                  lambda frame: clouds[frame], config.lidar_cut)
     return result
 
 

@@ -23,7 +23,8 @@ class SigmaCurve:
     """Pixel noise of a keypoint as a function of its detector confidence (per axis, rectified pixels)."""
 
     confidence_knots: tuple[float, ...] = (0.3, 0.5, 0.7, 0.9)
-    """Confidences (increasing, in [0, 1]) at which the noise is given; constant beyond the end knots."""
+    """Confidences (increasing; detectors' are in [0, 1]) at which the noise is given; constant beyond the end
+    knots."""
     sigma_px: tuple[float, ...] = (12.0, 8.0, 5.0, 3.0)
     """Standard deviation per image axis at each knot, pixels (linear in between)."""
 
@@ -31,8 +32,8 @@ class SigmaCurve:
         knots, sig = np.asarray(self.confidence_knots, float), np.asarray(self.sigma_px, float)
         if knots.ndim != 1 or knots.shape != sig.shape or len(knots) == 0:
             raise ValueError("confidence_knots and sigma_px must be two equally long non-empty lists")
-        if np.any(np.diff(knots) <= 0) or knots[0] < 0 or knots[-1] > 1:
-            raise ValueError(f"confidence_knots must increase within [0, 1], got {list(knots)}")
+        if np.any(np.diff(knots) <= 0) or not np.all(np.isfinite(knots)):
+            raise ValueError(f"confidence_knots must increase, got {list(knots)}")
         if np.any(~np.isfinite(sig)) or np.any(sig <= 0):
             raise ValueError(f"sigma_px must be positive, got {list(sig)}")
 
