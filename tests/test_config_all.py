@@ -163,3 +163,17 @@ def test_admm_section_reaches_the_admm_solver(tiny_scene):
     result = fit_track_admm(track, config)
     assert result.extra_track["admm_iterations"] == 1
     assert np.all(np.isfinite(result.world_keypoints))
+
+
+def test_train_prior_reads_its_config_from_yaml_and_flags_override(tmp_path, capsys):
+    from pedx_graph.cli import build_parser
+    from pedx_graph.priors.cli import train_config
+
+    preset = tmp_path / "train.yaml"
+    preset.write_text("n_pose: 4\nseed: 7\nclips: [\"07_01\"]\n")
+    args = build_parser().parse_args(["train-prior", "--config", str(preset), "--seed", "9"])
+    cfg = train_config(args)
+    assert (cfg.n_pose, cfg.seed, cfg.clips, cfg.mirror) == (4, 9, ("07_01",), True)
+    preset.write_text("n_pose: 0\n")
+    assert main(["train-prior", "--config", str(preset)]) == 1        # refused before any clip is read
+    assert "n_pose" in capsys.readouterr().err
