@@ -10,7 +10,8 @@ no ids needed; ids in the files are ignored); ``calibrations``: pair name -> :cl
 LiDAR scenes (world frame) — a person's centre then comes from its LiDAR cut
 (:mod:`pedx_graph.detections.lidar_cut`) when it holds enough points, which is far more precise in depth than
 stereo at range; ``ground``: the sequence's :class:`~pedx_graph.data.ground.GroundFrame` (derived from the
-calibrations when None; distances are measured in its ground plane).  Returns :class:`DetectedTrack` s
+calibrations when None — and from the clouds when they are given and it has no ground height,
+:func:`~pedx_graph.detections.lidar_cut.ground_with_plane`; distances are measured in its ground plane).  Returns :class:`DetectedTrack` s
 with ids ``"det000001"``, ... in order of first frame, each holding per frame the detections of every camera
 that saw the person (raw pixels as read, ``track_id`` set) and the person's 3D centre — what the import
 writer turns into PedX-layout label files.
@@ -56,6 +57,7 @@ from scipy.optimize import linear_sum_assignment
 
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
+from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
 from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
@@ -102,6 +104,8 @@ class AssociationConfig:
     """A LiDAR cut with at least this many points replaces the stereo centre (when clouds are given)."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """The across-frame tracker of each pair."""
+    lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
+    """How a person's LiDAR points are cut from a scene cloud (when clouds are given)."""
 
 
 @dataclass
@@ -267,6 +271,7 @@ def pair_observations(detections: list[Detection], calib: StereoCalibration, con
         left = drop_duplicates(per_image.get((frame, "left"), []), config)
         right = drop_duplicates(per_image.get((frame, "right"), []), config)
         observations = []
+        projections: dict[str, tuple[np.ndarray, np.ndarray]] = {}       # scene cloud in each image, once
         for i, j in match_stereo(left, right, calib, config):
             uv, payload, score = {}, {}, 0.0
             if i is not None:
@@ -282,23 +287,28 @@ def pair_observations(detections: list[Detection], calib: StereoCalibration, con
                 obs.world_p_camera = _camera_centre(calib, "left")
                 both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                 obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
-            if clouds is not None and frame in clouds:
-                _lidar_centre(obs, calib, clouds[frame], ground, config)
+            if clouds is not None and obs.world_p is not None and frame in clouds:
+                _lidar_centre(obs, calib, clouds[frame], ground, config, projections)
             observations.append(obs)
         out[frame] = observations
     return out
 
 
 def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray, ground: GroundFrame,
-                  config: AssociationConfig) -> None:
-    """Replace the observation's centre by the median of its LiDAR cut when the cut is large enough."""
-    from pedx_graph.detections.lidar_cut import LidarCutConfig, cut_person
+                  config: AssociationConfig, projections: dict) -> None:
+    """Replace the observation's centre by the median of its LiDAR cut when the cut is large enough
+    (``projections``: side -> the cloud projected into that image, filled on first use)."""
+    from pedx_graph.detections.lidar_cut import cut_person, project_cloud
 
     side = "left" if "left" in obs.uv else "right"
     depth = None
     if obs.world_p is not None:
         depth = float(calib.world_to_rect(obs.world_p)[2])
-    points = cut_person(obs.uv[side], calib, side, cloud, ground, LidarCutConfig(), depth_m=depth)
+    cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
+    if side not in projections:
+        projections[side] = project_cloud(calib, side, cloud)
+    points = cut_person(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
+                        projection=projections[side])
     if len(points) >= config.lidar_min_points:
         obs.world_p = ground.median_point(points)
         obs.world_p_camera = _camera_centre(calib, side)
@@ -353,6 +363,8 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
     """Tracks with ids from id-less detections (module docstring)."""
     config = config or AssociationConfig()
     ground = ground or ground_from_calibrations(dict(calibrations))
+    if clouds is not None:
+        ground = ground_with_plane(ground, calibrations, clouds)
     by_pair: dict[str, list[Detection]] = defaultdict(list)
     for det in detections:
         try:

@@ -63,6 +63,27 @@ class LidarCutConfig:
     """Only points at least this far in front of the camera are projected, metres."""
 
 
+def ground_with_plane(ground: GroundFrame, calibrations: Mapping[str, StereoCalibration],
+                      clouds: Mapping[int, np.ndarray], max_frames: int = 6) -> GroundFrame:
+    """``ground`` itself when it knows the ground height; else the ground re-derived from up to ``max_frames``
+    scene clouds (evenly spaced; :func:`pedx_graph.data.ground.estimate_ground`), so the cuts can remove the
+    ground at the feet."""
+    from pedx_graph.data.ground import estimate_ground
+
+    if ground.ground_offset_m is not None or not len(clouds):
+        return ground
+    frames = sorted(clouds)
+    chosen = [frames[int(i)] for i in np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round())]
+    points = []
+    for frame in chosen:
+        try:
+            points.append(np.asarray(clouds[frame], dtype=float).reshape(-1, 3))
+        except Exception as exc:  # noqa: BLE001 - an unreadable cloud is left out of the fit
+            log.warning("frame %d: scene cloud unreadable for the ground fit (%s)", frame, exc)
+    fitted = estimate_ground(dict(calibrations), scene_points=points)
+    return fitted if fitted.ground_offset_m is not None else ground
+
+
 def hull_polygon(rect_uv: np.ndarray, config: LidarCutConfig) -> np.ndarray | None:
     """(H, 2) dilated convex hull of the present keypoints of (K, 2) rectified pixels, or None when fewer
     than ``min_keypoints``."""
@@ -193,6 +214,8 @@ def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
         for fr in track.frames:
             by_frame.setdefault(fr.frame, []).append((track.track_id, fr))
     counts = {"segments": 0, "points": 0, "frames_without_cloud": 0}
+    if ground.ground_offset_m is None:
+        ground = ground_with_plane(ground, calibrations, _FrameClouds(read_cloud, sorted(by_frame)))
     for frame in sorted(by_frame):
         try:
             cloud = np.asarray(read_cloud(frame), dtype=float).reshape(-1, 3)
@@ -207,3 +230,21 @@ def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
                 counts["segments"] += 1
                 counts["points"] += int(len(points))
     return counts
+
+
+class _FrameClouds(Mapping):
+    """``read_cloud`` over the given frames as a read-only mapping (for :func:`ground_with_plane`)."""
+
+    def __init__(self, read_cloud: Callable[[int], np.ndarray], frames: list[int]):
+        self._read, self._frames = read_cloud, list(frames)
+
+    def __getitem__(self, frame: int) -> np.ndarray:
+        if frame not in self._frames:
+            raise KeyError(frame)
+        return self._read(frame)
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    def __len__(self) -> int:
+        return len(self._frames)

@@ -193,6 +193,9 @@ class LabelConfig:
     """Probability that a pedestrian is labelled in one camera only over its whole track (no stereo at all);
     the camera is drawn with probability proportional to the labelable frames in which the pelvis projects
     into its image.  Real PedX has such tracks (4 of 19 in the sequence of issue 13)."""
+    unlabelled_prob: float = 0.0
+    """Probability that a pedestrian is never labelled: a bystander the annotators skipped (detectors still
+    see it; ``truth/meta.json`` marks it ``"bystander": true``)."""
     segment_cameras: str = "left"
     """Images whose polygons cut an instance's LiDAR segment: ``left`` (the pairs' left images only, as in
     the paper) or ``any`` (the left images, else the right images when no left image labels the instance)."""
@@ -407,6 +410,7 @@ class SimConfig:
             ("labels.polygon_only_prob", 0 <= self.labels.polygon_only_prob <= 1),
             ("labels.missing_keypoint_prob", 0 <= self.labels.missing_keypoint_prob <= 1),
             ("labels.one_camera_track_prob", 0 <= self.labels.one_camera_track_prob <= 1),
+            ("labels.unlabelled_prob", 0 <= self.labels.unlabelled_prob <= 1),
             ("labels.segment_cameras", self.labels.segment_cameras in ("left", "any")),
             ("output_frame.output_up", _unit_ok(self.output_frame.output_up)),
             ("output_frame.output_forward", _unit_ok(self.output_frame.output_forward)

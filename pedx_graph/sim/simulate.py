@@ -152,6 +152,8 @@ class _FrameContext:
     """Camera name -> shift added to the v of its clicks (right cameras: ``-vertical_disparity_px``)."""
     label_cameras: dict
     """Tracking id -> the one camera a one-camera track is labelled in (absent: every camera)."""
+    bystanders: frozenset = frozenset()
+    """Tracking ids never labelled (``labels.unlabelled_prob``)."""
 
 
 _WORKER_CONTEXT: _FrameContext | None = None
@@ -234,7 +236,7 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
         truth_arrays[f"joints__{tid}"] = transform_points(ctx.output_T_sim, body.joints)
         labelled_views: list[_ViewLabel] = []
         only_camera = ctx.label_cameras.get(tid)
-        if config.labels.min_distance_m <= distance <= config.labels.max_distance_m:
+        if config.labels.min_distance_m <= distance <= config.labels.max_distance_m and tid not in ctx.bystanders:
             for view in ctx.views:
                 vl, vrec = _label_person_in_view(ray_scene, view, person, body.vertices, body.keypoints,
                                                  config, label_rng, ctx.v_shift_px.get(view.camera, 0.0))
@@ -444,6 +446,10 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     v_shift_px = {pair.name.split("-")[1]: -pair.vertical_disparity_px for pair in config.cameras.pairs()
                   if pair.vertical_disparity_px}
     label_cameras = one_camera_tracks(people, views, config, np.random.default_rng([int(seed), 3]))
+    bystanders = frozenset()
+    if config.labels.unlabelled_prob > 0:         # no draw when off: the default streams are unchanged
+        draws = np.random.default_rng([int(seed), 7]).random(len(people))
+        bystanders = frozenset(p.tracking_id for p, u in zip(people, draws) if u < config.labels.unlabelled_prob)
     ctx = _FrameContext(
         out=out, config=config, seed=int(seed), scene=scene, calibs=calibs, people=people,
         body_model=body_model, faces=outward_faces(rest_vertices, body_model.faces),
@@ -451,7 +457,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         # every ray starts at the LiDAR or at a camera centre: back-facing triangles are culled (RayScene)
         viewpoints=np.stack([np.zeros(3)] + [v.world_center for calib in calibs.values()
                                              for v in cameras.camera_views(calib)]),
-        output_T_sim=output_T_sim, v_shift_px=v_shift_px, label_cameras=label_cameras)
+        output_T_sim=output_T_sim, v_shift_px=v_shift_px, label_cameras=label_cameras, bystanders=bystanders)
 
     counts = dict.fromkeys(COUNT_KEYS, 0)
     instances = []
@@ -497,7 +503,8 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         "pedestrians": [{"tracking_id": p.tracking_id, "object_id": p.object_id, "betas": p.betas,
                          "walkway": p.walkway, "group": p.group, "motion": p.motion,
                          "present_frames": int(p.present.sum()),
-                         "label_camera": label_cameras.get(p.tracking_id)} for p in people],
+                         "label_camera": label_cameras.get(p.tracking_id),
+                         **({"bystander": True} if p.tracking_id in bystanders else {})} for p in people],
         "pairs": {n: {"focal_px": c.focal_px, "baseline_m": c.baseline_m, "image_size": c.image_size}
                   for n, c in calibs.items()},
     }
