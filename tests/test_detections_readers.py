@@ -190,3 +190,13 @@ def test_real_coco_samples():
     assert len(dets) == expected and all(d.keypoint_set == "coco17" and d.bbox is not None for d in dets)
     res = read_coco(SHARED / "coco" / "person_keypoints_results_format.json", camera="cam")
     assert len(res) > 100 and all(np.all((d.confidence >= 0) & (d.confidence <= 1)) for d in res)
+
+
+def test_shipped_noise_defaults_are_the_calibration_result():
+    result = json.loads((Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+                         / "bench_detection_noise.json").read_text())
+    config = DetectionNoiseConfig()
+    assert list(config.default.confidence_knots) == result["knots"]
+    np.testing.assert_allclose(config.default.sigma_px, result["pooled"]["sigma_px"], atol=1e-3)
+    assert config.min_confidence == result["pooled"]["min_confidence"]
+    assert np.all(np.diff(config.default.sigma_px) <= 0)        # less confident, noisier

@@ -22,11 +22,13 @@ MAD_TO_SIGMA = 1.4826
 class SigmaCurve:
     """Pixel noise of a keypoint as a function of its detector confidence (per axis, rectified pixels)."""
 
-    confidence_knots: tuple[float, ...] = (0.3, 0.5, 0.7, 0.9)
+    confidence_knots: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
     """Confidences (increasing; detectors' are in [0, 1]) at which the noise is given; constant beyond the end
     knots."""
-    sigma_px: tuple[float, ...] = (12.0, 8.0, 5.0, 3.0)
-    """Standard deviation per image axis at each knot, pixels (linear in between)."""
+    sigma_px: tuple[float, ...] = (48.219, 20.659, 14.164, 11.361, 9.548, 7.317, 5.126, 3.65, 3.116)
+    """Standard deviation per image axis at each knot, pixels (linear in between).  Default: the pooled fit over
+    all keypoint sets of ``python benchmarks/bench_detection_noise.py --scenes 2 --pedestrians 8 --frames 20``
+    (benchmarks/results/bench_detection_noise.md)."""
 
     def __post_init__(self) -> None:
         knots, sig = np.asarray(self.confidence_knots, float), np.asarray(self.sigma_px, float)
@@ -46,9 +48,10 @@ class SigmaCurve:
 class DetectionNoiseConfig:
     """How detector confidences become pixel noise for the fit (``pedx-graph import``, the labels' sigma_px)."""
 
-    min_confidence: float = 0.2
-    """Keypoints whose confidence is below this are dropped (unlabelled).  Set from the simulated detector:
-    below it the residuals are dominated by outliers (see the calibration's result file)."""
+    min_confidence: float = 0.3
+    """Keypoints whose confidence is below this are dropped (unlabelled).  Default: the lowest knot whose
+    simulated-detector sigma is at most 20 px (benchmarks/results/bench_detection_noise.md; below it the
+    residuals are tens of pixels with heavy tails: gross outliers and left/right swaps)."""
     default: SigmaCurve = field(default_factory=SigmaCurve)
     """Sigma-vs-confidence curve of every keypoint set without its own entry in :attr:`per_set`."""
     per_set: dict[str, SigmaCurve] = field(default_factory=dict)
