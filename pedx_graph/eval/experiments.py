@@ -31,6 +31,10 @@ from pedx_graph.utils import atomic_write_json
 
 log = logging.getLogger(__name__)
 
+#: Solver runs of the experiment (``ExperimentConfig.solvers``; the stream gives two) -> their label.
+SOLVER_RUNS = {"admm": "ADMM", "stream": "iSAM2 stream (final)", "stream_causal": "iSAM2 stream (causal)"}
+
+
 @dataclass
 class SceneVariant:
     """One simulated scene of the experiment (its own sequence; intersection placed for a distance range)."""
@@ -82,6 +86,10 @@ class ExperimentConfig:
     """Methods also run on the detector labels."""
     floor_samples: int = 64
     """Monte Carlo samples per frame of the error floor."""
+    solvers: tuple[str, ...] = ("admm", "stream")
+    """Other solvers run on the clean labels beside the batch LM fit (``ours``), same fit config: ``admm`` (the
+    paper's ADMM reference) and ``stream`` (iSAM2, one frame at a time; its final and its causal estimates are
+    two runs, ``stream`` and ``stream_causal``)."""
 
 
 def resolved_scenes(config: ExperimentConfig) -> list[SceneVariant]:
@@ -215,6 +223,23 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
         timed(f"baseline {name}", fit_dataset_baseline, dataset, runs / name, name, workers=workers,
               progress=progress)
         _mark(runs / name, name=name, label=name, group="methods", labels="clean")
+    unknown = [name for name in config.solvers if name not in SOLVER_RUNS]
+    if unknown:
+        raise ValueError(f"experiment config: solvers must be among {list(SOLVER_RUNS)}, got {unknown}")
+    if "admm" in config.solvers:
+        timed("fit admm", fit_dataset, dataset, runs / "admm", fit_cfg, workers=workers, solver="admm",
+              progress=progress)
+        _mark(runs / "admm", name="admm", label=SOLVER_RUNS["admm"], group="methods", labels="clean",
+              ablation_row=None)
+    if "stream" in config.solvers:
+        from pedx_graph.solvers.stream import StreamConfig, stream_dataset
+
+        timed("stream", stream_dataset, dataset, runs / "stream", fit_cfg, StreamConfig(), workers=workers,
+              progress=progress)
+        _mark(runs / "stream", name="stream", label=SOLVER_RUNS["stream"], group="methods", labels="clean",
+              ablation_row=None)
+        _mark(runs / "stream" / "causal", name="stream_causal", label=SOLVER_RUNS["stream_causal"],
+              group="methods", labels="clean", ablation_row=None)
     if config.ablation:
         for number, row in enumerate(ABLATION_ROWS, start=1):
             if number == 5:
@@ -244,12 +269,17 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
     if report:
         from pedx_graph.eval.report import ReportConfig, build_report
 
-        names = ["ours", *config.baselines]
+        paths = [runs / n for n in ("ours", *config.baselines)]
+        if "admm" in config.solvers:
+            paths.append(runs / "admm")
+        if "stream" in config.solvers:
+            paths += [runs / "stream", runs / "stream" / "causal"]
+        names = []
         if config.ablation:
             names += [f"ablation{n}" for n in range(1, len(ABLATION_ROWS) + 1) if n != 5]
         names += [f"{m}_detector" for m in config.detector_methods]
         t0 = time.perf_counter()
-        build_report([runs / n for n in names], dataset, out / "report",
+        build_report(paths + [runs / n for n in names], dataset, out / "report",
                      ReportConfig(floor_samples=config.floor_samples, seed=seed))
         phases["report"] = time.perf_counter() - t0
     record["total_seconds"] = time.perf_counter() - t_all

@@ -138,7 +138,8 @@ def assemble(runs: list[dict], floor: dict | None = None, calibrations: dict | N
     for r in runs:
         if r["labels"] != "clean" or r["kind"] != "fit":
             continue
-        row = r.get("ablation_row") or ablation_row(r.get("terms"))
+        # experiment.json names the row (or None: not an ablation run); other folders match by their switches
+        row = r["ablation_row"] if "ablation_row" in r else ablation_row(r.get("terms"))
         if row is not None:
             matched.append((int(row), r))
     shared = {n for n, _ in matched if sum(m == n for m, _ in matched) > 1}
@@ -177,7 +178,8 @@ def assemble(runs: list[dict], floor: dict | None = None, calibrations: dict | N
             "tables": tables}
 
 
-def no_truth_sections(results_dirs, out: Path, config: "ReportConfig", model) -> tuple[dict, dict, list[str]]:
+def no_truth_sections(results_dirs, out: Path, config: "ReportConfig", model,
+                      pictures_wanted: bool = True) -> tuple[dict, dict, list[str]]:
     """Per results folder: the :func:`~pedx_graph.eval.results_summary.summarise_results` record, its markdown
     tables (keys ``results_<name>_<table>``) and, with ``config.figures``, the top views of each track and one
     overlay per camera written by the export (``out/export/<name>/``; links relative to ``out``)."""
@@ -192,7 +194,7 @@ def no_truth_sections(results_dirs, out: Path, config: "ReportConfig", model) ->
         stats[path.name] = record
         for key, text in results_tables(record).items():
             tables[f"results_{path.name}_{key}"] = text
-        if config.figures and (path / "fit_config.yaml").is_file():
+        if config.figures and pictures_wanted and (path / "fit_config.yaml").is_file():
             from pedx_graph.export.run import ExportConfig, export_results
 
             target = out / "export" / path.name
@@ -220,7 +222,11 @@ def build_report(results_dirs, truth: str | os.PathLike | None, out: str | os.Pa
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model = model or BodyModel.load()
-    stats, result_tables, pictures = no_truth_sections(results_dirs, out, config, model)
+    if truth is None:                        # every run reports on itself, with pictures
+        stats, result_tables, pictures = no_truth_sections(results_dirs, out, config, model)
+    else:                                    # the first fit run only (the accuracy tables cover the rest)
+        first_fit = [p for p in results_dirs if (Path(p) / "fit_config.yaml").is_file()][:1]
+        stats, result_tables, pictures = no_truth_sections(first_fit, out, config, model, pictures_wanted=False)
     if truth is None:
         report = {"tables": result_tables, "results": stats, "truth": None, "pictures": pictures,
                   "runs": [describe_run(p) for p in results_dirs], "figures": []}

@@ -173,6 +173,8 @@ def speed_table(runs: list[dict]) -> str:
              "|---|---:|---:|---:|---:|---:|---:|"]
     for r in runs:
         s = r["summary"]
+        if not s["tracks"] and s.get("wall_seconds") is None:      # no summary.json (e.g. causal estimates)
+            continue
         per_frame = (s["track_seconds_sum"] / s["total_frames"]
                      if s.get("track_seconds_sum") and s.get("total_frames") else None)
         lines.append(f"| {r['name']} | {s['tracks']} ({s['failed']}) | {s.get('total_frames') or '-'} | "
