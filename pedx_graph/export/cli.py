@@ -7,7 +7,7 @@ import argparse
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export", help="meshes (PLY/OBJ), overlays on the images, top views and a GIF per track of a fit",
-        description="Write RESULTS' fitted bodies as per-frame meshes, draw them with their keypoints and 95 %% "
+        description="Write RESULTS' fitted bodies as per-frame meshes, draw them with their keypoints and 95 % "
                     "uncertainty ellipses over the camera images (a blank canvas where images/ is absent), draw "
                     "each track from above in the level frame of the derived ground with its position "
                     "ellipses, and animate each track.  Index: OUT/export.json.")
