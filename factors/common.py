@@ -286,3 +286,16 @@ def component_grams(mixture: MaxMixture, start: int = 0) -> np.ndarray:
         gram.setflags(write=False)
         hit = _GRAMS[(id(mixture), start)] = (mixture, gram)
     return hit[1]
+
+
+def mixture_for(dim: int, what: str, weights=None, means=None, prec_chol=None, mixture: MaxMixture | None = None,
+                covariance_scale: float = 1.0) -> MaxMixture:
+    """The max-mixture of a factor: ``mixture`` when given (its covariance scale is baked in), else one built
+    from the GMM arrays; ValueError unless it is ``dim``-dimensional (``what`` names the factor)."""
+    if mixture is None:
+        if weights is None or means is None or prec_chol is None:
+            raise ValueError(f"{what} needs weights, means and prec_chol, or a mixture")
+        mixture = MaxMixture(weights, means, prec_chol, covariance_scale=covariance_scale)
+    if mixture.dim != dim:
+        raise ValueError(f"{what} mixture must be {dim}-d, got {mixture.dim}")
+    return mixture

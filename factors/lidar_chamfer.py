@@ -34,9 +34,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list, read_frame_state, robustify_groups, set_jacobians)
-from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations
+from factors.common import (BodyModelLike, FrameKeys, FrameState, as_f64, frame_key_list, read_frame_state,
+                            robustify_groups)
+from factors.terms import (NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations,
+                           frame_dims)
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
 KIND = "lidar_chamfer"
@@ -211,24 +212,18 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
     if cache is not None:
         cache.register(KIND, frame_key_list(keys), spec)
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        hit = None if cache is None else cache.lookup(KIND, this.keys(), values, H is not None)
-        if hit is not None:
-            r, blocks = hit
-        else:
-            state = read_frame_state(values, this.keys())
-            tag = b"".join(a.tobytes() for a in (state.root_rotvec, state.trans, state.body_pose, state.betas))
-            matches = memo.get(tag)
-            if matches is None:
-                matches = nearest_vertices(model, state, pts, cand)
-                memo.clear()
-                memo[tag] = matches
-            r, blocks = chamfer_residual(model, state, spec, H is not None, matches)
-        if H is not None:
-            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, np.shape(blocks[3])[1]])
-        return r
+    def compute(keys, values: gtsam.Values, jacobians: bool):
+        state = read_frame_state(values, keys)
+        tag = b"".join(a.tobytes() for a in (state.root_rotvec, state.trans, state.body_pose, state.betas))
+        matches = memo.get(tag)
+        if matches is None:
+            matches = nearest_vertices(model, state, pts, cand)
+            memo.clear()
+            memo[tag] = matches
+        return chamfer_residual(model, state, spec, jacobians, matches)
 
-    return gtsam.CustomFactor(noise_of(spec).model(rows), frame_key_list(keys), error)
+    return gtsam.CustomFactor(noise_of(spec).model(rows), frame_key_list(keys),
+                              cached_callback(KIND, cache, compute, frame_dims))
 
 
 TERM = Term(KIND, assemble)

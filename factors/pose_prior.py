@@ -18,8 +18,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import BODY_POSE_DIM, MaxMixture, as_f64, component_grams, set_jacobians
-from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations
+from factors.common import BODY_POSE_DIM, MaxMixture, as_f64, component_grams, mixture_for
+from factors.terms import NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
 KIND = "pose_prior"
@@ -42,29 +42,16 @@ def make_pose_prior_factor(key_body_pose: int, weights: np.ndarray | None = None
     then ``covariance_scale`` is ignored: it is baked into the mixture).  ``cache``: a batched evaluator
     (``pedx_graph.graph.batch.BatchedBodyModel``) that may serve the residual for the current values.
     """
-    if mixture is None:
-        if weights is None or means is None or prec_chol is None:
-            raise ValueError("make_pose_prior_factor needs weights, means and prec_chol, or a mixture")
-        mixture = MaxMixture(weights, means, prec_chol, covariance_scale=covariance_scale)
-    if mixture.dim != BODY_POSE_DIM:
-        raise ValueError(f"pose prior mixture must be {BODY_POSE_DIM}-d, got {mixture.dim}")
-    rows = mixture.dim + 1
-
+    mixture = mixture_for(BODY_POSE_DIM, "pose prior", weights, means, prec_chol, mixture, covariance_scale)
     if cache is not None:
         cache.register(KIND, [key_body_pose], mixture)
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        hit = None if cache is None else cache.lookup(KIND, this.keys(), values, H is not None)
-        if hit is not None:
-            r, blocks = hit
-            jac = None if blocks is None else blocks[0]
-        else:
-            r, jac, _ = mixture.residual(values.atVector(this.keys()[0]), H is not None)
-        if H is not None:
-            set_jacobians(H, [jac], rows, [mixture.dim])
-        return as_f64(r)
+    def compute(keys, values: gtsam.Values, jacobians: bool):
+        r, jac, _ = mixture.residual(values.atVector(keys[0]), jacobians)
+        return as_f64(r), [jac]
 
-    return gtsam.CustomFactor(noise_of(mixture).model(rows), [key_body_pose], error)
+    return gtsam.CustomFactor(noise_of(mixture).model(mixture.dim + 1), [key_body_pose],
+                              cached_callback(KIND, cache, compute, lambda blocks: [mixture.dim]))
 
 
 def noise_of(mixture: MaxMixture) -> RowNoise:

@@ -42,9 +42,9 @@ from typing import Iterable, Mapping, Protocol, Sequence
 import gtsam
 import numpy as np
 
-from factors.common import (BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, BodyModelLike, FrameKeys, FrameState, as_f64,
-                            frame_key_list, read_frame_state, set_jacobians)
-from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations, robust_rows
+from factors.common import BodyModelLike, FrameKeys, FrameState, as_f64, frame_key_list, read_frame_state
+from factors.terms import (NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations,
+                           frame_dims, robust_rows)
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
@@ -421,23 +421,15 @@ def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLi
     setup = build_reprojection_setup(images, sigma_px, sigma_occluded_px, keypoint_weights, min_depth)
     if setup.rows == 0:
         return None
-    rows = setup.rows
     term = StereoTerm(setup, robust, float(robust_scale))
     cache = getattr(model, "term_cache", None)
     if cache is not None:
         cache.register(KIND, frame_key_list(keys), term)
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        hit = None if cache is None else cache.lookup(KIND, this.keys(), values, H is not None)
-        if hit is not None:
-            r, blocks = hit
-        else:
-            state = read_frame_state(values, this.keys())
-            r, blocks = stereo_reprojection_error(model, state, setup, H is not None)
-        if H is not None:
-            set_jacobians(H, blocks, rows, [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, np.shape(blocks[3])[1]])
-        return r
+    def compute(keys, values: gtsam.Values, jacobians: bool):
+        return stereo_reprojection_error(model, read_frame_state(values, keys), setup, jacobians)
 
+    error = cached_callback(KIND, cache, compute, frame_dims)
     return gtsam.CustomFactor(noise_of(term).model(), frame_key_list(keys), error)
 
 

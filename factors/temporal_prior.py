@@ -26,8 +26,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, component_grams, set_jacobians
-from factors.terms import NormalEquations, RowNoise, Term, concatenate, factor_normal_equations
+from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, component_grams, mixture_for
+from factors.terms import NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations
 from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
 from pedx_graph.priors.difference import temporal_difference
 
@@ -133,12 +133,7 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
     Pass the GMM arrays (weights (K,), means (K, 75), prec_chol (K, 75, 75)) or a prebuilt ``mixture``
     (then ``covariance_scale`` is ignored).  Keys: Rot3, vector 3, vector 69 for each frame.
     """
-    if mixture is None:
-        if weights is None or means is None or prec_chol is None:
-            raise ValueError("make_temporal_prior_factor needs weights, means and prec_chol, or a mixture")
-        mixture = MaxMixture(weights, means, prec_chol, covariance_scale=covariance_scale)
-    if mixture.dim != TEMPORAL_DIM:
-        raise ValueError(f"temporal prior mixture must be {TEMPORAL_DIM}-d, got {mixture.dim}")
+    mixture = mixture_for(TEMPORAL_DIM, "temporal prior", weights, means, prec_chol, mixture, covariance_scale)
     if int(frame_gap) != frame_gap or frame_gap < 1:
         raise ValueError(f"frame_gap must be a positive integer, got {frame_gap}")
     gap = int(frame_gap)
@@ -148,23 +143,13 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
     if cache is not None:
         cache.register(KIND, keys, (mixture, gap))
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
-        k = this.keys()
-        hit = None if cache is None else cache.lookup(KIND, k, values, H is not None)
-        if hit is not None:
-            r, blocks = hit
-            if H is not None:
-                set_jacobians(H, blocks, rows, _DIMS)
-            return r
-        r, blocks = temporal_prior_error(
-            values.atRot3(k[0]).matrix(), values.atVector(k[1]), values.atVector(k[2]),
-            values.atRot3(k[3]).matrix(), values.atVector(k[4]), values.atVector(k[5]),
-            mixture, gap, H is not None)
-        if H is not None:
-            set_jacobians(H, blocks, rows, _DIMS)
-        return r
+    def compute(k, values: gtsam.Values, jacobians: bool):
+        return temporal_prior_error(values.atRot3(k[0]).matrix(), values.atVector(k[1]), values.atVector(k[2]),
+                                    values.atRot3(k[3]).matrix(), values.atVector(k[4]), values.atVector(k[5]),
+                                    mixture, gap, jacobians)
 
-    return gtsam.CustomFactor(noise_of((mixture, gap)).model(rows), keys, error)
+    return gtsam.CustomFactor(noise_of((mixture, gap)).model(rows), keys,
+                              cached_callback(KIND, cache, compute, lambda blocks: _DIMS))
 
 
 def noise_of(spec: tuple[MaxMixture, int]) -> RowNoise:

@@ -29,7 +29,7 @@ from typing import Any, Callable, Sequence
 import gtsam
 import numpy as np
 
-from factors.common import make_noise, row_loss_and_weight
+from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, make_noise, row_loss_and_weight, set_jacobians
 
 
 @dataclass(frozen=True)
@@ -142,6 +142,26 @@ def factor_normal_equations(cache, kind: str, keys_list: list[tuple[int, ...]], 
         parts.append(rows_normal_equations([keys], np.asarray(r)[None], jac,
                                            noise.inverse_sigmas(len(r))[None], [noise.kernel]))
     return concatenate(parts)
+
+
+def frame_dims(blocks: Sequence[np.ndarray]) -> list[int]:
+    """Tangent dimensions of a frame's keys ``[root, trans, body_pose, betas]`` (B from the last block)."""
+    return [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, int(np.shape(blocks[3])[1])]
+
+
+def cached_callback(kind: str, cache, compute: Callable, dims: Callable[[Sequence[np.ndarray]], list[int]]):
+    """The ``gtsam.CustomFactor`` callback of a term the term cache may serve: the cache's ``(residual,
+    blocks)`` when it holds them at exactly the values GTSAM passes (``cache.lookup``), else
+    ``compute(keys, values, jacobians)``; the Jacobian blocks are stored with their shapes checked against
+    ``dims(blocks)`` (:func:`factors.common.set_jacobians`)."""
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        keys = this.keys()
+        hit = None if cache is None else cache.lookup(kind, keys, values, H is not None)
+        r, blocks = hit if hit is not None else compute(keys, values, H is not None)
+        if H is not None:
+            set_jacobians(H, blocks, len(r), dims(blocks))
+        return r
+    return error
 
 
 @dataclass(frozen=True)
