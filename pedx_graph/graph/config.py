@@ -10,7 +10,32 @@ from dataclasses import dataclass, field
 from pedx_graph.data.calib import CalibrationLimits
 from pedx_graph.data.ground import GroundConfig
 from pedx_graph.data.reader import ReaderConfig
-from pedx_graph.solvers.plausibility import PlausibilityConfig
+
+
+@dataclass
+class PlausibilityConfig:
+    """Limits of a plausible fitted track (:mod:`pedx_graph.solvers.plausibility`)."""
+
+    enabled: bool = True
+    """Check every fitted track; False writes whatever the solver returns."""
+    max_distance_m: float = 200.0
+    """Largest distance of the body centre from the rig's viewpoint, metres."""
+    min_depth_m: float = 0.5
+    """Smallest depth of the body centre in front of a camera that labels it, metres."""
+    shape_support_margin: float = 0.25
+    """A shape coefficient may exceed the shape prior's support (``noise.shape_support_sd`` prior SDs) by this
+    much, in betas units, before the body counts as outside the prior."""
+    max_abs_beta: float = 5.0
+    """Largest ``|beta_i|`` when the fit has no shape support term (``noise.shape_support_sd`` 0 or inf)."""
+    max_outlier_fraction: float = 0.7
+    """Largest fraction of the 2D keypoint rows the reprojection term's robust loss may reject (real labels
+    click some points where the body model does not put them — the head, the hips —, so a few keypoints
+    can be outliers in every frame of a sound fit: the limit leaves room for that)."""
+    max_lidar_outlier_fraction: float = 0.9
+    """Largest fraction of the LiDAR rows the chamfer term's robust loss may reject (segments cut by loose
+    polygons can be mostly background: only a nearly complete rejection says the data contradict)."""
+    min_rows: int = 20
+    """A data term with fewer rows than this in the track is not judged by ``max_outlier_fraction``."""
 
 
 @dataclass

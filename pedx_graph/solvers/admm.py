@@ -23,7 +23,6 @@ shape on the joint graph (same objective as batch LM).
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -33,8 +32,14 @@ import gtsam
 import numpy as np
 
 from factors.shape_prior import consensus_shape
+from pedx_graph.graph.build import build_track_graph, extract_estimate
 from pedx_graph.graph.config import AdmmConfig, FitConfig
+from pedx_graph.solvers.context import estimator_context
+from pedx_graph.solvers.diagnostics import track_extras
 from pedx_graph.solvers.lm import local_config, python_lm
+from pedx_graph.solvers.plausibility import check_track_result
+from pedx_graph.solvers.result import TrackResult, record_depth_sources
+from pedx_graph.solvers.staging import coarse_stage_config
 
 log = logging.getLogger(__name__)
 
@@ -109,8 +114,6 @@ _WORKER: dict = {}
 
 
 def _init_worker(track, config: FitConfig, ctx, admm: AdmmConfig) -> None:
-    from pedx_graph.graph.build import build_track_graph
-
     _WORKER["solver"] = _FrameSolver(build_track_graph(track, ctx, config), admm)
 
 
@@ -192,13 +195,10 @@ def _assemble(problem, states: dict, beta: np.ndarray) -> gtsam.Values:
 
 def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: AdmmConfig | None = None,
                    marginals: bool = False, diagnostics: bool = False):
-    """Fit one track with ADMM (same graph, staging and outputs as :func:`pedx_graph.solvers.fit.fit_track`;
-    ``iterations`` counts the ADMM iterations of both stages)."""
-    from pedx_graph.graph.build import build_track_graph, extract_estimate
-    from pedx_graph.solvers.fit import TrackResult, _context, coarse_stage_config, record_depth_sources
-
+    """Fit one track with ADMM (same graph, staging and outputs as
+    :func:`pedx_graph.solvers.track_lm.fit_track`; ``iterations`` counts the ADMM iterations of both stages)."""
     config = config or FitConfig()
-    ctx = context or _context(config)
+    ctx = context or estimator_context(config)
     t0 = time.perf_counter()
     stage_iterations = 0
     initial = None
@@ -212,8 +212,6 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     values, report = admm_solve(problem, config, admm, track=track, ctx=ctx)
     report.iterations += stage_iterations
     est = extract_estimate(problem, values, ctx)
-    from pedx_graph.solvers.diagnostics import track_extras
-
     # the body plausibility fields always, covariances / diagnostics when asked
     extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics, fit_config=config,
                                              frames=track.frames)
@@ -227,5 +225,4 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
                          initial_error=report.initial_error, iterations=report.iterations,
                          seconds=time.perf_counter() - t0, solver="admm", extra_per_frame=extra_frames,
                          extra_track=extra_track)
-    from pedx_graph.solvers.plausibility import check_track_result
     return check_track_result(result, track, config, problem, values)    # ImplausibleEstimateError: a failed track

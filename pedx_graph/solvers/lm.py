@@ -29,7 +29,8 @@ import numpy as np
 from scipy.linalg import LinAlgError
 
 from pedx_graph.graph.config import SolverConfig
-from pedx_graph.solvers.chain import ChainLayout, NotAChainError, solve_chain
+from pedx_graph.graph.layout import ChainLayout, NotAChainError
+from pedx_graph.solvers.chain import solve_chain
 
 
 @dataclass

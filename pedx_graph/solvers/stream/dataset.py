@@ -12,7 +12,7 @@ from pedx_graph.execution.runner import RunSpec, run_dataset
 from pedx_graph.execution.tasks import label_files, result_output
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.keypoints import PEDX_KEYPOINTS
-from pedx_graph.solvers.fit import _context
+from pedx_graph.solvers.context import estimator_context
 from pedx_graph.solvers.stream.config import StreamConfig
 from pedx_graph.solvers.stream.estimator import StreamingEstimator
 from pedx_graph.solvers.stream.latency import stream_timings
@@ -62,7 +62,7 @@ def stream_task(track: Track, params: tuple):
     labels (under ``causal/``), the track's records (failed updates in the first one's ``failed_updates``)
     and its per-update latencies (``update_ms``, ``cpu_ms``, ``isam_ms``) as timings."""
     config, stream_config, ctx = params
-    results, causal, failed = stream_track(track, ctx or _context(config), config, stream_config)
+    results, causal, failed = stream_track(track, ctx or estimator_context(config), config, stream_config)
     if not results:
         reasons = "; ".join(sorted({bad["error"] for bad in failed})) or "no frame"
         raise RuntimeError(f"no smoothed estimate of the track ({reasons})")
@@ -78,7 +78,7 @@ def stream_task(track: Track, params: tuple):
 def stream_warm_up(params: tuple) -> None:
     """Load the estimator context of ``params = (config, stream_config, ctx or None)`` in this worker."""
     if params[2] is None:
-        _context(params[0])
+        estimator_context(params[0])
 
 
 def stream_dataset(dataset, out, config: FitConfig | None = None, stream_config: StreamConfig | None = None,

@@ -12,8 +12,9 @@ from pedx_graph.data.types import Track
 from pedx_graph.graph.build import TrackProblem, extract_estimate
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.solvers.diagnostics import track_extras
-from pedx_graph.solvers.fit import TrackResult, solve_staged
 from pedx_graph.solvers.plausibility import check_track_result
+from pedx_graph.solvers.result import TrackResult
+from pedx_graph.solvers.staging import solve_staged
 from pedx_graph.solvers.stream.config import StreamConfig
 from pedx_graph.solvers.stream.latency import track_latencies, track_latency_fields
 from pedx_graph.solvers.stream.state import ActiveTrack
