@@ -305,8 +305,10 @@ class Tracker:
         if self._frame is not None and frame <= self._frame:
             raise ValueError(f"frames must increase: {frame} after {self._frame}")
         cfg = self.config
-        gap = 1 if self._frame is None else frame - self._frame
         self._frame = frame
+        for track in self._tracks:           # frames skipped since the last call count as misses
+            if track.alive and frame - track.last_frame - 1 >= self._miss_limit(track):
+                track.alive = False
         live = [t for t in self._tracks if t.alive]
         assigned = [-1] * len(observations)
         if live and observations:
@@ -320,9 +322,8 @@ class Tracker:
         for track in live:
             if track.index in matched:
                 continue
-            track.misses += gap
-            limit = cfg.max_misses if track.confirmed else cfg.tentative_max_misses
-            if track.misses >= limit:
+            track.misses = frame - track.last_frame
+            if track.misses >= self._miss_limit(track):
                 track.alive = False
         for c, obs in enumerate(observations):
             if assigned[c] >= 0 or obs.score < cfg.birth_min_score:
@@ -332,6 +333,9 @@ class Tracker:
             self._tracks.append(track)
             assigned[c] = track.index
         return assigned
+
+    def _miss_limit(self, track: _Track) -> int:
+        return self.config.max_misses if track.confirmed else self.config.tentative_max_misses
 
     def tracks(self) -> list[list[Observation]]:
         """The output tracks (module docstring), each a list of observations in frame order; ordered by first

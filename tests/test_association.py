@@ -1,0 +1,184 @@
+"""Association of id-less detections: stereo on rectified rows, tracks over frames (crossing pedestrians keep
+their ids), false detections and flickering bystanders never become tracks, tracks of two pairs merge."""
+from __future__ import annotations
+
+import numpy as np
+
+from pedx_graph.data.ground import make_ground_frame
+from pedx_graph.detections.association import AssociationConfig, associate, match_stereo, stereo_cost
+from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig
+from pedx_graph.detections.types import Detection
+from pedx_graph.sim.cameras import make_calibration
+from pedx_graph.sim.config import SimConfig
+
+#: A standing person's 17 COCO points in its own frame (x right, y forward, z up), metres.
+STICK = np.array([
+    [0.0, 0.08, 1.62], [-0.03, 0.07, 1.65], [0.03, 0.07, 1.65], [-0.07, 0.0, 1.63], [0.07, 0.0, 1.63],
+    [-0.19, 0.0, 1.42], [0.19, 0.0, 1.42], [-0.24, 0.0, 1.12], [0.24, 0.0, 1.12], [-0.26, 0.02, 0.84],
+    [0.26, 0.02, 0.84], [-0.11, 0.0, 0.93], [0.11, 0.0, 0.93], [-0.11, 0.03, 0.5], [0.11, 0.03, 0.5],
+    [-0.11, -0.02, 0.08], [0.11, -0.02, 0.08]])
+#: Ground of the default rig's sim frame (z up, LiDAR 1.95 m above the ground).
+GROUND_Z = -1.95
+
+
+def _rig():
+    cfg = SimConfig()
+    return {pair.name: make_calibration(pair) for pair in cfg.cameras.pairs()}
+
+
+def _ground(calibs):
+    return make_ground_frame((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), np.zeros(3), GROUND_Z, source="config")
+
+
+def _person_points(xy, heading: float, phase: float) -> np.ndarray:
+    """(17, 3) world points of a walker at ``xy`` (sim frame) facing ``heading``, limbs swung by ``phase``."""
+    local = STICK.copy()
+    swing = 0.25 * np.sin(phase)
+    local[[9, 16], 1] += swing            # right wrist / ankle forward, left back
+    local[[10, 15], 1] -= swing
+    c, s = np.cos(heading - np.pi / 2), np.sin(heading - np.pi / 2)
+    world = local @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return world + [xy[0], xy[1], GROUND_Z]
+
+
+def _detections(calib, world_p, frame, rng, noise_px=2.0, score=0.8, drop=None, side_filter=None):
+    """Detections of one person in the pair's two images (rectified = raw: no raw model)."""
+    out = []
+    left_uv, right_uv = calib.project(world_p)
+    for camera, uv, side in zip(calib.name.split("-"), (left_uv, right_uv), ("left", "right")):
+        if side_filter is not None and side != side_filter:
+            continue
+        uv = uv + noise_px * rng.normal(size=uv.shape)
+        conf = np.full(len(uv), score)
+        if drop is not None:
+            uv[drop] = np.nan
+            conf[drop] = 0.0
+        out.append(Detection(camera=camera, frame=frame, keypoint_set="coco17", image_uv=uv, confidence=conf,
+                             score=score, source=f"test#{camera}/{frame}/{len(out)}"))
+    return out
+
+
+def _who(track, owners):
+    return {owners[d.source] for fr in track.frames for d in fr.detections.values()}
+
+
+def test_crossing_pedestrians_keep_their_ids():
+    """Two walkers cross in front of the forward pair at 9.5 and 11 m (their images overlap, the far one is
+    half hidden then): two tracks, each holding one person's detections only."""
+    calibs = _rig()
+    calib = calibs["ylw79D0-red707B"]
+    rng = np.random.default_rng(0)
+    dets, owners = [], {}
+    n = 24
+    for k in range(n):
+        t = (k - n / 2) * 0.1
+        a = _person_points((9.5, 1.3 * t), np.pi / 2, 5 * t)          # walks to +y (leftwards in the image)
+        b = _person_points((11.0, -1.3 * t), -np.pi / 2, 5 * t + 1)    # walks to -y
+        hidden = np.arange(0, 17, 2) if abs(t) < 0.25 else None        # the far one is half occluded
+        for name, points, drop in (("a", a, None), ("b", b, hidden)):
+            for det in _detections(calib, points, k, rng, drop=drop):
+                owners[det.source + name] = name
+                det.source += name
+                dets.append(det)
+    tracks = associate(dets, calibs, ground=_ground(calibs))
+    assert len(tracks) == 2
+    assert sorted(_who(tr, owners) for tr in tracks) == [{"a"}, {"b"}]
+    assert all(len(tr) == n for tr in tracks)
+
+
+def test_false_detections_and_bystanders_never_become_tracks():
+    """Random clutter in every image and a flickering far bystander (one frame in three, low score) give no
+    track; a steady person beyond ``max_distance_m`` is dropped; the walker is the one track."""
+    calibs = _rig()
+    calib = calibs["ylw79D0-red707B"]
+    rng = np.random.default_rng(1)
+    dets, owners = [], {}
+    width, height = calib.image_size
+    for k in range(20):
+        t = k * 0.1
+        walker = _person_points((14.0, -2.0 + 1.3 * t), np.pi / 2, 5 * t)
+        far = _person_points((70.0, 3.0), np.pi, 0.0)
+        flicker = _person_points((30.0, -4.0 + 0.4 * t), np.pi / 2, 0.0)
+        groups = [("walker", _detections(calib, walker, k, rng)), ("far", _detections(calib, far, k, rng))]
+        if k % 3 == 0:
+            groups.append(("flicker", _detections(calib, flicker, k, rng, score=0.25)))
+        for camera in calib.name.split("-"):
+            for c in range(3):
+                uv = np.column_stack([rng.uniform(0, width, 17), rng.uniform(0, height, 17)])
+                conf = rng.uniform(0.05, 0.5, 17)
+                groups.append(("clutter", [Detection(camera=camera, frame=k, keypoint_set="coco17", image_uv=uv,
+                                                     confidence=conf, score=float(conf.mean()),
+                                                     source=f"clutter#{camera}/{k}/{c}")]))
+        for name, group in groups:
+            for det in group:
+                det.source += name
+                owners[det.source] = name
+                dets.append(det)
+    config = AssociationConfig(max_distance_m=50.0)
+    tracks = associate(dets, calibs, config, ground=_ground(calibs))
+    assert [_who(tr, owners) for tr in tracks] == [{"walker"}]
+    # without the distance limit the far person is a (correct) track of its own, never mixed with clutter
+    tracks = associate(dets, calibs, AssociationConfig(max_distance_m=100.0), ground=_ground(calibs))
+    assert sorted(map(sorted, (_who(tr, owners) for tr in tracks))) == [["far"], ["walker"]]
+
+
+def test_stereo_matches_on_rectified_rows():
+    """Two people side by side at one depth: each left detection pairs with its own right detection; a right
+    detection moved 40 px off the rows, or to a negative disparity, is never matched."""
+    calibs = _rig()
+    calib = calibs["ylw79D0-red707B"]
+    rng = np.random.default_rng(2)
+    config = AssociationConfig()
+    a = _detections(calib, _person_points((15.0, 0.4), np.pi / 2, 0.0), 0, rng)
+    b = _detections(calib, _person_points((15.0, -0.4), np.pi / 2, 1.0), 0, rng)
+    left = [(d, d.image_uv) for d in (a[0], b[0])]
+    right = [(d, d.image_uv) for d in (b[1], a[1])]
+    assert sorted(match_stereo(left, right, calib, config)) == [(0, 1), (1, 0)]
+    assert stereo_cost(a[0].image_uv, a[1].image_uv, calib, config) < 3.0
+    off_rows = a[1].image_uv + [0.0, 40.0]
+    assert stereo_cost(a[0].image_uv, off_rows, calib, config) >= 1e9
+    assert match_stereo(left[:1], [(a[1], off_rows)], calib, config) == [(0, None), (None, 0)]
+    behind = a[0].image_uv + [30.0, 0.0]                # right image point left of ... : negative disparity
+    assert stereo_cost(a[1].image_uv, behind, calib, config) >= 1e9
+
+
+def test_two_pairs_seeing_one_person_give_one_track():
+    """The default rig's pairs look 90 degrees apart; a person at 45 degrees between them, seen by both,
+    becomes one track holding all four cameras."""
+    cfg = SimConfig()
+    cfg.cameras.left.yaw_deg = 40.0               # turn the second pair so both see the diagonal
+    cfg.cameras.forward.yaw_deg = 10.0
+    calibs = {pair.name: make_calibration(pair) for pair in cfg.cameras.pairs()}
+    rng = np.random.default_rng(3)
+    dets = []
+    for k in range(12):
+        points = _person_points((12.0 + 0.09 * k, 6.0 + 0.09 * k), np.pi / 4, 0.5 * k)
+        for calib in calibs.values():
+            dets += _detections(calib, points, k, rng)
+    tracks = associate(dets, calibs, ground=_ground(calibs))
+    assert len(tracks) == 1
+    assert set(tracks[0].pairs) == set(calibs)
+    assert all(len(fr.detections) == 4 for fr in tracks[0].frames)
+    assert all(d.track_id == tracks[0].track_id for fr in tracks[0].frames for d in fr.detections.values())
+
+
+def test_tracker_birth_and_death():
+    """A track is output only after ``confirm_hits`` observations and ``min_track_frames`` frames; a confirmed
+    track survives ``max_misses - 1`` missing frames and dies at ``max_misses``."""
+    config = TrackerConfig(confirm_hits=3, min_track_frames=3, max_misses=3, min_mean_score=0.3)
+    uv = np.column_stack([np.linspace(1000, 1040, 17), np.linspace(800, 1200, 17)])
+
+    def obs(frame, du=0.0):
+        return Observation(frame=frame, uv={"left": uv + [du, 0.0]}, score=0.8)
+
+    tracker = Tracker(config)
+    for frame in (0, 1):
+        tracker.step(frame, [obs(frame, 5.0 * frame)])
+    assert tracker.tracks() == []                       # two hits: tentative
+    tracker.step(2, [obs(2, 10.0)])
+    tracker.step(4, [obs(4, 20.0)])                     # one frame missed: same track
+    assert [len(t) for t in tracker.tracks()] == [4]
+    tracker.step(7, [obs(7, 35.0)])                     # two frames missed: same track
+    assert [len(t) for t in tracker.tracks()] == [5]
+    tracker.step(11, [obs(11, 55.0)])                   # three frames missed: dead, a new tentative track
+    assert [len(t) for t in tracker.tracks()] == [5]

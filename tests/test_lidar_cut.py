@@ -1,0 +1,92 @@
+"""LiDAR cuts of detections: the hull frustum and the depth gate keep the person's points and drop the wall
+behind, the car in front and the ground at the feet; segments land in the release layout."""
+from __future__ import annotations
+
+import numpy as np
+
+from pedx_graph.data.ground import make_ground_frame
+from pedx_graph.data.ply import read_ply_points
+from pedx_graph.data.reader import segment_path
+from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+from pedx_graph.detections.lidar_cut import LidarCutConfig, cut_indices, hull_polygon, write_track_segments
+from pedx_graph.detections.types import Detection
+from pedx_graph.sim.cameras import make_calibration
+from pedx_graph.sim.config import SimConfig
+from test_association import GROUND_Z, _person_points
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _scene(rng):
+    """A person at 12 m, a wall at 15 m behind it, a low box 3 m in front of it, the ground (sim frame)."""
+    stick = _person_points((12.0, 0.0), np.pi / 2, 0.0)
+    limbs = [(5, 7), (7, 9), (6, 8), (8, 10), (11, 13), (13, 15), (12, 14), (14, 16), (5, 11), (6, 12), (5, 12),
+             (6, 11), (0, 5), (0, 6)]
+    pick = rng.integers(len(limbs), size=400)
+    along = rng.random((400, 1))
+    person = (stick[[limbs[i][0] for i in pick]] * (1 - along) + stick[[limbs[i][1] for i in pick]] * along
+              + 0.03 * rng.normal(size=(400, 3)))
+    wall = np.column_stack([np.full(600, 15.0), rng.uniform(-3, 3, 600), rng.uniform(GROUND_Z, GROUND_Z + 4, 600)])
+    car = np.column_stack([rng.uniform(8.8, 9.2, 200), rng.uniform(-0.5, 0.5, 200),
+                           rng.uniform(GROUND_Z, GROUND_Z + 0.6, 200)])
+    ground = np.column_stack([rng.uniform(10, 14, 800), rng.uniform(-1, 1, 800), np.full(800, GROUND_Z)])
+    inf = np.full((5, 3), np.inf)
+    cloud = np.concatenate([person, wall, car, ground, inf])
+    labels = np.repeat(["person", "wall", "car", "ground", "inf"], [400, 600, 200, 800, 5])
+    return cloud, labels
+
+
+def _detection(calib):
+    uv = calib.project(_person_points((12.0, 0.0), np.pi / 2, 0.0))[0]
+    return uv, Detection(camera=calib.name.split("-")[0], frame=3, keypoint_set="coco17", image_uv=uv,
+                         confidence=np.full(17, 0.9), score=0.9, source="test#0")
+
+
+def test_cut_keeps_the_person_only():
+    calib = make_calibration(SimConfig().cameras.forward)
+    rng = np.random.default_rng(0)
+    cloud, labels = _scene(rng)
+    uv, _ = _detection(calib)
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    config = LidarCutConfig()
+    depth = float(calib.world_to_rect(np.array([12.0, 0.0, GROUND_Z + 1.0]))[2])
+    with_depth = labels[cut_indices(uv, calib, "left", cloud, ground, config, depth_m=depth)]
+    assert (with_depth == "person").mean() > 0.97 and (with_depth == "person").sum() > 250
+    # without a depth: the nearest dense cluster of the frustum (never the wall behind, never the ground)
+    nearest = labels[cut_indices(uv, calib, "left", cloud, ground, config)]
+    assert not np.isin(nearest, ["wall", "ground", "inf"]).any()
+    # the ground height unknown: ground points at the feet stay in (nothing to remove them by)
+    unknown = make_ground_frame(UP, (1, 0, 0), np.zeros(3), None, source="calibration")
+    kept = labels[cut_indices(uv, calib, "left", cloud, unknown, config, depth_m=depth)]
+    assert (kept == "ground").sum() > 0 and (with_depth == "ground").sum() == 0
+
+
+def test_hull_grows_with_the_person():
+    config = LidarCutConfig(dilate_frac=0.1, dilate_px=0.0)
+    uv = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 100.0], [0.0, 100.0], [np.nan, np.nan]])
+    hull = hull_polygon(uv, config)
+    assert hull.min(axis=0)[1] < -5 and hull.max(axis=0)[1] > 105
+    assert hull_polygon(uv[:2], config) is None            # two keypoints: no hull
+
+
+def test_segments_in_the_release_layout(tmp_path):
+    calib = make_calibration(SimConfig().cameras.forward)
+    rng = np.random.default_rng(1)
+    cloud, labels = _scene(rng)
+    _, det = _detection(calib)
+    frame = DetectedTrackFrame(frame=3, detections={det.camera: det}, world_p=np.array([12.0, 0.0, GROUND_Z + 0.9]))
+    track = DetectedTrack(track_id="det000001", frames=[frame], pairs=(calib.name,))
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    counts = write_track_segments(tmp_path, "20991231T1200", [track], {calib.name: calib}, ground,
+                                  lambda f: cloud)
+    assert counts["segments"] == 1
+    points = read_ply_points(segment_path(tmp_path, "20991231T1200", 3, "det000001"))
+    person = cloud[labels == "person"]
+    assert len(points) > 250
+    assert np.all((points[:, 0] > 11.5) & (points[:, 0] < 12.5))      # none from the wall or the car
+    assert np.all(points[:, 2] > GROUND_Z + 0.05)                       # none from the ground
+    assert len(points) <= len(person)
+    # a frame whose cloud cannot be read costs its segments only
+    counts = write_track_segments(tmp_path / "b", "20991231T1200", [track], {calib.name: calib}, ground,
+                                  lambda f: (_ for _ in ()).throw(OSError("missing")))
+    assert counts == {"segments": 0, "points": 0, "frames_without_cloud": 1}
