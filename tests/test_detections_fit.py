@@ -106,3 +106,13 @@ def test_detector_sets_fit_close_to_pedx(scene, set_name):
         errors[name] = float(np.mean(errs))
     print(errors)
     assert errors[set_name] < 1.5 * errors["pedx18"] + 0.005, errors
+
+
+def test_click_noise_estimate_ignores_detection_labels(scene):
+    from pedx_graph.data.noise_estimate import vertical_disparities
+
+    tracks, truth = scene
+    model = BodyModel.load()
+    relabelled = [relabel(t, truth[(t.sequence, t.tracking_id)], model, "body25", seed=2) for t in tracks]
+    assert len(vertical_disparities(tracks).disparity_px) > 0
+    assert len(vertical_disparities(relabelled).disparity_px) == 0

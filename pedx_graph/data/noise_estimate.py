@@ -227,7 +227,8 @@ class VerticalDisparities:
 
 def vertical_disparities(tracks: Iterable, visible_only: bool = True) -> VerticalDisparities:
     """Collect the vertical disparities of every keypoint labelled in both images of a pair (all pairs of
-    every frame of every track).  ``visible_only``: both clicks flagged visible."""
+    every frame of every track; PedX-set labels only: imported detections carry their own ``sigma_px``).
+    ``visible_only``: both clicks flagged visible."""
     values, kps, grp = [], [], []
     groups: dict[tuple[str, str], int] = {}
     integer = True
@@ -235,6 +236,8 @@ def vertical_disparities(tracks: Iterable, visible_only: bool = True) -> Vertica
         for frame in track.frames:
             for pair, left, right in frame_stereo_views(frame):
                 if left is None or right is None:
+                    continue
+                if getattr(left, "keypoint_set", "pedx18") != "pedx18":   # detections carry their own sigma_px
                     continue
                 lk = np.asarray(left.keypoints, dtype=float)
                 rk = np.asarray(right.keypoints, dtype=float)
