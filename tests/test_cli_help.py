@@ -90,3 +90,46 @@ def test_version_from_the_console_entry_point():
                           env=env, timeout=120)
     assert done.returncode == 0
     assert done.stdout.strip() == f"pedx-graph {pedx_graph.__version__}"
+
+
+def run_on_a_terminal(argv: list[str]) -> tuple[int, str, str]:
+    """Run ``python -m pedx_graph.cli ARGV`` with stderr on a pseudo-terminal (120 columns); returns the exit
+    code, stdout and what the terminal received."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "pedx_graph.cli", *argv], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=slave, env=env)
+    os.close(slave)
+    received = b""
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:                  # the child closed the terminal
+            break
+        if not chunk:
+            break
+        received += chunk
+    os.close(master)
+    stdout = proc.stdout.read().decode()
+    return proc.wait(timeout=300), stdout, received.decode(errors="replace")
+
+
+def test_progress_bar_per_track_on_a_terminal_only(tmp_path):
+    from scene_fixtures import small_scene
+
+    scene = small_scene(tmp_path / "scene", pedestrians=2, frames=3, seed=0)
+    code, stdout, terminal = run_on_a_terminal(["fit", str(scene), "--out", str(tmp_path / "a")])
+    assert code == 0 and "fitted 2 of 2 tracks" in stdout
+    assert "fit: 100%" in terminal and "2/2" in terminal and "track/s" in terminal
+    code, _, terminal = run_on_a_terminal(["fit", str(scene), "--out", str(tmp_path / "b"), "--quiet"])
+    assert code == 0 and "fit:" not in terminal
+    env = dict(os.environ, PYTHONPATH=str(ROOT))        # stderr to a pipe: no bar either
+    done = subprocess.run([sys.executable, "-m", "pedx_graph.cli", "fit", str(scene), "--out", str(tmp_path / "c")],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0 and "fit:" not in done.stderr and "%|" not in done.stderr
