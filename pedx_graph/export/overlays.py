@@ -76,8 +76,10 @@ def _pt(uv: np.ndarray, shift: int = 4) -> tuple[int, int]:
     return int(round(uv[0] * (1 << shift))), int(round(uv[1] * (1 << shift)))
 
 
-def draw_label(image: np.ndarray, label: View2D, colour: tuple[int, int, int], scale: float, width: int) -> None:
-    """The 2D label: polygon (thin, in the track's colour), ``+`` on visible and ``x`` on occluded clicks."""
+def draw_label(image: np.ndarray, label: View2D, colour: tuple[int, int, int], scale: float, width: int,
+               size: int | None = None) -> None:
+    """The 2D label: polygon (thin, in the track's colour), ``+`` on visible and ``x`` on occluded clicks
+    (``size`` pixels across; default from the line width)."""
     import cv2
 
     from pedx_graph.export.camera import to_image_pixels
@@ -86,7 +88,7 @@ def draw_label(image: np.ndarray, label: View2D, colour: tuple[int, int, int], s
         poly = np.round(to_image_pixels(np.asarray(label.polygon, float), scale) * 16).astype(np.int32)
         cv2.polylines(image, [poly], True, colour, width, cv2.LINE_AA, 4)
     kp = to_image_pixels(np.asarray(label.keypoints, float), scale)
-    size = 6 * width + 4
+    size = size or 6 * width + 4
     for i in np.flatnonzero(label.labelled):
         marker = cv2.MARKER_CROSS if label.visible[i] else cv2.MARKER_TILTED_CROSS
         centre = tuple(int(round(c)) for c in kp[i])
@@ -111,8 +113,12 @@ def draw_overlay(image: np.ndarray, camera, people: list[PersonInView], scale: f
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cv2.drawContours(out, contours, -1, p.colour_bgr, width, cv2.LINE_AA)
     for p in people:
+        box = person_box(camera, p.world_vertices, scale)
+        tall = float(box[1, 1] - box[0, 1]) if box is not None else 1e9     # person height in pixels
+        marker = int(np.clip(tall / 12, 4, 6 * width + 4))
+        dot = int(np.clip(16 * tall / 80, 16, 16 * (width + 1)))
         if p.label is not None:
-            draw_label(out, p.label, p.colour_bgr, scale, width)
+            draw_label(out, p.label, p.colour_bgr, scale, max(1, min(width, marker // 4)), marker)
         if p.world_keypoints is None:
             continue
         uv, depth = camera.project(p.world_keypoints, scale)
@@ -124,8 +130,8 @@ def draw_overlay(image: np.ndarray, camera, people: list[PersonInView], scale: f
         cov2 = (camera.image_covariance(p.world_keypoints, p.world_keypoint_cov, scale)
                 if p.world_keypoint_cov is not None else None)
         for i in np.flatnonzero(front):
-            cv2.circle(out, _pt(uv[i]), 16 * (width + 2), (0, 0, 0), -1, cv2.LINE_AA, 4)
-            cv2.circle(out, _pt(uv[i]), 16 * (width + 1), p.colour_bgr, -1, cv2.LINE_AA, 4)
+            cv2.circle(out, _pt(uv[i]), dot + 16, (0, 0, 0), -1, cv2.LINE_AA, 4)
+            cv2.circle(out, _pt(uv[i]), dot, p.colour_bgr, -1, cv2.LINE_AA, 4)
             if cov2 is None:
                 continue
             axes = ellipse_axes(cov2[i])
@@ -137,7 +143,7 @@ def draw_overlay(image: np.ndarray, camera, people: list[PersonInView], scale: f
     if title:
         font_scale = 0.5 * max(1.0, image.shape[1] / 1200)
         cv2.putText(out, title, (8 * width, int(24 * font_scale / 0.5)), cv2.FONT_HERSHEY_SIMPLEX, font_scale,
-                    (0, 0, 0), 3 * width, cv2.LINE_AA)
+                    (0, 0, 0), width + 2, cv2.LINE_AA)
         cv2.putText(out, title, (8 * width, int(24 * font_scale / 0.5)), cv2.FONT_HERSHEY_SIMPLEX, font_scale,
                     (255, 255, 255), width, cv2.LINE_AA)
     return out
