@@ -57,7 +57,7 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack` s; ``records``: the format's truth
     records; ``labelled``: tracking id -> {frame: horizontal distance (m)} of the labelled instances.
     Returns ``{"tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people",
-    "id_switches", "fragmentations", "owners": {track id: owner}}``.
+    "id_switches", "fragmentations", "owners": {track id: owner}, "switches_by_person": {tid: count}}``.
     """
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     owners, false, bystander = {}, 0, 0
@@ -80,7 +80,8 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
         if owner not in labelled:
             bystander += 1
     switches, fragmentations, recovered, eligible = 0, 0, 0, 0
-    for tid, frames in labelled.items():
+    by_person: dict[str, int] = {}
+    for tid, frames in sorted(labelled.items()):
         if len(frames) < min_frames:
             continue
         eligible += 1
@@ -94,8 +95,9 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
             used |= ids
             if previous is not None and previous not in ids:
                 switches += 1
+                by_person[tid] = by_person.get(tid, 0) + 1
             previous = previous if previous in ids else min(ids)
         fragmentations += max(len(used) - 1, 0)
     return {"tracks": len(tracks), "false_tracks": false, "bystander_tracks": bystander,
             "recovered": recovered, "labelled_people": eligible, "id_switches": switches,
-            "fragmentations": fragmentations, "owners": owners}
+            "fragmentations": fragmentations, "owners": owners, "switches_by_person": by_person}

@@ -1,0 +1,356 @@
+"""Benchmark: manual labels vs detector keypoints (OpenPose BODY_25 / BODY_25B, COCO) on the same simulated scenes.
+
+Each scene is simulated once with detector output (``SimConfig.detections``, :mod:`pedx_graph.sim.detections`:
+OpenPose and COCO files on distorted raw images, detector noise growing with size, confidences falling with
+error and occlusion, missed people, fragments and clutter, no ids; 15 % of the pedestrians are bystanders
+that are never labelled but detected).  Inputs compared on it:
+
+* ``manual``: the simulated annotators' PedX labels and polygon-cut LiDAR segments (the paper's input);
+* ``openpose_body25``, ``openpose_body25b``, ``coco``: the detector files through ``pedx-graph import``
+  (:func:`pedx_graph.detections.importer.import_detections`: undistort + rectify, association into tracks,
+  confidence -> pixel noise, LiDAR cut from the scene clouds), each keypoint set projected by its own body-model
+  definition in the fit.
+
+Every track is fitted with batch LM (``fit_track``, covariances on).  Accuracy per frame against the
+simulator's SMPL truth: manual tracks by their tracking id; detector tracks against the labelled person
+whose pelvis is nearest the fitted pelvis at that frame (within 1 m in the ground plane; frames of
+bystanders have no truth and are not scored).  Reported per input and distance bin (horizontal distance of
+the true pelvis from the LiDAR): global MPJPE and root-relative MPJPE (13 evaluation joints, after similarity
+alignment for the latter), mean keypoint NEES / 3 dof and the 95 % ellipsoid coverage of the 18 fitted
+keypoints (covariance status ``ok``).
+
+Association (per detector format, run as the import runs it, scored against ``truth/detections``,
+:mod:`pedx_graph.detections.evaluate`): tracks, false tracks (made of clutter / fragments or of several
+people), bystander tracks (a real unlabelled person), labelled people recovered, identity switches (all
+labelled people, and those in a crossing: two labelled people at 5-25 m whose labelled keypoint boxes overlap
+in one image at one frame), fragmentations.
+
+Scenes: ``crossing`` (default rig, everyone on the crosswalks, no groups, labelled at 5-25 m: people cross in
+front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair turned 20 degrees and placed
+0.93 m beside the first as on the real rig, the simulator's walkway mix with groups, labelled at 5-45 m).
+
+    python benchmarks/bench_detections.py [--seed 0] [--pedestrians 8] [--frames 16] [--workers 2]
+                                          [--out benchmarks/results]
+
+Writes ``bench_detections.json`` and ``bench_detections.md`` into ``--out``.  Goals (issue 15): detector input
+within 1.5x the manual-label MPJPE at 5-25 m, no identity switch on crossing pedestrians at that range, no
+track made of bystander noise (false tracks = 0).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from _common import cell, hardware, public_args  # noqa: E402
+from pedx_graph.data.calib import read_calibrations  # noqa: E402
+from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
+from pedx_graph.data.ply import read_ply_points  # noqa: E402
+from pedx_graph.data.reader import read_dataset, read_smpl_labels  # noqa: E402
+from pedx_graph.detections.association import associate  # noqa: E402
+from pedx_graph.detections.coco import read_coco  # noqa: E402
+from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
+from pedx_graph.detections.importer import import_detections  # noqa: E402
+from pedx_graph.detections.openpose import read_openpose  # noqa: E402
+from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
+from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin, eval_joints, joint_errors  # noqa: E402
+from pedx_graph.graph.config import FitConfig  # noqa: E402
+from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig  # noqa: E402
+from pedx_graph.sim.detections import coco_paths  # noqa: E402
+from pedx_graph.sim.simulate import simulate  # noqa: E402
+from pedx_graph.solvers.fit import _context, fit_tracks  # noqa: E402
+from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
+
+SHARED_CMU = ROOT.parent / "shared" / "mocap" / "cmu"
+FORMATS = ("openpose_body25", "openpose_body25b", "coco")
+INPUTS = ("manual",) + FORMATS
+#: chi2 with 3 dof at 95 %.
+CHI2_3_95 = 7.815
+#: A detector track's frame is scored against the labelled person whose pelvis is this near, metres.
+MATCH_RADIUS_M = 1.0
+#: The range of the goals, metres.
+GOAL_RANGE_M = (5.0, 25.0)
+
+
+def scene_configs(pedestrians: int, frames: int) -> dict[str, SimConfig]:
+    """The two scenes (module docstring), detector output on."""
+    out = {}
+    crossing = SimConfig()
+    crossing.scene.crosswalk_prob = 1.0
+    crossing.scene.group_prob = 0.0
+    crossing.labels.max_distance_m = GOAL_RANGE_M[1]
+    out["crossing"] = crossing
+    mixed = SimConfig()
+    fwd, side = mixed.cameras.forward, mixed.cameras.left
+    fwd.focal_px, fwd.baseline_m = 3266.7, 0.329
+    side.focal_px, side.baseline_m = 3332.5, 0.274
+    side.yaw_deg = 20.0
+    side.left_camera_xyz = (0.0, -0.9, -0.08)
+    out["mixed"] = mixed
+    for cfg in out.values():
+        cfg.scene.n_pedestrians = pedestrians
+        cfg.scene.n_frames = frames
+        cfg.labels.unlabelled_prob = 0.15
+        cfg.detections.formats = FORMATS
+        if SHARED_CMU.is_dir():
+            cfg.motion.motion_dir = str(SHARED_CMU)
+            cfg.motion.split = "holdout"
+    return out
+
+
+def read_format(scene: Path, fmt: str, sequence: str) -> list:
+    """The detections of one format as the import reads them."""
+    if fmt == "coco":
+        images, results = coco_paths(scene, sequence)
+        return read_coco(results, images=images)
+    return read_openpose(scene / "detections" / fmt / sequence, keypoint_set=DETECTOR_FORMATS[fmt])
+
+
+def labelled_instances(scene: Path, sequence: str) -> dict[str, dict[int, float]]:
+    """Tracking id -> {frame: horizontal distance (m)} of every labelled instance (``truth/<seq>/*.json``)."""
+    out: dict[str, dict[int, float]] = defaultdict(dict)
+    for path in sorted((scene / "truth" / sequence).glob("*.json")):
+        record = json.loads(path.read_text())
+        for tid, person in record["people"].items():
+            if person.get("labelled"):
+                out[tid][int(record["frame"])] = float(person["distance_m"])
+    return dict(out)
+
+
+def crossing_people(manual_tracks, labelled: dict) -> tuple[set, int]:
+    """Labelled people in a crossing at 5-25 m (module docstring) and the number of (pair, frame) events."""
+    boxes = defaultdict(list)                # (frame, pair, side) -> [(tid, box)]
+    for track in manual_tracks:
+        for fr in track.frames:
+            distance = labelled.get(track.tracking_id, {}).get(fr.frame)
+            if distance is None or not GOAL_RANGE_M[0] <= distance < GOAL_RANGE_M[1]:
+                continue
+            for pair, side, view in fr.labelled_views():
+                box = keypoint_box(view.keypoints)
+                if box is not None:
+                    boxes[(fr.frame, pair, side)].append((track.tracking_id, box))
+    people, events = set(), set()
+    for (frame, _, _), items in boxes.items():
+        for i in range(len(items)):
+            for j in range(i + 1, len(items)):
+                if box_iou(items[i][1], items[j][1]) > 0:
+                    people |= {items[i][0], items[j][0]}
+                    events.add((frame, tuple(sorted((items[i][0], items[j][0])))))
+    return people, len(events)
+
+
+def _truth_frames(truth_labels: dict, model) -> dict[int, list]:
+    """frame -> [(tid, (18, 3) true keypoints, (3,) true pelvis)] of every labelled instance."""
+    out = defaultdict(list)
+    for (_, tid), labels in truth_labels.items():
+        for lab in labels:
+            body = model.forward(lab.pose, lab.betas, lab.trans)
+            out[lab.frame].append((tid, np.asarray(body.keypoints), np.asarray(body.joints[0])))
+    return out
+
+
+def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dict, ground, by_id: bool) -> tuple:
+    """Per scored frame: distance, global / root-relative MPJPE (mm), keypoint NEES (18,); plus failures."""
+    rows, failures = [], 0
+    for track, (result, error) in zip(tracks, fit_tracks(tracks, config, workers=workers)):
+        if result is None:
+            failures += 1
+            continue
+        for i, frame in enumerate(result.frames):
+            candidates = truth.get(frame, [])
+            pelvis_fit = np.asarray(result.world_keypoints[i])[[12, 13]].mean(axis=0)
+            if by_id:
+                chosen = [c for c in candidates if c[0] == track.tracking_id]
+            else:
+                gaps = [np.linalg.norm(ground.to_level(c[1][[12, 13]].mean(axis=0))[:2]
+                                       - ground.to_level(pelvis_fit)[:2]) for c in candidates]
+                chosen = [candidates[int(np.argmin(gaps))]] if gaps and min(gaps) <= MATCH_RADIUS_M else []
+            if not chosen:
+                continue
+            tid, true_kp, _ = chosen[0]
+            fitted = np.asarray(result.world_keypoints[i])
+            glob, rel = joint_errors(eval_joints(fitted[None]), eval_joints(true_kp[None]))
+            extra = result.extra_per_frame[i] if result.extra_per_frame else {}
+            nees = None
+            if extra.get("covariance_status") == "ok" and extra.get("cov_keypoints_3d") is not None:
+                err = fitted - true_kp
+                cov = np.asarray(extra["cov_keypoints_3d"], dtype=float)
+                nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+            rows.append({"distance_m": labelled[tid][frame], "mpjpe_mm": 1000 * float(np.mean(glob)),
+                         "rel_mpjpe_mm": 1000 * float(np.mean(rel)), "nees": nees})
+    return rows, failures
+
+
+def _stats(rows: list[dict]) -> dict:
+    if not rows:
+        return {"frames": 0}
+    nees = np.concatenate([r["nees"] for r in rows if r["nees"] is not None] or [np.zeros(0)])
+    return {"frames": len(rows), "mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])),
+            "rel_mpjpe_mm": float(np.mean([r["rel_mpjpe_mm"] for r in rows])),
+            "keypoint_nees_over_dof": float(nees.mean() / 3) if len(nees) else None,
+            "keypoint_coverage95": float(np.mean(nees <= CHI2_3_95)) if len(nees) else None}
+
+
+def summarise(rows: list[dict]) -> dict:
+    out = {"all": _stats(rows)}
+    lo, hi = GOAL_RANGE_M
+    out[f"{lo:g}-{hi:g}"] = _stats([r for r in rows if lo <= r["distance_m"] < hi])
+    for b_lo, b_hi in DISTANCE_BINS:
+        label = distance_bin(0.5 * (b_lo + b_hi))
+        out[label] = _stats([r for r in rows if distance_bin(r["distance_m"]) == label])
+    return out
+
+
+def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fit_config: FitConfig, ctx) -> dict:
+    scene = work / name
+    t0 = time.perf_counter()
+    sim_summary = simulate(scene, cfg, seed=seed, workers=workers)
+    seconds = {"simulate": time.perf_counter() - t0}
+    seq = cfg.scene.sequence
+    truth_labels = read_smpl_labels(scene)
+    labelled = labelled_instances(scene, seq)
+    truth = _truth_frames(truth_labels, ctx.model)
+    calibs = read_calibrations(scene / "calib")
+    manual = read_dataset(scene)
+    ground = manual[0].ground if manual else ground_from_calibrations(calibs, seq)
+    crossing, events = crossing_people(manual, labelled)
+    clouds = {int(p.stem.rsplit("_", 1)[1]): read_ply_points(p)
+              for p in sorted((scene / "pointclouds" / seq).glob(f"{seq}_*.ply"))}
+    result = {"simulated": {k: sim_summary[k] for k in ("pedestrians", "labelled_tracks", "labelled_instances",
+                                                       "detections")},
+              "crossing_people": len(crossing), "crossing_events": events, "association": {}, "accuracy": {},
+              "tracks_fitted": {}, "fit_failures": {}}
+    t0 = time.perf_counter()
+    rows, failures = fit_rows(manual, fit_config, workers, truth, labelled, ground, by_id=True)
+    seconds["fit_manual"] = time.perf_counter() - t0
+    result["accuracy"]["manual"], result["tracks_fitted"]["manual"] = rows, len(manual)
+    result["fit_failures"]["manual"] = failures
+    for fmt in FORMATS:
+        detections = read_format(scene, fmt, seq)
+        records = read_detection_truth(scene, seq, fmt)
+        t0 = time.perf_counter()
+        tracks = associate(detections, calibs, clouds=clouds, ground=ground_from_calibrations(calibs, seq))
+        seconds[f"associate_{fmt}"] = time.perf_counter() - t0
+        score = score_tracks(tracks, records, labelled)
+        score["crossing_id_switches"] = sum(n for tid, n in score["switches_by_person"].items() if tid in crossing)
+        score.pop("owners")
+        result["association"][fmt] = score
+        imported = work / f"{name}_{fmt}"
+        summary = import_detections(detections, scene, imported)
+        score["import_tracks"] = summary["sequences"][seq]["tracks"]
+        dataset = read_dataset(imported) if (imported / "labels").is_dir() else []      # no track found
+        t0 = time.perf_counter()
+        rows, failures = fit_rows(dataset, fit_config, workers, truth, labelled, ground, by_id=False)
+        seconds[f"fit_{fmt}"] = time.perf_counter() - t0
+        result["accuracy"][fmt], result["tracks_fitted"][fmt] = rows, len(dataset)
+        result["fit_failures"][fmt] = failures
+    result["seconds"] = seconds
+    return result
+
+
+def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path) -> dict:
+    fit_config = FitConfig()
+    fit_config.diagnostics = False
+    fit_config.covariances = True
+    ctx = _context(fit_config)
+    scenes = {}
+    for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames).items()):
+        scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx)
+    accuracy = {}
+    for source in INPUTS:
+        rows = [r for sc in scenes.values() for r in sc["accuracy"][source]]
+        accuracy[source] = summarise(rows)
+    for sc in scenes.values():
+        sc["accuracy"] = {source: summarise(rows) for source, rows in sc["accuracy"].items()}
+    key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
+    manual = accuracy["manual"][key].get("mpjpe_mm")
+    goals = {}
+    for fmt in FORMATS:
+        det = accuracy[fmt][key].get("mpjpe_mm")
+        ratio = det / manual if det is not None and manual else None
+        goals[fmt] = {"mpjpe_ratio_5_25": ratio, "within_1.5x": ratio is not None and ratio <= 1.5,
+                      "crossing_id_switches": sum(sc["association"][fmt]["crossing_id_switches"]
+                                                  for sc in scenes.values()),
+                      "false_tracks": sum(sc["association"][fmt]["false_tracks"] for sc in scenes.values())}
+    return {"scenes": scenes, "accuracy": accuracy, "goals": goals,
+            "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait"}
+
+
+def markdown(result: dict, command: str) -> str:
+    key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
+    lines = ["# bench_detections: manual labels vs detector keypoints", "", f"Command: `{command}`", "",
+             f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene, "
+             f"{result['motion']}.  Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and "
+             "COCO files on distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
+             "imported with `pedx-graph import` (association, undistortion, confidence -> noise, LiDAR cut) and "
+             "fitted with batch LM; manual = the simulated annotators' labels and segments).", "",
+             "## Goals (issue 15)", "",
+             "| input | MPJPE ratio to manual at 5-25 m | within 1.5x | id switches, crossing people | false tracks |",
+             "|---|---|---|---|---|"]
+    for fmt, g in result["goals"].items():
+        lines.append(f"| {fmt} | {cell(g['mpjpe_ratio_5_25'], '.2f')} | {'yes' if g['within_1.5x'] else 'no'} | "
+                     f"{g['crossing_id_switches']} | {g['false_tracks']} |")
+    lines += ["", "## Association (per scene and format)", "",
+              "| scene | format | tracks | false | bystander | recovered / labelled people | id switches "
+              "(crossing) | fragmentations | crossing people (events) |", "|---|---|---|---|---|---|---|---|---|"]
+    for name, sc in result["scenes"].items():
+        for fmt, a in sc["association"].items():
+            lines.append(f"| {name} | {fmt} | {a['tracks']} | {a['false_tracks']} | {a['bystander_tracks']} | "
+                         f"{a['recovered']} / {a['labelled_people']} | {a['id_switches']} "
+                         f"({a['crossing_id_switches']}) | {a['fragmentations']} | "
+                         f"{sc['crossing_people']} ({sc['crossing_events']}) |")
+    lines += ["", "## Accuracy (both scenes)", "",
+              "| input | bin (m) | frames | MPJPE (mm) | root-rel. MPJPE (mm) | keypoint NEES / dof | "
+              "95 % coverage |", "|---|---|---|---|---|---|---|"]
+    for source, summary in result["accuracy"].items():
+        for label, st in summary.items():
+            if not st["frames"]:
+                continue
+            lines.append(f"| {source} | {label} | {st['frames']} | {st['mpjpe_mm']:.1f} | {st['rel_mpjpe_mm']:.1f} | "
+                         f"{cell(st['keypoint_nees_over_dof'], '.2f')} | {cell(st['keypoint_coverage95'], '.3f')} |")
+    lines += ["", f"Frames are scored where a labelled person is matched (detector tracks: nearest true pelvis within "
+              f"{MATCH_RADIUS_M:g} m); the {key} m row is the goal's range.  Per scene:", ""]
+    for name, sc in result["scenes"].items():
+        fitted = ", ".join(f"{k} {v}" for k, v in sc["tracks_fitted"].items())
+        failed = sum(sc["fit_failures"].values())
+        lines.append(f"- {name}: tracks fitted {fitted}; failed fits {failed}; seconds "
+                     + ", ".join(f"{k} {v:.1f}" for k, v in sc["seconds"].items()))
+    lines += ["", f"Hardware: {result['hardware']}", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--pedestrians", type=int, default=8)
+    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--workers", type=int, default=2, help="processes for simulating and fitting")
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="bench_detections_") as tmp:
+        result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp))
+    result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
+                  total_seconds=time.perf_counter() - t0, hardware=hardware())
+    command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
+    result["command"] = command
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "bench_detections.json", result)
+    atomic_write_text(out / "bench_detections.md", markdown(result, command))
+    print(markdown(result, command))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
