@@ -24,9 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pedx_graph import BodyModel, SimConfig, fit_dataset, read_smpl_labels, simulate
-from pedx_graph.detections.importer import ImportConfig, import_detections
-from pedx_graph.detections.openpose import read_openpose
+from pedx_graph import (BodyModel, ImportConfig, SimConfig, fit_dataset, import_detections, read_openpose,
+                        read_smpl_labels, simulate)
 
 
 def nearest_person(fitted_labels, truth: dict, model: BodyModel) -> tuple[str | None, float]:

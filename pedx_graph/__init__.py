@@ -12,7 +12,8 @@ reading and writing data (:func:`read_dataset`, :func:`read_smpl_labels`, :func:
 (:func:`fit_track`, :func:`fit_dataset`), streaming (:class:`StreamingEstimator`, :func:`stream_dataset`), the
 body model (:class:`BodyModel`), the simulator (:func:`simulate`) and the config dataclasses
 (:class:`FitConfig` and its sections, :class:`StreamConfig`, :class:`SimConfig`, :class:`GroundConfig`, ...;
-:func:`load_config` reads any of them from YAML).
+:func:`load_config` reads any of them from YAML), detector files in (:func:`read_openpose`, :func:`read_coco`,
+:func:`import_detections`) and meshes and pictures out (:func:`export_results`).
 """
 from __future__ import annotations
 
@@ -42,6 +43,11 @@ _PUBLIC: dict[str, str] = {
     "StreamingEstimator": "pedx_graph.solvers.stream",
     "FrameEstimate": "pedx_graph.solvers.stream",
     "stream_dataset": "pedx_graph.solvers.stream",
+    # detections in, pictures and meshes out
+    "read_openpose": "pedx_graph.detections.openpose",
+    "read_coco": "pedx_graph.detections.coco",
+    "import_detections": "pedx_graph.detections.importer",
+    "export_results": "pedx_graph.export.run",
     # body model
     "BodyModel": "pedx_graph.body.model",
     # simulator
@@ -59,6 +65,8 @@ _PUBLIC: dict[str, str] = {
     "IsamConfig": "pedx_graph.solvers.isam",
     "SimConfig": "pedx_graph.sim.config",
     "rig_config": "pedx_graph.sim.config",
+    "ImportConfig": "pedx_graph.detections.importer",
+    "ExportConfig": "pedx_graph.export.run",
     "load_config": "pedx_graph.config",
     "save_config": "pedx_graph.config",
     "ConfigError": "pedx_graph.config",
