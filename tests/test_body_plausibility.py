@@ -1,4 +1,4 @@
-"""Plausibility fields of every fitted track (pedx_graph.solvers.diagnostics): the posed meshes' signed
+"""Plausibility fields of every fitted track (pedx_graph.solvers.body_checks): the posed meshes' signed
 volumes, inside-out frames, the largest |beta|, and the ``monocular`` flag."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pedx_graph.body import BodyModel
 from pedx_graph.data.reader import read_dataset
 from pedx_graph.data.types import TrackFrame, View2D
 from pedx_graph.graph.config import FitConfig
-from pedx_graph.solvers.diagnostics import body_plausibility, is_monocular, mesh_signed_volumes
+from pedx_graph.solvers.body_checks import body_plausibility, is_monocular, mesh_signed_volumes
 from pedx_graph.solvers.fit import _context, fit_track
 
 

@@ -1,6 +1,6 @@
 """Plausibility of a fitted track: refuse an estimate that no real pedestrian could be, before it is written.
 
-:func:`check_track_result` runs on every solver's result (batch LM :func:`~pedx_graph.solvers.fit.fit_track`,
+:func:`check_track_result` runs on every solver's result (batch LM :func:`~pedx_graph.solvers.track_lm.fit_track`,
 ADMM, the stream's smoothed tracks) and raises :class:`ImplausibleEstimateError` naming every check that failed;
 the caller records the track as failed with that reason and writes nothing for it.  The checks, with the
 thresholds of :class:`PlausibilityConfig`:
@@ -17,12 +17,12 @@ thresholds of :class:`PlausibilityConfig`:
   (``factors.shape_prior``), so 0.25 is a body the prior could not have produced.  Without a support term,
   ``max_abs_beta`` bounds it.
 * ``inside_out``: a posed mesh with a non-positive signed volume (``inside_out_frames`` of
-  :func:`~pedx_graph.solvers.diagnostics.body_plausibility`): a mirrored body.  Judged only for a body model
+  :func:`~pedx_graph.solvers.body_checks.body_plausibility`): a mirrored body.  Judged only for a body model
   whose mesh is closed (``mesh_closed``; the volume of an open mesh has no sign to trust).
 * ``inconsistent_residuals``: more than ``max_outlier_fraction`` (70 %) of the 2D keypoint rows
   (``stereo_reprojection``), or more than ``max_lidar_outlier_fraction`` (90 %) of the LiDAR rows
   (``lidar_chamfer``), rejected by the term's robust loss
-  (``outlier_rows`` of :func:`~pedx_graph.solvers.diagnostics.residual_tables`: whitened residual past the
+  (``outlier_rows`` of :func:`~pedx_graph.solvers.residuals.residual_tables`: whitened residual past the
   loss scale, 3 sigma).  The robust losses exist to switch off a few bad clicks or points; when most of
   them are off, the measurements contradict each other and no body meets them (an extrinsic tens of metres
   off, labels of another person).  On the simulated benchmark scenes at most ~12 % of a term's rows are
@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from pedx_graph.graph.config import PlausibilityConfig
+from pedx_graph.solvers.residuals import residual_tables
 
 
 class ImplausibleEstimateError(ValueError):
@@ -71,8 +72,6 @@ def _residual_totals(result, fit_config, problem, values) -> dict | None:
         return diagnostics["residuals"]
     if problem is None or values is None:
         return None
-    from pedx_graph.solvers.diagnostics import residual_tables
-
     return residual_tables(problem, values, fit_config=fit_config)[1]
 
 
