@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -33,9 +34,12 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from pedx_graph.body import BodyModel
-from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
+from pedx_graph.body.io import validate_model_arrays
 from pedx_graph.body.model import default_model_path
 from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # tests/synthetic_model.py
+from synthetic_model import synthetic_model_arrays  # noqa: E402
 
 OUT_DIR = Path(__file__).resolve().parent / "results"
 TARGETS_MS = {"keypoints + Jacobians, batched": 0.3, "full-mesh LBS, batched": 3.0}

@@ -7,7 +7,7 @@ the chamfer factor then reuses its matches) and ``graph.linearize`` at another n
 ``--repeats`` times in process CPU time (single-threaded BLAS; CPU time is robust to other jobs on a shared
 machine, wall time is not); the median divided by the number of factors is reported in microseconds per
 factor (the callbacks dominate; GTSAM's own overhead is included).  Body model: a synthetic SMPL-format model
-(``pedx_graph.body.io.synthetic_model_arrays``) with SMPL's vertex count (6890) unless ``--vertices`` says
+(``tests/synthetic_model.py``) with SMPL's vertex count (6890) unless ``--vertices`` says
 otherwise.  Output: benchmarks/results/factors_callback_cost.{json,md}.
 
     python benchmarks/factors_callback_cost.py [--frames 100] [--repeats 3] [--vertices 6890]
@@ -17,11 +17,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")           # one thread: CPU time then equals the callbacks' own work
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # tests/synthetic_model.py
 
 import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
@@ -31,8 +33,9 @@ from factors import (FrameKeys, FrameState, StereoKeypoints, make_heading_prior_
                      make_stereo_reprojection_factor, make_temporal_prior_factor, make_translation_prior_factor)
 from factors.common import MaxMixture
 from factors.temporal_prior import TEMPORAL_DIM
-from factors.testing import frame_values, make_test_calibration, random_gmm, standing_rotation, synthetic_body_model
+from factors.testing import frame_values, make_test_calibration, random_gmm, standing_rotation
 from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
+from synthetic_model import synthetic_body_model  # noqa: E402
 
 OUT_DIR = Path(__file__).resolve().parent / "results"
 

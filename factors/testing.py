@@ -176,11 +176,3 @@ def frame_values(keys, world_R_body: np.ndarray, trans: np.ndarray, body_pose: n
     v.insert(keys[2], np.asarray(body_pose, float))
     v.insert(keys[3], np.asarray(betas, float))
     return v
-
-
-def synthetic_body_model(num_vertices: int = 300, seed: int = 0):
-    """A real ``pedx_graph.body.BodyModel`` on the package's synthetic SMPL-format arrays."""
-    from pedx_graph.body import BodyModel
-    from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
-
-    return BodyModel.from_data(validate_model_arrays(synthetic_model_arrays(num_vertices=num_vertices, seed=seed)))

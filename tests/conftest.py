@@ -22,7 +22,7 @@ SYNTHETIC_SEED = 0
 
 @pytest.fixture(scope="session")
 def synthetic_smpl_arrays() -> dict:
-    from pedx_graph.body.io import synthetic_model_arrays
+    from synthetic_model import synthetic_model_arrays
 
     return synthetic_model_arrays(num_vertices=SYNTHETIC_NUM_VERTICES, seed=SYNTHETIC_SEED)
 

@@ -13,7 +13,8 @@ import numpy as np
 
 from factors.common import MaxMixture
 from factors.temporal_prior import TEMPORAL_DIM
-from factors.testing import make_test_calibration, standing_rotation, synthetic_body_model
+from factors.testing import make_test_calibration, standing_rotation
+from synthetic_model import synthetic_body_model
 from pedx_graph.data.types import Track, TrackFrame, View2D
 from pedx_graph.graph.build import EstimatorContext, farthest_point_subset
 from pedx_graph.graph.config import FitConfig

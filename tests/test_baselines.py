@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from factors.common import MaxMixture
-from factors.testing import make_test_calibration, synthetic_body_model
+from factors.testing import make_test_calibration
+from synthetic_model import synthetic_body_model
 from pedx_graph.baselines.left_disparity import (left_disparity_baseline, left_disparity_keypoints,
                                                  sample_disparity_map)
 from pedx_graph.baselines.run import BASELINES, BaselineConfig, fit_dataset_baseline, run_baseline
@@ -224,7 +225,8 @@ def test_dataset_run_writes_results_that_evaluate(tmp_path, scene, synthetic_tra
 
 @pytest.fixture(scope="module")
 def synthetic_track_model_file(tmp_path_factory):
-    from pedx_graph.body.io import save_model_npz, synthetic_model_arrays
+    from pedx_graph.body.io import save_model_npz
+    from synthetic_model import synthetic_model_arrays
 
     return save_model_npz(tmp_path_factory.mktemp("model") / "synthetic.npz", synthetic_model_arrays(seed=0))
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from pedx_graph.body import BodyModel
-from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
+from pedx_graph.body.io import validate_model_arrays
+from synthetic_model import synthetic_model_arrays
 from pedx_graph.body.rotation import exp_so3, log_so3
 
 STEP = 1e-6

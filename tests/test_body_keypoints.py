@@ -4,7 +4,8 @@ import pytest
 import scipy.sparse as sp
 
 from pedx_graph.body import PEDX_KEYPOINTS, BodyModel
-from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
+from pedx_graph.body.io import validate_model_arrays
+from synthetic_model import synthetic_model_arrays
 from pedx_graph.body.keypoint_defs import (SMPL_JOINT_KEYPOINTS, SMPL_VERTEX_KEYPOINTS, joints_only_map,
                                            keypoint_map_for_model, smpl_topology_map)
 from pedx_graph.keypoints import PEDX_KEYPOINTS as NAMES_FROM_KEYPOINTS

@@ -3,7 +3,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.testing import ToyBodyModel, assert_factor_jacobians, synthetic_body_model
+from factors.testing import ToyBodyModel, assert_factor_jacobians
+from synthetic_model import synthetic_body_model
 from factors.translation_prior import (make_translation_prior_factor, pelvis_shape_basis, sensor_ray_frame,
                                        translation_prior_error)
 

@@ -40,7 +40,8 @@ from hypothesis import strategies as st
 from hypothesis.configuration import set_hypothesis_home_dir
 
 from pedx_graph.body import BodyModel, ModelFormatError
-from pedx_graph.body.io import save_model_npz, synthetic_model_arrays
+from pedx_graph.body.io import save_model_npz
+from synthetic_model import synthetic_model_arrays
 from pedx_graph.config import ConfigError, from_dict, load_config, save_config, to_dict
 from pedx_graph.config_ranges import check_config
 from pedx_graph.data.calib import (

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from pedx_graph.body import BodyModel
-from pedx_graph.body.io import synthetic_model_arrays, validate_model_arrays
+from pedx_graph.body.io import validate_model_arrays
+from synthetic_model import synthetic_model_arrays
 from pedx_graph.body.keypoint_defs import KEYPOINT_SET_DIR, keypoint_set_names, load_keypoint_set
 from pedx_graph.detections.types import KEYPOINT_SET_NAMES
 from pedx_graph.keypoints import PEDX_KEYPOINTS

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from pedx_graph.body.io import SYNTHETIC_REST_JOINTS
+from synthetic_model import SYNTHETIC_REST_JOINTS
 from pedx_graph.keypoints import PEDX_KEYPOINTS, SMPL_PARENTS
 
 _JOINTS = SYNTHETIC_REST_JOINTS
