@@ -21,7 +21,9 @@ Noise: per-row sigma ``sigma_px`` for keypoints flagged visible and ``sigma_occl
 not visible ones — each a scalar or an (18,) array of pixels per keypoint (e.g. click noise estimated per
 keypoint from the labels) — divided by ``sqrt(weight_k)`` (``keypoint_weights``: relative weight of each
 keypoint's squared error; 0 drops it; by default the hips get 0.25 because the annotators click the hip
-surface while the model's hip joints sit inside the pelvis).  Optionally robust per row
+surface while the model's hip joints sit inside the pelvis).  A label's own per-keypoint sigma
+(``ImageKeypoints.sigma_px``: imported detections, from their confidences) replaces ``sigma_px`` /
+``sigma_occluded_px`` for that row and image (the keypoint weight still applies).  Optionally robust per row
 (``factors.common.make_noise``; Geman-McClure by default, scale in whitened units).  Jacobians:
 ``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w`` with ``M = image_P_world[:, :3]``, chained with the
 body-model point Jacobians.
@@ -103,12 +105,18 @@ class ImageKeypoints:
     """(3, 4) projection of world (LiDAR) points in metres to homogeneous pixels (:func:`image_projection`)."""
     name: str = ""
     """Which image, e.g. ``"ylw79D0-red707B/left"`` (for messages only)."""
+    sigma_px: np.ndarray | None = None
+    """(18,) the labels' own pixel sigma per keypoint (imported detections: from their confidences), NaN where
+    the label file gives none; where finite it replaces the configured sigma of that row (the keypoint weight
+    still divides it).  None: the configured sigmas for every row."""
 
     @staticmethod
     def from_view(view: View2D, calibration: StereoCalibration, side: str) -> "ImageKeypoints":
         """The labels ``view`` of the ``side`` image of the pair ``calibration``."""
+        own = getattr(view, "sigma_px", None)
         return ImageKeypoints(as_f64(view.keypoints), np.asarray(view.visible, dtype=bool),
-                              image_projection(calibration, side), f"{calibration.name}/{side}")
+                              image_projection(calibration, side), f"{calibration.name}/{side}",
+                              None if own is None else as_f64(own))
 
 
 def images_from_views(views: Iterable[tuple[str, str, View2D]],
@@ -230,7 +238,11 @@ def build_reprojection_setup(images: Sequence[ImageKeypoints], sigma_px=2.0, sig
         idx = np.flatnonzero(np.all(np.isfinite(uv), axis=1) & (weights > 0))
         if idx.size == 0:
             continue
-        sig = np.where(vis[idx], sigma_vis[idx], sigma_occ[idx]) / np.sqrt(weights[idx])
+        sig = np.where(vis[idx], sigma_vis[idx], sigma_occ[idx])
+        if image.sigma_px is not None:                  # the label's own sigma (a detector's confidence)
+            own = as_f64(image.sigma_px)[idx]
+            sig = np.where(np.isfinite(own) & (own > 0), own, sig)
+        sig = sig / np.sqrt(weights[idx])
         sigmas.append(np.repeat(sig, 2))
         rows.append(_ImageRows(index=idx, uv=uv[idx], image_P_world=proj))
     return StereoSetup(images=tuple(rows), sigmas=np.concatenate(sigmas) if sigmas else np.zeros(0),

@@ -42,6 +42,8 @@ def relabel(track, truth_labels, model: BodyModel, set_name: str, seed: int):
             uv = track.calibrations[pair].project(world)[0 if side == "left" else 1]
             uv = uv + rng.normal(scale=NOISE_PX, size=uv.shape)
             k = len(uv)
+            if set_name == "pedx18":                      # manual labels: the config's noise
+                return View2D(keypoints=uv, visible=np.ones(k, bool))
             return View2D(keypoints=uv, visible=np.ones(k, bool), keypoint_set=set_name,
                           sigma_px=np.full(k, NOISE_PX), confidence=np.full(k, 0.9))
         frames.append(dataclasses.replace(
@@ -88,6 +90,9 @@ def test_layout_track_moves_views_into_pedx_rows(scene):
     assert view.keypoints.shape == (18, 2)
     assert not view.labelled[PEDX_KEYPOINTS.index("head")] and view.labelled[PEDX_KEYPOINTS.index("lsho")]
     assert np.nanmax(view.sigma_px) == NOISE_PX
+    laid = layout_track(coco_track, model_sigma_px=1.5)
+    view = laid.frames[0].left or laid.frames[0].right
+    assert np.nanmax(view.sigma_px) == pytest.approx(np.hypot(NOISE_PX, 1.5))
 
 
 @pytest.mark.parametrize("set_name", ["coco17", "body25b"])
@@ -116,3 +121,23 @@ def test_click_noise_estimate_ignores_detection_labels(scene):
     relabelled = [relabel(t, truth[(t.sequence, t.tracking_id)], model, "body25", seed=2) for t in tracks]
     assert len(vertical_disparities(tracks).disparity_px) > 0
     assert len(vertical_disparities(relabelled).disparity_px) == 0
+
+
+def test_reprojection_rows_take_the_labels_own_sigma():
+    from factors.stereo_reprojection import ImageKeypoints, build_reprojection_setup
+
+    uv = np.full((18, 2), 100.0)
+    uv[4] = np.nan                                        # not labelled: no row
+    own = np.full(18, np.nan)
+    own[[0, 12]] = [7.0, 5.0]                             # nose, lhip
+    image = ImageKeypoints(uv, np.ones(18, bool), np.eye(3, 4), "test", own)
+    weights = np.ones(18)
+    weights[12] = 0.25
+    setup = build_reprojection_setup([image], sigma_px=3.0, sigma_occluded_px=12.0, keypoint_weights=weights)
+    sig = setup.sigmas.reshape(-1, 2)[:, 0]
+    rows = list(setup.images[0].index)
+    assert 4 not in rows
+    assert sig[rows.index(0)] == 7.0 and sig[rows.index(12)] == 10.0 and sig[rows.index(1)] == 3.0
+    plain = build_reprojection_setup([ImageKeypoints(uv, np.ones(18, bool), np.eye(3, 4))], sigma_px=3.0,
+                                     keypoint_weights=np.ones(18))
+    assert np.all(plain.sigmas == 3.0)

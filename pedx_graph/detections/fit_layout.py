@@ -12,21 +12,22 @@ PedX row the set lacks (``head``, ``mouth`` in COCO) stays unlabelled.  Set keyp
 (ears, toes, heels, OpenPose's mid-shoulder Neck and MidHip) are not used by the fit yet (the reprojection
 term takes 18 rows).
 
-Per-keypoint noise: the label files' ``sigma_px`` (from the detector's confidences, per image) enter as the
-track's per-row click noise (``NoiseConfig.keypoint_sigma_px_per_keypoint``: the median over the track's
-images of each row's ``sigma_px``); rows without one keep the config's ``keypoint_sigma_px``.
+Per-keypoint noise: the label files' ``sigma_px`` (from the detector's confidences, per image and keypoint)
+travel with the laid-out views, combined in quadrature with the config's body-model error
+(``NoiseConfig.keypoint_model_sigma_px``, as the config combines click noise and model error); the
+reprojection term uses them instead of the configured sigma for those rows
+(``factors.stereo_reprojection.ImageKeypoints.sigma_px``).  Rows without one keep the config's.
 
 Results are reported with the original model: the world keypoints of a result are always PedX's 18.
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
 
 from pedx_graph.body.keypoint_defs import KeypointMap, load_keypoint_set
-from pedx_graph.data.types import Track, TrackFrame, View2D
+from pedx_graph.data.types import Track, View2D
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
 #: Set points filling a PedX row although they are not PedX's body point (their own definition is projected).
@@ -76,8 +77,10 @@ def layout_model(model, set_name: str):
     return cache[set_name]
 
 
-def layout_view(view: View2D | None) -> View2D | None:
-    """A view of the set's keypoints in the 18 PedX rows (rows without a source unlabelled)."""
+def layout_view(view: View2D | None, model_sigma_px: float = 0.0) -> View2D | None:
+    """A view of the set's keypoints in the 18 PedX rows (rows without a source unlabelled); its ``sigma_px``
+    (the detector's noise) combined with the body model's own error ``model_sigma_px`` in quadrature, as the
+    config combines click noise and model error (``NoiseConfig.keypoint_model_sigma_px``)."""
     if view is None or view.keypoint_set == "pedx18":
         return view
     src = row_sources(view.keypoint_set)
@@ -89,32 +92,20 @@ def layout_view(view: View2D | None) -> View2D | None:
     sigma = None
     if view.sigma_px is not None:
         sigma = np.full(len(PEDX_KEYPOINTS), np.nan)
-        sigma[has] = view.sigma_px[src[has]]
+        sigma[has] = np.sqrt(view.sigma_px[src[has]] ** 2 + model_sigma_px ** 2)
     return View2D(keypoints=keypoints, visible=visible, polygon=view.polygon, keypoint_set="pedx18", sigma_px=sigma)
 
 
-def layout_track(track: Track) -> Track:
+def layout_track(track: Track, model_sigma_px: float = 0.0) -> Track:
     """``track`` with every view in the 18-row layout (:func:`layout_view`)."""
+    def lay(view):
+        return layout_view(view, model_sigma_px)
     frames = []
     for fr in track.frames:
         frames.append(dataclasses.replace(
-            fr, left=layout_view(fr.left), right=layout_view(fr.right),
-            other_views={pair: (layout_view(a), layout_view(b)) for pair, (a, b) in fr.other_views.items()}))
+            fr, left=lay(fr.left), right=lay(fr.right),
+            other_views={pair: (lay(a), lay(b)) for pair, (a, b) in fr.other_views.items()}))
     return dataclasses.replace(track, frames=frames)
-
-
-def track_row_sigmas(track: Track) -> np.ndarray | None:
-    """(18,) median over the track's images of each row's ``sigma_px`` (NaN where none), or None."""
-    stacks = [view.sigma_px for fr in track.frames for _, _, view in fr.labelled_views()
-              if view.sigma_px is not None]
-    if not stacks:
-        return None
-    stacked = np.stack(stacks)
-    with np.errstate(all="ignore"):
-        out = np.full(stacked.shape[1], np.nan)
-        ok = np.any(np.isfinite(stacked), axis=0)
-        out[ok] = np.nanmedian(stacked[:, ok], axis=0)
-    return out
 
 
 def fit_layout(track: Track, ctx, config):
@@ -123,15 +114,8 @@ def fit_layout(track: Track, ctx, config):
     set_name = track.keypoint_set
     if set_name == "pedx18":
         return track, ctx, config
-    laid = layout_track(track)
-    fit_ctx = dataclasses.replace(ctx, model=layout_model(ctx.model, set_name))
-    sigmas = track_row_sigmas(laid)
-    if sigmas is not None:
-        config = copy.deepcopy(config)
-        clicks = np.where(np.isfinite(sigmas), sigmas, float(config.noise.keypoint_sigma_px))
-        config.noise.keypoint_sigma_px_per_keypoint = [float(v) for v in clicks]
-    return laid, fit_ctx, config
+    laid = layout_track(track, model_sigma_px=float(getattr(config.noise, "keypoint_model_sigma_px", 0.0)))
+    return laid, dataclasses.replace(ctx, model=layout_model(ctx.model, set_name)), config
 
 
-__all__ = ["fit_layout", "layout_map", "layout_model", "layout_track", "layout_view", "row_sources",
-           "track_row_sigmas", "TrackFrame"]
+__all__ = ["fit_layout", "layout_map", "layout_model", "layout_track", "layout_view", "row_sources"]
