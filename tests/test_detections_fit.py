@@ -141,3 +141,30 @@ def test_reprojection_rows_take_the_labels_own_sigma():
     plain = build_reprojection_setup([ImageKeypoints(uv, np.ones(18, bool), np.eye(3, 4))], sigma_px=3.0,
                                      keypoint_weights=np.ones(18))
     assert np.all(plain.sigmas == 3.0)
+
+
+def test_admm_and_stream_fit_detector_tracks_and_report_pedx_keypoints(scene):
+    from pedx_graph.solvers.admm import fit_track_admm
+    from pedx_graph.solvers.context import estimator_context
+    from pedx_graph.solvers.stream.config import StreamConfig
+    from pedx_graph.solvers.stream.dataset import stream_track
+
+    tracks, truth = scene
+    model = BodyModel.load()
+    track = tracks[0]
+    labels = truth[(track.sequence, track.tracking_id)]
+    coco = relabel(track, labels, model, "coco17", seed=7)
+    config = FitConfig()
+    ctx = estimator_context(config)
+    lm_error = mpjpe(fit_track(coco, config, ctx), labels, model)
+    admm = fit_track_admm(coco, config, ctx)
+    assert admm.world_keypoints.shape == (len(track.frames), 18, 3)
+    assert mpjpe(admm, labels, model) < 1.5 * lm_error + 0.01
+    results, causal, failed = stream_track(coco, ctx, config, StreamConfig())
+    assert results and not failed
+    for res in results:
+        # Reported keypoints are PedX's of the fitted body (not the set's surface hips in the hip rows).
+        np.testing.assert_allclose(res.world_keypoints, model.keypoints(
+            res.pose, np.broadcast_to(res.betas, (len(res.pose), len(res.betas))), res.trans), atol=1e-9)
+        assert mpjpe(res, labels, model) < 1.5 * lm_error + 0.02
+    assert all(est.world_keypoints.shape == (18, 3) for est in causal)

@@ -200,6 +200,10 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     config = config or FitConfig()
     ctx = context or estimator_context(config)
     t0 = time.perf_counter()
+    report_ctx = ctx                          # results: PedX keypoints of the original model, whatever the labels
+    if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
+        from pedx_graph.detections.fit_layout import fit_layout
+        track, ctx, config = fit_layout(track, ctx, config)
     stage_iterations = 0
     initial = None
     if config.terms.lidar_chamfer:
@@ -211,7 +215,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     problem = build_track_graph(track, ctx, config, initial=initial)
     values, report = admm_solve(problem, config, admm, track=track, ctx=ctx)
     report.iterations += stage_iterations
-    est = extract_estimate(problem, values, ctx)
+    est = extract_estimate(problem, values, report_ctx)
     # the body plausibility fields always, covariances / diagnostics when asked
     extra_frames, extra_track = track_extras(problem, values, ctx, marginals, diagnostics, fit_config=config,
                                              frames=track.frames)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import copy
 import dataclasses
 
+import numpy as np
+
 from pedx_graph.data.noise_estimate import resolve_noise
 from pedx_graph.data.types import SmplLabel, Track
 from pedx_graph.execution.executors import ExecutorSpec
@@ -36,6 +38,10 @@ def stream_track(track: Track, ctx, config: FitConfig, stream_config: StreamConf
     of the track (one unless it paused longer than ``track_timeout_s``), the causal :class:`FrameEstimate`
     of every frame whose update succeeded, and ``{"frame" or "stage", "error"}`` of each failed update and
     of each piece refused as implausible."""
+    report_model = ctx.model                  # results: PedX keypoints of the original model, whatever the labels
+    if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
+        from pedx_graph.detections.fit_layout import fit_layout
+        track, ctx, config = fit_layout(track, ctx, config)
     estimator = StreamingEstimator(ctx, config, copy.deepcopy(stream_config), sequence=track.sequence,
                                    ground=track.ground)
     results, causal, failed = [], [], []
@@ -53,6 +59,13 @@ def stream_track(track: Track, ctx, config: FitConfig, stream_config: StreamConf
         collect()
     results.extend(estimator.finish())
     collect()
+    if ctx.model is not report_model:
+        for res in results:
+            res.world_keypoints = report_model.keypoints(res.pose, np.broadcast_to(res.betas, (len(res.pose),
+                                                                                               len(res.betas))),
+                                                         res.trans)
+        causal = [dataclasses.replace(est, world_keypoints=report_model.keypoints(est.pose, est.betas, est.trans))
+                  for est in causal]
     return results, causal, failed
 
 
