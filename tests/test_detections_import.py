@@ -63,3 +63,40 @@ def test_import_openpose_with_file_ids(tmp_path):
                 assert view.sigma_px is not None and np.all(view.sigma_px > 0)
                 checked += 1
     assert checked >= len(expected) // 2
+
+
+def test_import_simulated_detector_output_then_fit(tmp_path):
+    """The simulator's own detector files (no ids, distorted images, clutter): import COCO results and OpenPose
+    BODY_25B through the association, then fit; each fitted track lies on one true pedestrian."""
+    from pedx_graph.sim.config import SimConfig
+    from pedx_graph.solvers.fit import fit_track
+
+    config = SimConfig()
+    config.detections.formats = ("coco", "openpose_body25b")
+    root = small_scene(tmp_path / "scene", pedestrians=3, frames=10, seed=0, config=config)
+    seq = next((root / "detections" / "coco").iterdir())
+    truth = read_smpl_labels(root)
+    model = BodyModel.load()
+    runs = {"coco17": ["coco", str(seq / "keypoint_results.json"), "--images", str(seq / "image_list.json")],
+            "body25b": ["openpose", str(root / "detections" / "openpose_body25b"), "--keypoint-set", "body25b"]}
+    for set_name, args in runs.items():
+        out = tmp_path / set_name
+        assert main(["import", *args, "--calib", str(root), "--out", str(out)]) == 0
+        tracks = [t for t in read_dataset(out) if len(t.frames) >= 4]
+        assert tracks and all(t.keypoint_set == set_name for t in tracks)
+        track_errors = []
+        for track in tracks[:2]:
+            result = fit_track(track)
+            errors = []
+            for labels in truth.values():
+                by_frame = {lab.frame: lab for lab in labels}
+                common = [i for i, f in enumerate(result.frames) if f in by_frame]
+                if len(common) >= len(result.frames) // 2:
+                    errors.append(np.mean([np.linalg.norm(result.world_keypoints[i] - model.keypoints(
+                        by_frame[result.frames[i]].pose, by_frame[result.frames[i]].betas,
+                        by_frame[result.frames[i]].trans), axis=1).mean() for i in common]))
+            track_errors.append(min(errors))
+        # Seed 0 measured: coco17 0.11 m (one track), body25b 0.17 and 0.30 m (manual labels of the same people:
+        # 0.04 and 0.08 m; the detector's noise, misses and one-image frames cost the rest).  A broken reader,
+        # undistortion or keypoint definition, or a track mixing two people, is off by far more.
+        assert max(track_errors) < 0.45 and np.mean(track_errors) < 0.35, (set_name, track_errors)
