@@ -15,6 +15,7 @@ Every malformed file raises :class:`ModelFormatError` (a ``ValueError``) naming 
 """
 from __future__ import annotations
 
+import io
 import json
 import logging
 import pickle
@@ -28,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pedx_graph.keypoints import PEDX_KEYPOINTS
+from pedx_graph.utils import atomic_write_bytes
 
 log = logging.getLogger(__name__)
 
@@ -410,10 +412,6 @@ def load_model_data(path: str | Path, num_betas: int = 10) -> ModelData:
 
 def save_model_npz(path: str | Path, arrays: dict) -> Path:
     """Write an SMPL-format dict to ``.npz`` atomically (sparse matrices stored dense)."""
-    import io as _io
-
-    from pedx_graph.utils import atomic_write_bytes
-
-    buf = _io.BytesIO()
+    buf = io.BytesIO()
     np.savez(buf, **{k: (v.toarray() if sp.issparse(v) else np.asarray(v)) for k, v in arrays.items()})
     return atomic_write_bytes(path, buf.getvalue())

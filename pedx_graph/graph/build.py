@@ -33,6 +33,7 @@ from factors.stereo_reprojection import images_from_views, make_reprojection_fac
 from factors.temporal_prior import make_temporal_prior_factor
 from factors.translation_prior import make_translation_prior_factor
 from pedx_graph.body import BodyModel
+from pedx_graph.body.rotation import log_so3
 from pedx_graph.data.ground import GroundFrame
 from pedx_graph.data.noise_estimate import chamfer_sigma_m, keypoint_row_sigmas_px
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame
@@ -42,6 +43,7 @@ from pedx_graph.graph.layout import ChainLayout
 from pedx_graph.graph.monocular import BodySizePrior, body_size_prior
 from pedx_graph.graph.init import TrackInit, initialise_track, world_R_body_from_yaw
 from pedx_graph.keypoints import PEDX_KEYPOINTS
+from pedx_graph.priors import load_pose_prior, load_temporal_prior
 
 log = logging.getLogger(__name__)
 
@@ -96,8 +98,6 @@ class EstimatorContext:
 
     @staticmethod
     def create(config: FitConfig) -> "EstimatorContext":
-        from pedx_graph.priors import load_pose_prior, load_temporal_prior
-
         model = BodyModel.load(config.body_model or None)
         pose_prior = load_pose_prior(config.pose_prior or None)
         temporal_prior = load_temporal_prior(config.temporal_prior or None)
@@ -213,8 +213,6 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
     initial orientation and centre, best reproject onto the frame's 2D labels (every labelled image of every
     pair, ``TrackFrame.labelled_views``; the primary pair's only when not ``all_views``; squared pixel
     residuals clipped at ``clip_px``).  Returns (T, 69)."""
-    from pedx_graph.body.rotation import log_so3
-
     cands = ctx.template_candidates
     n = len(track.frames)
     if cands is None or len(cands) == 1:

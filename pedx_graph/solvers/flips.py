@@ -21,6 +21,7 @@ objective than the staged fit.
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass, field
 
 import gtsam
@@ -28,6 +29,7 @@ import numpy as np
 
 from pedx_graph.body.lbs import batch_rigid_transform
 from pedx_graph.body.rotation import exp_so3, log_so3
+from pedx_graph.solvers.lm import solve
 
 #: Bone segments (parent joint, child joint) in SMPL joint indices, by name.
 SEGMENTS: dict[str, tuple[int, int]] = {
@@ -107,10 +109,6 @@ def flip_search(problem, values: gtsam.Values, track, ctx, config, solver_parts)
     on ``problem.graph``; only a candidate already below the best error goes on, up to
     ``flip_max_iterations`` in all, and it is kept if its error is still lower; then LM to convergence from
     the best.  ``solver_parts``: (prefetch, layout, linearizer) for :func:`pedx_graph.solvers.lm.solve`."""
-    import time
-
-    from pedx_graph.solvers.lm import solve
-
     t0 = time.perf_counter()
     report = FlipReport()
     best_error = report.initial_error = float(problem.graph.error(values))
