@@ -200,3 +200,16 @@ def test_shipped_noise_defaults_are_the_calibration_result():
     np.testing.assert_allclose(config.default.sigma_px, result["pooled"]["sigma_px"], atol=1e-3)
     assert config.min_confidence == result["pooled"]["min_confidence"]
     assert np.all(np.diff(config.default.sigma_px) <= 0)        # less confident, noisier
+
+
+def test_noise_config_from_yaml(tmp_path):
+    from pedx_graph.config import load_config
+    from pedx_graph.detections.importer import ImportConfig
+
+    path = tmp_path / "import.yaml"
+    path.write_text("noise:\n  min_confidence: 0.4\n  default:\n    confidence_knots: [0.2, 0.8]\n"
+                    "    sigma_px: [30.0, 4.0]\n  per_set:\n    coco17:\n      confidence_knots: [0.5]\n"
+                    "      sigma_px: [2.5]\n")
+    config = load_config(ImportConfig, path)
+    np.testing.assert_allclose(config.noise.sigma("body25", np.array([0.5, 0.3])), [17.0, np.nan])
+    np.testing.assert_allclose(config.noise.sigma("coco17", np.array([0.9])), [2.5])

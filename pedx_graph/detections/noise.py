@@ -63,6 +63,13 @@ class DetectionNoiseConfig:
     """An annotation's keypoint marked labelled-but-not-visible (COCO ``v = 1``) gets this many times the
     sigma (the clicks land on a guessed position)."""
 
+    def __post_init__(self) -> None:
+        # a YAML file gives the curves as mappings
+        if isinstance(self.default, dict):
+            self.default = SigmaCurve(**self.default)
+        self.per_set = {name: curve if isinstance(curve, SigmaCurve) else SigmaCurve(**curve)
+                        for name, curve in dict(self.per_set).items()}
+
     def curve(self, keypoint_set: str) -> SigmaCurve:
         """The curve used for ``keypoint_set``."""
         return self.per_set.get(keypoint_set, self.default)
