@@ -16,7 +16,7 @@ from factors.temporal_prior import TEMPORAL_DIM
 from factors.testing import make_test_calibration, standing_rotation
 from synthetic_model import synthetic_body_model
 from pedx_graph.data.types import Track, TrackFrame, View2D
-from pedx_graph.graph.build import EstimatorContext, farthest_point_subset
+from pedx_graph.graph.context import EstimatorContext, farthest_point_subset
 from pedx_graph.graph.config import FitConfig
 
 

@@ -47,7 +47,7 @@ def load_pose_mixture(covariance_scale: float = 1.0):
     """The shipped GMM pose prior as a ``MaxMixture`` and its template body pose (the component mean
     nearest the rest pose, as the graph's initialisation uses)."""
     from factors.common import MaxMixture
-    from pedx_graph.graph.build import neutral_template
+    from pedx_graph.graph.context import neutral_template
     from pedx_graph.priors import load_pose_prior
 
     prior = load_pose_prior()

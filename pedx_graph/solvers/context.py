@@ -4,7 +4,7 @@ from __future__ import annotations
 import threading
 
 from pedx_graph.execution.tasks import limit_blas_threads
-from pedx_graph.graph.build import EstimatorContext
+from pedx_graph.graph.context import EstimatorContext
 from pedx_graph.graph.config import FitConfig
 
 # --- per-process state (body model and priors are loaded once per worker) -------------------------------
