@@ -79,7 +79,7 @@ def python_lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
 
     ``prefetch`` lets the caller batch-evaluate what the factors will ask for (see
     :mod:`pedx_graph.graph.batch`); it never changes the result.  ``layout``: the track's
-    :class:`~pedx_graph.solvers.chain.ChainLayout` to solve each damped system by the block sweep (same
+    :class:`~pedx_graph.graph.layout.ChainLayout` to solve each damped system by the block sweep (same
     step as GTSAM's QR up to round-off; falls back to GTSAM when the graph is not a chain).
     ``linearizer`` (with ``layout``): a :class:`~pedx_graph.solvers.batched.BatchedLinearizer` of this graph,
     which gives ``graph.error`` and the chain system of ``graph.linearize`` from batched evaluations.
