@@ -16,6 +16,7 @@ person category (``category_id`` of the category named ``person``; 1 when there 
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -41,6 +42,11 @@ def _number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _integer(value) -> bool:
+    """A finite number with an integral value (an id)."""
+    return _number(value) and math.isfinite(value) and float(value).is_integer()
+
+
 def image_table(doc, path: Path, name_pattern: str | None = None,
                 camera_names: dict[str, str] | None = None) -> dict[int, ImageName]:
     """``image id -> ImageName`` from a COCO ``images`` list (a dict holding one, or the list itself)."""
@@ -50,8 +56,8 @@ def image_table(doc, path: Path, name_pattern: str | None = None,
     patterns = compile_patterns(name_pattern)
     table = {}
     for index, image in enumerate(images):
-        if not isinstance(image, dict) or not _number(image.get("id")) or not isinstance(image.get("file_name"), str):
-            raise DataFormatError(path, f"images[{index}]", "needs a numeric 'id' and a string 'file_name'")
+        if not isinstance(image, dict) or not _integer(image.get("id")) or not isinstance(image.get("file_name"), str):
+            raise DataFormatError(path, f"images[{index}]", "needs an integer 'id' and a string 'file_name'")
         table[int(image["id"])] = parse_name(image["file_name"], patterns, f"{path}: images[{index}].file_name",
                                              camera_names)
     return table
@@ -81,7 +87,8 @@ def _bbox(item: dict, path: Path, field: str) -> np.ndarray | None:
     box = item.get("bbox")
     if box is None:
         return None
-    if not isinstance(box, list) or len(box) != 4 or not all(_number(v) for v in box) or box[2] < 0 or box[3] < 0:
+    if (not isinstance(box, list) or len(box) != 4 or not all(_number(v) and math.isfinite(v) for v in box)
+            or box[2] < 0 or box[3] < 0):
         raise DataFormatError(path, field, f"must be [x, y, w, h] with w, h >= 0, got {box!r}")
     return np.asarray(box, dtype=np.float64)
 
@@ -107,7 +114,7 @@ def read_coco_annotations(path: str | os.PathLike, name_pattern: str | None = No
             raise DataFormatError(path, field, "must be an object")
         if ann.get("category_id", person) != person or "keypoints" not in ann:
             continue
-        image = images.get(ann.get("image_id")) if _number(ann.get("image_id")) else None
+        image = images.get(int(ann["image_id"])) if _integer(ann.get("image_id")) else None
         if image is None:
             raise DataFormatError(path, f"{field}.image_id", f"{ann.get('image_id')!r} is not in 'images'")
         arr = _keypoints(ann, path, f"{field}.keypoints")
@@ -120,8 +127,8 @@ def read_coco_annotations(path: str | os.PathLike, name_pattern: str | None = No
         uv = arr[:, :2].copy()
         uv[~present] = np.nan
         score = ann.get("score", 1.0)
-        if not _number(score):
-            raise DataFormatError(path, f"{field}.score", f"must be a number, got {score!r}")
+        if not (_number(score) and math.isfinite(score)):
+            raise DataFormatError(path, f"{field}.score", f"must be a finite number, got {score!r}")
         out.append(Detection(camera=image.camera, frame=image.frame, keypoint_set="coco17", image_uv=uv,
                              confidence=present.astype(float), score=float(score), source=f"{path}#{field}",
                              track_id=_track_id(ann), bbox=_bbox(ann, path, f"{field}.bbox"),
@@ -155,7 +162,7 @@ def read_coco_results(path: str | os.PathLike, images: str | os.PathLike | None 
         if item.get("category_id", 1) != 1:
             continue
         image_id = item.get("image_id")
-        if not _number(image_id) or image_id != int(image_id):
+        if not _integer(image_id):
             raise DataFormatError(path, f"{field}.image_id", f"must be an integer, got {image_id!r}")
         if table is not None:
             if int(image_id) not in table:
@@ -171,8 +178,8 @@ def read_coco_results(path: str | os.PathLike, images: str | os.PathLike | None 
         uv = arr[:, :2].copy()
         uv[~present] = np.nan
         score = item.get("score")
-        if score is not None and not _number(score):
-            raise DataFormatError(path, f"{field}.score", f"must be a number, got {score!r}")
+        if score is not None and not (_number(score) and math.isfinite(score)):
+            raise DataFormatError(path, f"{field}.score", f"must be a finite number, got {score!r}")
         out.append(Detection(camera=image.camera, frame=image.frame, keypoint_set="coco17", image_uv=uv,
                              confidence=np.where(present, conf, 0.0),
                              score=float(conf[present].mean() if score is None else score),
