@@ -213,3 +213,33 @@ def test_noise_config_from_yaml(tmp_path):
     config = load_config(ImportConfig, path)
     np.testing.assert_allclose(config.noise.sigma("body25", np.array([0.5, 0.3])), [17.0, np.nan])
     np.testing.assert_allclose(config.noise.sigma("coco17", np.array([0.9])), [2.5])
+
+
+def test_label_files_carry_keypoint_set_confidence_and_sigma(tmp_path):
+    from pedx_graph.data.labels2d import Label2D, read_label2d, write_label2d
+    from pedx_graph.data.types import View2D
+
+    uv = np.full((17, 2), np.nan)
+    uv[[0, 5, 11]] = [[10.0, 20.0], [30.0, 40.0], [50.0, 60.0]]
+    sigma = np.where(np.isfinite(uv[:, 0]), 4.5, np.nan)
+    conf = np.where(np.isfinite(uv[:, 0]), 0.7, np.nan)
+    view = View2D(keypoints=uv, visible=np.isfinite(uv[:, 0]), keypoint_set="coco17", sigma_px=sigma, confidence=conf)
+    label = Label2D(sequence="seqA", camera="camX", frame=3, tracking_id="det000001", category="pedestrian", view=view)
+    path = write_label2d(tmp_path, label)
+    doc = json.loads(path.read_text())
+    assert doc["keypoint_set"] == "coco17" and doc["keypoint"]["left_hip"] == {"x": 50.0, "y": 60.0, "visible": True,
+                                                                             "confidence": 0.7, "sigma_px": 4.5}
+    back = read_label2d(path, "seqA", "camX", 3, "det000001").view
+    assert back.keypoint_set == "coco17"
+    np.testing.assert_array_equal(back.keypoints, uv)
+    np.testing.assert_array_equal(back.sigma_px, sigma)
+    np.testing.assert_array_equal(back.confidence, conf)
+    for bad, field in ((dict(doc, keypoint_set="halpe"), "keypoint_set"),
+                       (dict(doc, keypoint={"nose": {"x": 1, "y": 2, "sigma_px": -1}}), "keypoint.nose.sigma_px")):
+        path.write_text(json.dumps(bad))
+        with pytest.raises(DataFormatError, match=f"field '{field}'"):
+            read_label2d(path, "seqA", "camX", 3, "det000001")
+    # A PedX label file is unchanged: no keypoint_set field, no sigma.
+    pedx = Label2D(sequence="seqA", camera="camX", frame=4, tracking_id="t", category="pedestrian",
+                   view=View2D(keypoints=np.zeros((18, 2)), visible=np.ones(18, bool)))
+    assert "keypoint_set" not in json.loads(write_label2d(tmp_path, pedx).read_text())
