@@ -32,6 +32,7 @@ import gtsam
 import numpy as np
 
 from factors.shape_prior import consensus_shape
+from pedx_graph.detections.fit_layout import fit_layout
 from pedx_graph.graph.build import build_track_graph, extract_estimate
 from pedx_graph.graph.config import AdmmConfig, FitConfig
 from pedx_graph.solvers.context import estimator_context
@@ -202,7 +203,6 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     t0 = time.perf_counter()
     report_ctx = ctx                          # results: PedX keypoints of the original model, whatever the labels
     if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
-        from pedx_graph.detections.fit_layout import fit_layout
         track, ctx, config = fit_layout(track, ctx, config)
     stage_iterations = 0
     initial = None

@@ -9,6 +9,7 @@ import numpy as np
 
 from pedx_graph.data.noise_estimate import resolve_noise
 from pedx_graph.data.types import SmplLabel, Track
+from pedx_graph.detections.fit_layout import fit_layout
 from pedx_graph.execution.executors import ExecutorSpec
 from pedx_graph.execution.runner import RunSpec, run_dataset
 from pedx_graph.execution.tasks import label_files, result_output
@@ -40,7 +41,6 @@ def stream_track(track: Track, ctx, config: FitConfig, stream_config: StreamConf
     of each piece refused as implausible."""
     report_model = ctx.model                  # results: PedX keypoints of the original model, whatever the labels
     if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
-        from pedx_graph.detections.fit_layout import fit_layout
         track, ctx, config = fit_layout(track, ctx, config)
     estimator = StreamingEstimator(ctx, config, copy.deepcopy(stream_config), sequence=track.sequence,
                                    ground=track.ground)
