@@ -16,9 +16,15 @@ E_P (joint limits)         :mod:`factors.joint_limits`         :func:`make_joint
 shape                      :mod:`factors.shape_prior`          :func:`make_shape_prior_factor`
 shape support (hinge)      :mod:`factors.shape_prior`          :func:`make_shape_support_factor`
 E_tp (Eq. 10)              :mod:`factors.temporal_prior`       :func:`make_temporal_prior_factor`
+E_G (stance foot)          :mod:`factors.ground_contact`       :func:`make_ground_contact_factor`
 =========================  ===============================  ============================================
+
+Each term module also declares its noise model (``noise_of``), its assembler to Gauss-Newton normal
+equations and its :class:`factors.terms.Term`, listed once in :mod:`factors.registry` (how to add one:
+docs/adding-a-term.md).
 """
 from factors.common import FrameKeys, FrameState, MaxMixture, make_noise, read_frame_state
+from factors.ground_contact import make_ground_contact_factor
 from factors.heading_prior import heading_sigma, make_heading_prior_factor, trajectory_headings
 from factors.joint_limits import DEFAULT_JOINT_LIMITS, JointLimit, make_joint_limit_factor
 from factors.lidar_chamfer import make_lidar_chamfer_factor
@@ -41,4 +47,5 @@ __all__ = [
     "make_joint_limit_factor", "JointLimit", "DEFAULT_JOINT_LIMITS",
     "make_shape_prior_factor", "make_shape_support_factor",
     "make_temporal_prior_factor", "temporal_difference", "sequence_differences", "TEMPORAL_DIM",
+    "make_ground_contact_factor",
 ]

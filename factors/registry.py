@@ -19,6 +19,7 @@ TERM_MODULES = (
     "pose_prior",
     "joint_limits",
     "temporal_prior",
+    "ground_contact",
 )
 
 #: kind -> :class:`~factors.terms.Term`, in the order of :data:`TERM_MODULES`.

@@ -127,6 +127,7 @@ RULES: dict[str, Range | Choice] = {
     "NoiseConfig.heading_sigma_rad": POSITIVE,
     "NoiseConfig.heading_min_speed_mps": NON_NEGATIVE,
     "NoiseConfig.joint_limit_sigma_rad": POSITIVE,
+    "NoiseConfig.ground_contact_sigma_m": NON_NEGATIVE,
     "NoiseConfig.shape_sigma": POSITIVE,
     "NoiseConfig.shape_support_sd": Range(0.0, allow_inf=True),
     "NoiseConfig.shape_support_sigma": POSITIVE,

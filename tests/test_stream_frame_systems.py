@@ -1,5 +1,7 @@
 """The streamed frames' own factors linearised in one batch per sample (pedx_graph.solvers.frame_system)
 against GTSAM's linearisation of the same factors, and the stream with and without it."""
+import dataclasses
+
 import gtsam
 import numpy as np
 import pytest
@@ -36,11 +38,17 @@ def _augmented(factor, keys) -> np.ndarray:
     return graph.augmentedHessian(ordering)
 
 
-def _steps(ctx, config, frames_before: int):
+def _steps(ctx, config, frames_before: int, with_ground: bool = False):
     """The steps of sample ``frames_before`` of three tracks (after streaming the earlier samples), their
-    values moved off the initial ones so that the robust kernels and joint limits are exercised."""
+    values moved off the initial ones so that the robust kernels and joint limits are exercised;
+    ``with_ground``: the sequence's ground plane is known (at the lowest LiDAR point of the first track)."""
     tracks = _tracks(ctx)
-    est = StreamingEstimator(ctx, config, StreamConfig(marginals=False, diagnostics=False))
+    ground = None
+    if with_ground:
+        up = tracks[0].ground.world_up
+        ground = dataclasses.replace(tracks[0].ground,
+                                     ground_offset_m=float(np.min(tracks[0].frames[0].world_lidar_points @ up)))
+    est = StreamingEstimator(ctx, config, StreamConfig(marginals=False, diagnostics=False), ground=ground)
     for j in range(frames_before):
         est.add_frame(tracks[0].frames[j].timestamp, {t.tracking_id: t.frames[j] for t in tracks},
                       tracks[0].calibrations)
@@ -56,14 +64,19 @@ def _steps(ctx, config, frames_before: int):
     return est, steps
 
 
-@pytest.mark.parametrize("frames_before", [0, 2])
-def test_batched_frame_systems_equal_gtsam_linearisation(ctx, frames_before):
+@pytest.mark.parametrize("frames_before,with_ground", [(0, False), (2, False), (2, True)])
+def test_batched_frame_systems_equal_gtsam_linearisation(ctx, frames_before, with_ground):
     """For the update (all own factors) and the presolve (without the chamfer, with the temporal prior to the
     held previous frame): the batched system of every pedestrian of the sample is GTSAM's Hessian of the same
     factors at the same point (the presolve: its block of the frame's variables), and ``hessian_factor``
-    turns it into the same ``gtsam.HessianFactor``."""
+    turns it into the same ``gtsam.HessianFactor``.  ``with_ground``: the ground-contact term switched on
+    (a registered term reaches the frame systems through its registration alone)."""
     config = synthetic_config()
-    est, steps = _steps(ctx, config, frames_before)
+    if with_ground:
+        config.noise.ground_contact_sigma_m = 0.03
+    est, steps = _steps(ctx, config, frames_before, with_ground)
+    if with_ground:
+        assert all("ground_contact" in s.state.kinds[s.n_kinds:] for s in steps)
     for presolve in (True, False):
         est._systems(steps, presolve=presolve)
         for s in steps:

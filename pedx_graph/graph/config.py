@@ -118,6 +118,11 @@ class NoiseConfig:
     """Below this speed (m/s) the heading sigma grows as ``sigma * min_speed / speed`` (no direction at rest)."""
     joint_limit_sigma_rad: float = 0.05
     """Joint-limit hinge (knees, elbows do not bend backwards), radians."""
+    ground_contact_sigma_m: float = 0.06
+    """Ground contact (``factors.ground_contact``): the lower ankle stands its height above the sequence's
+    ground plane (when the plane is known), within this many metres (Cauchy kernel); 0 switches the term
+    off.  0.06 rather than the slightly better 0.03 on a flat ground: it also helps with the plane 15 cm
+    below the feet, a pedestrian on a kerb (benchmarks/results/bench_ground_contact.md)."""
     shape_sigma: float = 1.0
     """Shape prior: betas ~ N(0, shape_sigma^2 I)."""
     shape_support_sd: float = 3.5
