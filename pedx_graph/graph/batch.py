@@ -19,8 +19,14 @@ Jacobians of every frame in one pass after its per-frame k-d trees, ``MaxMixture
 :class:`pedx_graph.solvers.batched.BatchedLinearizer`).  A factor's callback takes its residual and
 Jacobians from :meth:`lookup` — after checking that the values it is called with are exactly the
 prefetched ones (otherwise it computes them itself) — so one GTSAM callback costs a look-up instead of the
-term's numpy work.  The translation, heading and joint-limit factors only register their specs (the
-linearizer evaluates them in batch from :attr:`frame_states`).
+term's numpy work.  The translation, heading, joint-limit and ground-contact factors only register their
+specs (their assemblers evaluate them in batch from :attr:`frame_arrays` / :attr:`keypoint_arrays`).
+
+Public API (all the factors, the terms' assemblers and the solvers use): :meth:`register`,
+:meth:`clear_registry`, :meth:`specs`, :meth:`kinds`, :meth:`lookup`, :meth:`prefetch`, :meth:`batch`,
+:meth:`factor_terms`, :meth:`frame_index`, :meth:`memo`, :attr:`has_jacobians`, :attr:`frame_states`,
+:attr:`frame_arrays`, :attr:`keypoint_arrays`, :attr:`chamfer_matches`, and the body-model methods
+(``point_jacobians``, ``keypoints``, ``vertices_subset`` and the model's attributes).
 """
 from __future__ import annotations
 
