@@ -303,6 +303,11 @@ RULES: dict[str, Range | Choice] = {
     "LidarCutConfig.min_cluster_points": COUNT,
     "LidarCutConfig.ground_clearance_m": ANY,
     "LidarCutConfig.min_depth_m": NON_NEGATIVE,
+    # pedx_graph.detections.importer.ImportConfig, noise.DetectionNoiseConfig (SigmaCurve checks itself)
+    "ImportConfig.min_keypoints": COUNT,
+    "DetectionNoiseConfig.min_confidence": FRACTION,
+    "DetectionNoiseConfig.annotation_sigma_px": POSITIVE,
+    "DetectionNoiseConfig.occluded_sigma_factor": POSITIVE,
     # pedx_graph.priors.train.TrainConfig
     "TrainConfig.fps": POSITIVE,
     "TrainConfig.pose_fps": POSITIVE,
