@@ -92,6 +92,11 @@ def _coerce(value: Any, tp: Any, source: str, key: str) -> Any:
             items = [v if isinstance(v, element) else from_dict(element, v, source=source, prefix=f"{key}[{i}].")
                      for i, v in enumerate(value)]
             return tuple(items) if origin is tuple else items
+        if origin is dict and isinstance(value, dict) and len(typing.get_args(tp)) == 2 \
+                and _is_dataclass_type(typing.get_args(tp)[1]):             # named sections
+            element = typing.get_args(tp)[1]
+            return {k: v if isinstance(v, element) else from_dict(element, v, source=source, prefix=f"{key}.{k}.")
+                    for k, v in value.items()}
         if origin in (tuple,) and isinstance(value, (list, tuple)):
             args = typing.get_args(tp)
             if len(args) == 2 and args[1] is Ellipsis:

@@ -177,3 +177,15 @@ def test_train_prior_reads_its_config_from_yaml_and_flags_override(tmp_path, cap
     preset.write_text("n_pose: 0\n")
     assert main(["train-prior", "--config", str(preset)]) == 1        # refused before any clip is read
     assert "n_pose" in capsys.readouterr().err
+
+
+def test_named_sections_in_a_dict_are_built_from_yaml():
+    """A ``dict[str, <config class>]`` field (the import's per-keypoint-set sigma curves) holds config classes
+    after loading, not plain dicts, and round-trips."""
+    from pedx_graph.detections.noise import DetectionNoiseConfig
+
+    data = to_dict(DetectionNoiseConfig())
+    data["per_set"] = {"coco17": to_dict(DetectionNoiseConfig().default)}
+    cfg = from_dict(DetectionNoiseConfig, yaml.safe_load(yaml.safe_dump(data)))
+    assert type(cfg.per_set["coco17"]) is type(DetectionNoiseConfig().default)
+    assert to_dict(cfg) == data

@@ -234,9 +234,9 @@ class MarginalsConfig:
     chamfer_information: str = "point_to_plane"
     """Information of the LiDAR chamfer factors: ``point_to_plane`` (each point constrains only along the
     surface normal of its matched vertex, as the re-matched cost the solver minimises; see
-    :mod:`pedx_graph.solvers.marginals`) or ``point_to_point`` (the factor's fixed-correspondence linearisation as is, overconfident
-    along the surface).  Needs the factor kinds and the body model (``compute_marginals``'s
-    ``factor_kinds`` and ``model``); without them the linearisation is used as is."""
+    :mod:`pedx_graph.solvers.marginals`) or ``point_to_point`` (the factor's fixed-correspondence
+    linearisation as is, overconfident along the surface).  Needs the factor kinds and the body model
+    (``compute_marginals``'s ``factor_kinds`` and ``model``); without them the linearisation is used as is."""
     vertex_match_tol_m: float = 1e-6
     """A chamfer point's decoded vertex position must lie this close (m) to a posed mesh vertex."""
 
