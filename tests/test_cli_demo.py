@@ -13,8 +13,8 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
     summary = json.loads((out / "results" / "summary.json").read_text())
     assert summary["tracks"] and not summary["failed"]
     report = json.loads((out / "results" / "eval.json").read_text())
-    assert report["frames"] > 0 and report["overall"]["global_mm"] < 85.0     # measured 56.7 mm (seed 3)
-    assert report["overall"]["root_relative_mm"] < 61.0                        # measured 40.8 mm
+    assert report["frames"] > 0 and report["overall"]["global_mm"] < 82.0     # measured 54.5 mm (seed 3)
+    assert report["overall"]["root_relative_mm"] < 59.0                        # measured 39.1 mm
     assert (out / "results" / "fit_config.yaml").is_file()
     assert (out / "scene" / "labels" / "3d" / "smpl").is_dir()
 
