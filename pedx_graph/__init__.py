@@ -35,10 +35,10 @@ _PUBLIC: dict[str, str] = {
     "DataFormatError": "pedx_graph.data.types",
     "GroundFrame": "pedx_graph.data.ground",
     # fitting
-    "fit_track": "pedx_graph.solvers.fit",
+    "fit_track": "pedx_graph.solvers.track_lm",
     "fit_dataset": "pedx_graph.solvers.fit",
-    "TrackResult": "pedx_graph.solvers.fit",
-    "EstimatorContext": "pedx_graph.graph.build",
+    "TrackResult": "pedx_graph.solvers.result",
+    "EstimatorContext": "pedx_graph.graph.context",
     # streaming
     "StreamingEstimator": "pedx_graph.solvers.stream",
     "FrameEstimate": "pedx_graph.solvers.stream",
@@ -60,7 +60,7 @@ _PUBLIC: dict[str, str] = {
     "ReaderConfig": "pedx_graph.data.reader",
     "GroundConfig": "pedx_graph.data.ground",
     "CalibrationLimits": "pedx_graph.data.calib",
-    "PlausibilityConfig": "pedx_graph.solvers.plausibility",
+    "PlausibilityConfig": "pedx_graph.graph.config",
     "StreamConfig": "pedx_graph.solvers.stream",
     "IsamConfig": "pedx_graph.solvers.isam",
     "SimConfig": "pedx_graph.sim.config",
