@@ -279,6 +279,8 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.min_distance_m": NON_NEGATIVE,
     "AssociationConfig.max_distance_m": Range(0.0, allow_inf=True),
     "AssociationConfig.lidar_min_points": COUNT,
+    "AssociationConfig.lidar_agreement_m": NON_NEGATIVE,
+    "AssociationConfig.lidar_sigma_m": POSITIVE,
     "TrackerConfig.frame_interval_s": POSITIVE,
     "TrackerConfig.keypoint_sigma_px": POSITIVE,
     "TrackerConfig.motion_frac": NON_NEGATIVE,

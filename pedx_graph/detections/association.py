@@ -35,13 +35,15 @@ Steps:
    a pair is gated out when a residual exceeds ``gate_sigmas``, the disparity is not positive or the depth
    ``f b / median(u_l - u_r)`` lies outside ``[min_depth_m, max_depth_m]``; the mean squared residual is
    the cost; :func:`scipy.optimize.linear_sum_assignment` picks the pairs.  An unmatched detection stays a
-   one-image observation.  A matched pair is triangulated at its median disparity (depth uncertainty
-   ``Z^2 / (f b) * sigma_disparity``).
+   one-image observation.  A matched pair is triangulated at its median disparity (depth uncertainty from the
+   disparities' spread, :func:`triangulate_centre`).
 4. **Over frames**: one :class:`~pedx_graph.detections.tracker.Tracker` per pair (keypoints in both images
    + the 3D centre, constant-velocity prediction, birth/death, minimum length and score).
-5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree (median
-   horizontal distance over shared frames <= ``merge_distance_m``, at least ``merge_min_shared_frames``
-   shared frames) are one person; merged greedily, closest first, never two tracks of one pair.
+5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
+   person: over at least ``merge_min_shared_frames`` shared frames (a track's centre between two of its 3D
+   frames is interpolated), the median of the horizontal distance
+   divided by ``sqrt(sigma_a^2 + sigma_b^2 + merge_distance_m^2)`` (the two centres' depth uncertainties) is
+   at most 1; merged greedily, best agreement first, never two tracks of one pair.
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 """
@@ -91,8 +93,8 @@ class AssociationConfig:
     max_depth_m: float = 80.0
     """Farthest depth a matched pair may have, metres."""
     merge_distance_m: float = 0.8
-    """Tracks of two pairs are one person when their centres' median horizontal distance over shared frames
-    is at most this, metres (stereo depth at 25 m is good to a few decimetres)."""
+    """Tracks of two pairs are one person when their centres agree to this, metres, beyond their depth
+    uncertainties (step 5)."""
     merge_min_shared_frames: int = 3
     """... over at least this many shared frames."""
     min_distance_m: float = 0.0
@@ -101,7 +103,12 @@ class AssociationConfig:
     """Tracks whose median horizontal distance from the rig is above this are dropped, metres (bystanders
     beyond the labelled range)."""
     lidar_min_points: int = 8
-    """A LiDAR cut with at least this many points replaces the stereo centre (when clouds are given)."""
+    """A LiDAR cut with at least this many points replaces the stereo centre (when clouds are given) ..."""
+    lidar_agreement_m: float = 0.3
+    """... when its median lies within ``gate_sigmas`` stereo depth sigmas plus this of the stereo centre, in
+    the ground plane, metres."""
+    lidar_sigma_m: float = 0.1
+    """Uncertainty of a LiDAR centre along the ray (the median of a person's points vs its centre), metres."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """The across-frame tracker of each pair."""
     lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
@@ -207,7 +214,9 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
 def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
                        ground: GroundFrame, sigma_disparity_px: float) -> tuple[np.ndarray, float]:
     """(3,) world centre of a matched person (median in the level frame of its keypoints triangulated at the
-    median disparity) and its depth uncertainty ``Z^2 / (f b) * sigma_d / sqrt(n)``, metres."""
+    median disparity) and its depth uncertainty ``Z^2 / (f b) * 1.2533 s / sqrt(n)`` (the standard error of a
+    median of ``n`` disparities), metres; ``s`` = the disparities' robust spread ``1.4826 MAD``, at least
+    ``sigma_disparity_px`` (what the detector noise alone gives)."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     left, right = uv_left[both], uv_right[both]
     d_med = float(np.median(left[:, 0] - right[:, 0]))
@@ -219,7 +228,9 @@ def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoC
     world_T_rect = np.asarray(calib.world_T_cam, dtype=float).copy()
     world_T_rect[:3, :3] = world_T_rect[:3, :3] @ np.asarray(calib.rect_R_cam).T
     world_p = rect_p @ world_T_rect[:3, :3].T + world_T_rect[:3, 3]
-    sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * sigma_disparity_px / np.sqrt(max(len(left), 1))
+    disparity = left[:, 0] - right[:, 0]
+    spread = max(1.4826 * float(np.median(np.abs(disparity - d_med))), sigma_disparity_px)
+    sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * spread / np.sqrt(max(len(left), 1))
     return ground.median_point(world_p), float(sigma)
 
 
@@ -309,16 +320,39 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
         projections[side] = project_cloud(calib, side, cloud)
     points = cut_person(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                         projection=projections[side])
-    if len(points) >= config.lidar_min_points:
-        obs.world_p = ground.median_point(points)
+    if len(points) < config.lidar_min_points:
+        return
+    centre = ground.median_point(points)
+    # accepted only where it agrees with the stereo centre (a cut that caught an occluder does not)
+    offset = np.linalg.norm(ground.to_level(centre)[:2] - ground.to_level(obs.world_p)[:2])
+    if offset <= config.gate_sigmas * obs.depth_sigma_m + config.lidar_agreement_m:
+        obs.world_p = centre
         obs.world_p_camera = _camera_centre(calib, side)
-        obs.depth_sigma_m = 0.1
+        obs.depth_sigma_m = config.lidar_sigma_m
 
 
 # ---------------------------------------------------------------------------------------------- across pairs
 
-def _centres(track: list[Observation]) -> dict[int, np.ndarray]:
-    return {o.frame: o.world_p for o in track if o.world_p is not None}
+def _centres(track: list[Observation]) -> dict[int, tuple[np.ndarray, float]]:
+    """Frame -> (3D centre, depth sigma) of every frame of the track between its first and last 3D centre:
+    observed, or interpolated linearly in time between the neighbouring ones (with the larger sigma)."""
+    known = [(o.frame, o.world_p, min(float(o.depth_sigma_m), 1e3)) for o in track if o.world_p is not None]
+    if not known:
+        return {}
+    frames = np.array([k[0] for k in known], dtype=float)
+    points = np.array([k[1] for k in known], dtype=float)
+    sigmas = np.array([k[2] for k in known], dtype=float)
+    out = {}
+    for o in track:
+        if not frames[0] <= o.frame <= frames[-1]:
+            continue
+        j = int(np.searchsorted(frames, o.frame))
+        if frames[min(j, len(frames) - 1)] == o.frame:
+            out[o.frame] = (points[j], float(sigmas[j]))
+            continue
+        w = (o.frame - frames[j - 1]) / (frames[j] - frames[j - 1])
+        out[o.frame] = ((1 - w) * points[j - 1] + w * points[j], float(max(sigmas[j - 1], sigmas[j])))
+    return out
 
 
 def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: GroundFrame,
@@ -334,11 +368,13 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
             shared = sorted(set(centres[a]) & set(centres[b]))
             if len(shared) < config.merge_min_shared_frames:
                 continue
-            pa = ground.to_level(np.array([centres[a][f] for f in shared]))[:, :2]
-            pb = ground.to_level(np.array([centres[b][f] for f in shared]))[:, :2]
-            distance = float(np.median(np.linalg.norm(pa - pb, axis=1)))
-            if distance <= config.merge_distance_m:
-                candidates.append((distance, a, b))
+            pa = ground.to_level(np.array([centres[a][f][0] for f in shared]))[:, :2]
+            pb = ground.to_level(np.array([centres[b][f][0] for f in shared]))[:, :2]
+            sigma = np.sqrt(np.array([centres[a][f][1] ** 2 + centres[b][f][1] ** 2 for f in shared])
+                            + config.merge_distance_m ** 2)
+            score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
+            if score <= 1.0:
+                candidates.append((score, a, b))
     group_of = list(range(len(pair_tracks)))
     members = {i: {i} for i in range(len(pair_tracks))}
     for _, a, b in sorted(candidates):

@@ -13,9 +13,11 @@ or clutter.  :func:`detection_truth` finds the record of a read detection from i
   set: reported, not false);
 * **recovered**: labelled people (at least ``min_frames`` labelled frames with distance in the bin) owning at
   least one track;
-* **identity switches**: per labelled person, over its frames in time order, the number of times the track
-  holding its detections changes (a frame whose detections sit in two tracks counts the change once) — plus
-  **fragmentation**: the number of distinct tracks beyond the first.
+* **identity switches**: per output track, over its frames in time order, the number of times the person
+  holding most of the frame's detections changes (the track went on with someone else; both people are
+  charged with it in ``switches_by_person``) — plus **fragmentation**: per labelled person, the number of
+  distinct tracks holding its detections beyond the first (a person lost and found again, or seen by two
+  pairs whose tracks were not merged).
 """
 from __future__ import annotations
 
@@ -60,16 +62,28 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     "id_switches", "fragmentations", "owners": {track id: owner}, "switches_by_person": {tid: count}}``.
     """
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
-    owners, false, bystander = {}, 0, 0
-    per_person_frames: dict[str, dict[int, set]] = defaultdict(lambda: defaultdict(set))
+    owners, false, bystander, switches = {}, 0, 0, 0
+    by_person: dict[str, int] = {}
+    tracks_of: dict[str, set] = defaultdict(set)
     for track in tracks:
         votes = Counter()
+        previous = None
         for fr in track.frames:
+            frame_votes = Counter()
             for det in fr.detections.values():
                 who = _who(detection_truth(det, records, index))
                 votes[who] += 1
                 if who is not None:
-                    per_person_frames[who][fr.frame].add(track.track_id)
+                    frame_votes[who] += 1
+                    tracks_of[who].add(track.track_id)
+            if not frame_votes:
+                continue
+            current = max(frame_votes.items(), key=lambda kv: (kv[1], kv[0]))[0]
+            if previous is not None and current != previous:
+                switches += 1                   # the track went on with another person
+                for tid in (previous, current):
+                    by_person[tid] = by_person.get(tid, 0) + 1
+            previous = current
         owner, count = max(votes.items(), key=lambda kv: (kv[1], kv[0] is not None, str(kv[0])))
         purity = count / max(sum(votes.values()), 1)
         if owner is None or purity < min_purity:
@@ -79,25 +93,14 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
         owners[track.track_id] = owner
         if owner not in labelled:
             bystander += 1
-    switches, fragmentations, recovered, eligible = 0, 0, 0, 0
-    by_person: dict[str, int] = {}
+    fragmentations, recovered, eligible = 0, 0, 0
     for tid, frames in sorted(labelled.items()):
         if len(frames) < min_frames:
             continue
         eligible += 1
         if tid in owners.values():
             recovered += 1
-        seen = per_person_frames.get(tid, {})
-        previous = None
-        used = set()
-        for frame in sorted(seen):
-            ids = seen[frame]
-            used |= ids
-            if previous is not None and previous not in ids:
-                switches += 1
-                by_person[tid] = by_person.get(tid, 0) + 1
-            previous = previous if previous in ids else min(ids)
-        fragmentations += max(len(used) - 1, 0)
+        fragmentations += max(len(tracks_of.get(tid, ())) - 1, 0)
     return {"tracks": len(tracks), "false_tracks": false, "bystander_tracks": bystander,
             "recovered": recovered, "labelled_people": eligible, "id_switches": switches,
             "fragmentations": fragmentations, "owners": owners, "switches_by_person": by_person}

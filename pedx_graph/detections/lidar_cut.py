@@ -9,8 +9,9 @@ polygon is the detection's *hull*:
   ``dilate_frac`` of the person's image height plus ``dilate_px`` (keypoints are joints and surface points;
   the silhouette reaches past them: head top, feet, arms' width);
 * **depth gate**: with a depth ``Z`` for the person (stereo, along the rectified optical axis) only points with
-  ``Z - gate_front_m <= z <= Z + gate_back_m`` are kept; without one, the nearest cluster of the cut along
-  the ray (depths sorted, split at gaps over ``cluster_gap_m``, the first with ``min_cluster_points``);
+  ``Z - gate_front_m <= z <= Z + gate_back_m`` are kept, and of those the depth cluster (depths sorted, split
+  at gaps over ``cluster_gap_m``) whose median is nearest ``Z`` (an occluder just in front, a wall just
+  behind are clusters of their own); without a depth, the nearest cluster with ``min_cluster_points``;
 * **ground**: points less than ``ground_clearance_m`` above the ground plane of the sequence's
   :class:`~pedx_graph.data.ground.GroundFrame` are removed (kept when its ground height is unknown);
 * non-finite points (the release's ``inf`` dropouts) never enter.
@@ -53,8 +54,9 @@ class LidarCutConfig:
     gate_back_m: float = 0.8
     """Points farther than the person's depth by more than this are dropped, metres (background seen past
     the silhouette)."""
-    cluster_gap_m: float = 0.5
-    """Without a depth: a gap this large between consecutive point depths separates two clusters, metres."""
+    cluster_gap_m: float = 0.35
+    """A gap this large between consecutive point depths separates two clusters, metres (a person's points
+    span ~0.3 m in depth)."""
     min_cluster_points: int = 5
     """Without a depth: the nearest cluster with at least this many points is the person."""
     ground_clearance_m: float = 0.08
@@ -117,6 +119,20 @@ def _nearest_cluster(depth: np.ndarray, config: LidarCutConfig) -> np.ndarray:
     return keep
 
 
+def _cluster_nearest_depth(depth: np.ndarray, depth_m: float, config: LidarCutConfig) -> np.ndarray:
+    """Bool mask of the depth cluster (gaps over ``cluster_gap_m`` split) whose median depth is nearest
+    ``depth_m``: a car passing just in front of the person, inside the gate, is a cluster of its own."""
+    keep = np.zeros(len(depth), dtype=bool)
+    if len(depth) == 0:
+        return keep
+    order = np.argsort(depth, kind="stable")
+    breaks = np.flatnonzero(np.diff(depth[order]) > config.cluster_gap_m) + 1
+    chunks = np.split(order, breaks)
+    best = min(chunks, key=lambda chunk: abs(float(np.median(depth[chunk])) - depth_m))
+    keep[best] = True
+    return keep
+
+
 def cut_person(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_points: np.ndarray,
                ground: GroundFrame, config: LidarCutConfig | None = None, depth_m: float | None = None,
                projection: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
@@ -168,6 +184,7 @@ def cut_indices(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_
     z = depth[index]
     if depth_m is not None and np.isfinite(depth_m):
         index = index[(z >= depth_m - config.gate_front_m) & (z <= depth_m + config.gate_back_m)]
+        index = index[_cluster_nearest_depth(depth[index], depth_m, config)]
     else:
         index = index[_nearest_cluster(z, config)]
     return np.sort(index)

@@ -5,8 +5,9 @@ Then every camera gets a raw image model (:func:`raw_cameras`): intrinsics ``K``
 radial-tangential distortion ``D = (k1, k2, p1, p2, 0)`` drawn per camera from the config's ranges, written as
 the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are made on those raw images:
 
-* every person present (labelled or not: people nearer than 5 m or farther than 45 m, or too occluded to be
-  labelled, are *bystanders*, detected all the same) whose keypoints span at least ``min_height_px`` and
+* every person present (labelled or not: people outside the labelled distance range, too occluded to be
+  labelled, or skipped by the annotators — ``labels.unlabelled_prob`` — are *bystanders*, detected all the
+  same) whose keypoints span at least ``min_height_px`` and
   with ``min_visible_keypoints`` visible in-image keypoints is a candidate; it is missed with probability
   ``person_miss_prob + occluded_miss_prob * (occluded fraction)``;
 * its keypoints are the format's own points on the body model (:meth:`BodyModel.for_keypoint_set`, never a

@@ -11,6 +11,8 @@ Output layout (``out_dir``; the PedX release layout, see the pedx-format notes, 
     truth/meta.json                                            objects, walkways, people, seed, frames, ground
     truth/<seq>/<seq>_<frame:07d>.npz                          per-frame exact quantities (below)
     truth/<seq>/<seq>_<frame:07d>.json                         per-frame, per-person visibility summary
+    detections/..., truth/detections/<seq>/<format>.json     detector files on raw images, when
+                                                               ``detections.formats`` is set (:mod:`pedx_graph.sim.detections`)
     sim_config.yaml                                            resolved config (``# seed: S`` first line)
     summary.json                                               counts (no wall-clock times: byte-stable)
 
