@@ -182,3 +182,35 @@ def test_tracker_birth_and_death():
     assert [len(t) for t in tracker.tracks()] == [5]
     tracker.step(11, [obs(11, 55.0)])                   # three frames missed: dead, a new tentative track
     assert [len(t) for t in tracker.tracks()] == [5]
+
+
+def test_scoring_counts_switches_fragments_and_false_tracks():
+    """:func:`score_tracks`: a track going on with another person is a switch charged to both, a person in two
+    tracks a fragmentation, a track of clutter a false track, a track of an unlabelled person a bystander's."""
+    from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+    from pedx_graph.detections.evaluate import score_tracks
+
+    records = []
+
+    def det(frame, kind, tid=None):
+        records.append({"camera": "cam", "frame": frame, "index": len(records), "kind": kind,
+                        **({"tracking_id": tid} if tid else {})})
+        return Detection(camera="cam", frame=frame, keypoint_set="coco17", image_uv=np.zeros((17, 2)),
+                         confidence=np.ones(17), score=1.0, source=f"x.json#[{len(records) - 1}]")
+
+    def track(name, items):
+        return DetectedTrack(track_id=name, pairs=("cam-other",), frames=[
+            DetectedTrackFrame(frame=f, detections={"cam": det(f, kind, tid)}) for f, kind, tid in items])
+
+    tracks = [track("t1", [(0, "person", "a"), (1, "person", "a"), (2, "person", "b"), (3, "person", "b"),
+                           (4, "person", "b")]),
+              track("t2", [(0, "person", "b"), (1, "person", "b")]),
+              track("t3", [(0, "clutter", None), (1, "clutter", None), (2, "person", "a")]),
+              track("t4", [(0, "person", "c"), (1, "person", "c")])]
+    labelled = {"a": {0: 10.0, 1: 10.0, 2: 10.0}, "b": {f: 12.0 for f in range(5)}}
+    score = score_tracks(tracks, records, labelled)
+    assert score["id_switches"] == 1                      # t1: a -> b (t3's clutter frames are nobody's)
+    assert score["switches_by_person"] == {"a": 1, "b": 1}
+    assert score["false_tracks"] == 1 and score["bystander_tracks"] == 1
+    assert score["recovered"] == 1 and score["labelled_people"] == 2      # only b owns a track
+    assert score["fragmentations"] == 2                   # a in t1 and t3, b in t1 and t2
