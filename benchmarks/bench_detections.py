@@ -21,9 +21,11 @@ keypoints (covariance status ``ok``).
 
 Association (per detector format, run as the import runs it, scored against ``truth/detections``,
 :mod:`pedx_graph.detections.evaluate`): tracks, false tracks (made of clutter / fragments or of several
-people), bystander tracks (a real unlabelled person), labelled people recovered, identity switches (all
-labelled people, and those in a crossing: two labelled people at 5-25 m whose labelled keypoint boxes overlap
-in one image at one frame), fragmentations.
+people), bystander tracks (a real unlabelled person), labelled people recovered, frames of a track mixing two
+people's detections (mostly a left image paired with the wrong right image), identity switches (a track going
+on with another person; all, and those involving a person in a crossing: two labelled people at 5-25 m who
+pass each other in one image — keypoint boxes overlapping at some frame, their left-right order changed),
+fragmentations (a person split over several tracks).
 
 Scenes: ``crossing`` (default rig, everyone on the crosswalks, no groups, labelled at 5-25 m: people cross in
 front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair turned 20 degrees and placed
@@ -251,7 +253,7 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
         tracks = associate(detections, calibs, clouds=clouds, ground=ground_from_calibrations(calibs, seq))
         seconds[f"associate_{fmt}"] = time.perf_counter() - t0
         score = score_tracks(tracks, records, labelled)
-        score["crossing_id_switches"] = sum(n for tid, n in score["switches_by_person"].items() if tid in crossing)
+        score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"] if a in crossing or b in crossing)
         score.pop("owners")
         result["association"][fmt] = score
         imported = work / f"{name}_{fmt}"
@@ -311,12 +313,13 @@ def markdown(result: dict, command: str) -> str:
                      f"{g['crossing_id_switches']} | {g['false_tracks']} |")
     lines += ["", "## Association (per scene and format)", "",
               "| scene | format | tracks | false | bystander | recovered / labelled people | id switches "
-              "(crossing) | fragmentations | crossing people (events) |", "|---|---|---|---|---|---|---|---|---|"]
+              "(crossing) | mixed frames | fragmentations | crossing people (events) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for name, sc in result["scenes"].items():
         for fmt, a in sc["association"].items():
             lines.append(f"| {name} | {fmt} | {a['tracks']} | {a['false_tracks']} | {a['bystander_tracks']} | "
                          f"{a['recovered']} / {a['labelled_people']} | {a['id_switches']} "
-                         f"({a['crossing_id_switches']}) | {a['fragmentations']} | "
+                         f"({a['crossing_id_switches']}) | {a['mixed_frames']} | {a['fragmentations']} | "
                          f"{sc['crossing_people']} ({sc['crossing_events']}) |")
     lines += ["", "## Accuracy (both scenes)", "",
               "| input | bin (m) | frames | MPJPE (mm) | root-rel. MPJPE (mm) | keypoint NEES / dof | "

@@ -13,8 +13,10 @@ or clutter.  :func:`detection_truth` finds the record of a read detection from i
   set: reported, not false);
 * **recovered**: labelled people (at least ``min_frames`` labelled frames with distance in the bin) owning at
   least one track;
+* **mixed frames**: frames of a track holding detections of two people (mostly a left image paired with the
+  wrong right image);
 * **identity switches**: per output track, over its frames in time order, the number of times the person
-  holding most of the frame's detections changes (the track went on with someone else; both people are
+  holding most of the frame's detections changes (a tie keeps the previous person) (the track went on with someone else; both people are
   charged with it in ``switches_by_person``) — plus **fragmentation**: per labelled person, the number of
   distinct tracks holding its detections beyond the first (a person lost and found again, or seen by two
   pairs whose tracks were not merged).
@@ -59,11 +61,14 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack` s; ``records``: the format's truth
     records; ``labelled``: tracking id -> {frame: horizontal distance (m)} of the labelled instances.
     Returns ``{"tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people",
-    "id_switches", "fragmentations", "owners": {track id: owner}, "switches_by_person": {tid: count}}``.
+    "id_switches", "fragmentations", "owners": {track id: owner}, "switches_by_person": {tid: count},
+    "switches": [(track id, frame, from person, to person)], "mixed_frames"}``.
     """
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     owners, false, bystander, switches = {}, 0, 0, 0
     by_person: dict[str, int] = {}
+    switch_list: list[tuple[str, int, str, str]] = []
+    mixed_frames = 0
     tracks_of: dict[str, set] = defaultdict(set)
     for track in tracks:
         votes = Counter()
@@ -78,9 +83,14 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
                     tracks_of[who].add(track.track_id)
             if not frame_votes:
                 continue
-            current = max(frame_votes.items(), key=lambda kv: (kv[1], kv[0]))[0]
+            if len(frame_votes) > 1:
+                mixed_frames += 1               # two people's detections in one frame of one track
+            best = max(frame_votes.values())
+            tied = sorted(tid for tid, n in frame_votes.items() if n == best)
+            current = previous if previous in tied else tied[0]
             if previous is not None and current != previous:
                 switches += 1                   # the track went on with another person
+                switch_list.append((track.track_id, fr.frame, previous, current))
                 for tid in (previous, current):
                     by_person[tid] = by_person.get(tid, 0) + 1
             previous = current
@@ -103,4 +113,5 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
         fragmentations += max(len(tracks_of.get(tid, ())) - 1, 0)
     return {"tracks": len(tracks), "false_tracks": false, "bystander_tracks": bystander,
             "recovered": recovered, "labelled_people": eligible, "id_switches": switches,
-            "fragmentations": fragmentations, "owners": owners, "switches_by_person": by_person}
+            "fragmentations": fragmentations, "owners": owners, "switches_by_person": by_person,
+            "switches": switch_list, "mixed_frames": mixed_frames}
