@@ -7,12 +7,12 @@ Entry point::
 ``detections``: :class:`~pedx_graph.detections.types.Detection` of every camera and frame (raw-image pixels,
 no ids needed; ids in the files are ignored); ``calibrations``: pair name -> :class:`StereoCalibration`
 (with the raw K/D when the detections were made on raw images); ``clouds``: optional ``{frame: (N, 3)}`` full
-LiDAR scenes (world frame) — a person's centre then comes from its LiDAR cut
-(:mod:`pedx_graph.detections.lidar_cut`) when it holds enough points, which is far more precise in depth than
-stereo at range; ``ground``: the sequence's :class:`~pedx_graph.data.ground.GroundFrame` (derived from the
-calibrations when None — and from the clouds when they are given and it has no ground height,
-:func:`~pedx_graph.detections.lidar_cut.ground_with_plane`; distances are measured in its ground plane).  Returns :class:`DetectedTrack` s
-with ids ``"det000001"``, ... in order of first frame, each holding per frame the detections of every camera
+LiDAR scenes (world frame) — a stereo-matched person's centre then comes from its LiDAR cut
+(:mod:`pedx_graph.detections.lidar_cut`) when the cut holds ``lidar_min_points`` and agrees with the stereo
+centre (far more precise in depth than stereo at range); ``ground``: the sequence's
+:class:`~pedx_graph.data.ground.GroundFrame` (derived from the calibrations when None — and from the clouds
+when they are given and it has no ground height, :func:`~pedx_graph.detections.lidar_cut.ground_with_plane`;
+distances are measured in its ground plane).  Returns :class:`DetectedTrack` s with ids ``"det000001"``, ... in order of first frame, each holding per frame the detections of every camera
 that saw the person (raw pixels as read, ``track_id`` set) and the person's 3D centre — what the import
 writer turns into PedX-layout label files.
 
