@@ -92,6 +92,27 @@ def test_assemble_groups_runs():
     assert md.index("Table II") < md.index("Table III") < md.index("Table IV") < md.index("Table V")
 
 
+def test_solver_runs_keep_their_names_and_stay_out_of_the_ablation():
+    full = ABLATION_ROWS[4].fit_terms()
+
+    def run(name, label, g, **extra):
+        return {"name": name, "label": label, "group": "methods", "labels": "clean", "kind": "fit",
+                "terms": full, "path": name, "eval": constant_summary(g, g / 2),
+                "summary": {"wall_seconds": None, "total_frames": None, "workers": None, "tracks": 0, "failed": 0,
+                            "track_seconds_sum": None, "track_seconds_median": None}, **extra}
+    runs = [run("ours", "ours", 150.0, ablation_row=5), run("admm", "ADMM", 160.0, ablation_row=None),
+            run("stream", "iSAM2 stream (final)", 140.0, ablation_row=None),
+            run("stream_causal", "iSAM2 stream (causal)", 300.0, ablation_row=None),
+            run("other", "other", 170.0)]                    # no experiment.json: matched by its switches
+    out = rp.assemble(runs)
+    assert out["methods"] == ["ours", "ADMM", "iSAM2 stream (final)", "iSAM2 stream (causal)", "other"]
+    assert "| joint | ours | ADMM | iSAM2 stream (final) | iSAM2 stream (causal) | other |" in \
+        out["tables"]["table2_root_relative_per_joint"]
+    table4 = out["tables"]["table4_ablation"]
+    assert "| 5: full (+ temporal) (ours) |" in table4 and "| 5: full (+ temporal) (other) |" in table4
+    assert "ADMM" not in table4 and "stream" not in table4
+
+
 def test_expected_errors_isotropic():
     """E||N(0, s^2 I3)|| = s sqrt(8/pi); the root-relative error is smaller (the alignment absorbs some)."""
     sigma = 0.01
