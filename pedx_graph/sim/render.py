@@ -6,7 +6,8 @@ size, so that overlays of a fit can be tested on images.  Everything is drawn in
 against gravity, the ground at ``z = ground_z``): each pixel's ray meets the ground plane (grey asphalt with
 a 1 m checker, fading with distance) or the sky; the scene's meshes (buildings, cars) and the true posed
 bodies are painted over it with :func:`pedx_graph.export.raster.paint_meshes` (painter's order, Lambert
-shading; one colour per object).  No randomness: the same frame gives the same bytes.
+shading; one colour per object; the objects' large faces split to at most :data:`MAX_EDGE_M` first, so that
+ordering faces by their centroid's depth does not put a wall in front of a person standing before it).  No randomness: the same frame gives the same bytes.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from pedx_graph.export.raster import PaintedMesh, outward_faces, paint_meshes
 from pedx_graph.utils import atomic_write_bytes
@@ -23,6 +25,8 @@ BODY_COLOURS = ((60, 80, 170), (150, 100, 50), (70, 140, 90), (40, 150, 200), (1
 #: Colour (BGR) of buildings / cars / anything else.
 OBJECT_COLOURS = {"building": (170, 175, 180), "parked_car": (120, 60, 40), "moving_car": (40, 60, 140),
                   "pole": (60, 60, 60)}
+#: Faces of scene objects (buildings, cars) are split until no edge is longer than this, metres.
+MAX_EDGE_M = 1.0
 #: Farthest ground drawn, metres (beyond: the sky colour at the horizon).
 GROUND_RANGE_M = 200.0
 
@@ -71,7 +75,10 @@ def render_view(view, ground_z: float, meshes: list[tuple[int, np.ndarray, np.nd
             continue
         colour = (BODY_COLOURS[object_id % len(BODY_COLOURS)] if kind == "pedestrian"
                   else OBJECT_COLOURS.get(kind, (150, 150, 150)))
-        painted.append(PaintedMesh(vertices, outward_faces(vertices, faces), colour))
+        faces = outward_faces(vertices, faces)
+        if kind != "pedestrian":          # big faces split so that painter's order by face depth holds near people
+            vertices, faces = trimesh.remesh.subdivide_to_size(vertices, faces, MAX_EDGE_M)
+        painted.append(PaintedMesh(vertices, faces, colour))
     return paint_meshes(background(view, ground_z, scale), _Scaled(view), painted, scale)
 
 
