@@ -71,21 +71,21 @@ def ankle_height_m(model: BodyModelLike) -> float:
     return height
 
 
-def ground_contact_batch(points: np.ndarray, world_up: np.ndarray, ground_offset_m: np.ndarray,
+def ground_contact_batch(ankles: np.ndarray, world_up: np.ndarray, ground_offset_m: np.ndarray,
                          ankle_height: np.ndarray, jacobians: Sequence[np.ndarray] | None = None
                          ) -> tuple[np.ndarray, np.ndarray | None]:
-    """G frames at once: residuals (G,) metres of the stance (lower) ankle and, given the keypoints'
-    Jacobians ``[d_root, d_trans, d_body_pose, d_betas]`` (each (G, K, 3, k)), its Jacobian (G, 1, 75 + B).
-    ``points`` (G, K, 3) world keypoints, ``world_up`` (G, 3), ``ground_offset_m`` and ``ankle_height`` (G,)."""
+    """G frames at once: residuals (G,) metres of the stance (lower) ankle and, given the two ankles'
+    Jacobians ``[d_root, d_trans, d_body_pose, d_betas]`` (each (G, 2, 3, k)), its Jacobian (G, 1, 75 + B).
+    ``ankles`` (G, 2, 3) the world ankle keypoints (:data:`ANKLES`), ``world_up`` (G, 3), ``ground_offset_m``
+    and ``ankle_height`` (G,)."""
     up = as_f64(world_up)
-    heights = np.einsum("gai,gi->ga", as_f64(points)[:, ANKLES], up) - ground_offset_m[:, None]     # (G, 2)
+    heights = np.einsum("gai,gi->ga", as_f64(ankles), up) - ground_offset_m[:, None]                 # (G, 2)
     stance = np.argmin(heights, axis=1)
     rows = np.arange(len(stance))
     r = heights[rows, stance] - ankle_height
     if jacobians is None:
         return r, None
-    ankle = ANKLES[stance]
-    jac = np.concatenate([np.einsum("gi,gik->gk", up, np.asarray(d)[rows, ankle]) for d in jacobians], axis=1)
+    jac = np.concatenate([np.einsum("gi,gik->gk", up, np.asarray(d)[rows, stance]) for d in jacobians], axis=1)
     return r, jac[:, None, :]
 
 
@@ -123,8 +123,8 @@ def make_ground_contact_factor(keys: FrameKeys | Sequence[int], model: BodyModel
             points, jac = _keypoints(model, state), None
         else:
             kp = model.point_jacobians(state.full_pose, state.betas, state.trans)
-            points, jac = kp.points, [np.asarray(getattr(kp, name))[None] for name in _JACOBIANS]
-        r, d = ground_contact_batch(np.asarray(points)[None], up[None], offset, height, jac)
+            points, jac = kp.points, [np.asarray(getattr(kp, name))[None, ANKLES] for name in _JACOBIANS]
+        r, d = ground_contact_batch(np.asarray(points)[None, ANKLES], up[None], offset, height, jac)
         if H is not None:
             b = d.shape[2] - ROOT_DIM - TRANS_DIM - BODY_POSE_DIM
             set_jacobians(H, np.split(d[0], np.cumsum([ROOT_DIM, TRANS_DIM, BODY_POSE_DIM]), axis=1), 1,
@@ -138,9 +138,10 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
     """The ground-contact factors ``keys_list`` from the cache's prefetched keypoints (and their Jacobians)."""
     frames = cache.frame_index(keys_list)
     kp = cache.keypoint_arrays
+    ankles = (frames[:, None], ANKLES[None, :])                     # the two ankles of every frame
     st = stacked(cache, KIND, keys_list, ("world_up", "ground_offset_m", "ankle_height_m", "sigma_m"))
-    r, jac = ground_contact_batch(kp["points"][frames], st["world_up"], st["ground_offset_m"], st["ankle_height_m"],
-                                  [kp[name][frames] for name in _JACOBIANS] if jacobians else None)
+    r, jac = ground_contact_batch(kp["points"][ankles], st["world_up"], st["ground_offset_m"], st["ankle_height_m"],
+                                  [kp[name][ankles] for name in _JACOBIANS] if jacobians else None)
     return rows_normal_equations(keys_list, r[:, None], jac, 1.0 / st["sigma_m"][:, None],
                                  kernels(cache, KIND, keys_list, noise_of))
 

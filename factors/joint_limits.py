@@ -114,22 +114,24 @@ def noise_of(spec: JointLimitSpec) -> RowNoise:
 
 def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
     """The joint-limit factors ``keys_list`` (column: the body pose) from the cache's prefetched poses, one
-    :func:`joint_limit_batch` call per distinct limit set; the Jacobian row of limit l is ``active e_index``."""
+    :func:`joint_limit_batch` call per distinct limit set; the Jacobian row of limit l is ``active e_index``,
+    so the normal equations cover only the limited components (:attr:`NormalEquations.columns`)."""
     frames = cache.frame_index(keys_list)
     specs = cache.specs(KIND)
     groups: dict[tuple, list[int]] = {}
     for n, keys in enumerate(keys_list):
         spec = specs[keys]
         groups.setdefault((spec.limits, spec.sigma_rad), []).append(n)
+    columns = np.unique([lim.index for limits, _ in groups for lim in limits])
     parts = []
     for (limits, sigma), members in groups.items():
         r, idx, active = joint_limit_batch(cache.frame_arrays["pose"][frames[members], 3:], limits)
         jac = None
         if jacobians:
-            jac = np.zeros(r.shape + (BODY_POSE_DIM,))
-            jac[:, np.arange(len(idx)), idx] = active
+            jac = np.zeros(r.shape + (len(columns),))
+            jac[:, np.arange(len(idx)), np.searchsorted(columns, idx)] = active
         parts.append(rows_normal_equations([keys_list[n] for n in members], r, jac, np.full(r.shape, 1.0 / sigma),
-                                           [("none", 1.0)]))
+                                           [("none", 1.0)], columns))
     return concatenate(parts)
 
 

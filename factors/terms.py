@@ -94,6 +94,9 @@ class NormalEquations:
     bb: np.ndarray | None = None
     """(G,)."""
     structure: dict | None = field(default=None, repr=False)
+    columns: np.ndarray | None = None
+    """(c',) the factor columns ``hess`` and ``grad`` cover when the Jacobian touches only those (e.g. the
+    joint limits' few body-pose components): ``hess`` (G, c', c'), ``grad`` (G, c'); None: all columns."""
 
 
 def concatenate(parts: Sequence[NormalEquations]) -> NormalEquations:
@@ -101,6 +104,11 @@ def concatenate(parts: Sequence[NormalEquations]) -> NormalEquations:
     if len(parts) == 1:
         return parts[0]
     out = NormalEquations([k for p in parts for k in p.keys], np.concatenate([p.error for p in parts]))
+    columns = parts[0].columns
+    if any((p.columns is None) != (columns is None) or (columns is not None and not np.array_equal(p.columns, columns))
+           for p in parts):
+        raise ValueError("concatenate: the parts cover different columns")
+    out.columns = columns
     if all(p.hess is not None for p in parts):
         out.hess = np.concatenate([p.hess for p in parts])
         out.grad = np.concatenate([p.grad for p in parts])
@@ -109,12 +117,14 @@ def concatenate(parts: Sequence[NormalEquations]) -> NormalEquations:
 
 
 def rows_normal_equations(keys: list[tuple[int, ...]], residual: np.ndarray, jacobian: np.ndarray | None,
-                          inverse_sigmas: np.ndarray, kernels: Sequence[tuple[str, float]]) -> NormalEquations:
+                          inverse_sigmas: np.ndarray, kernels: Sequence[tuple[str, float]],
+                          columns: np.ndarray | None = None) -> NormalEquations:
     """The assembler of stacked rows: G factors' unwhitened residuals (G, m) and Jacobians (G, m, c) over their
     key columns (None: error only), per-row inverse sigmas (G, m) (0 drops a row) and each factor's kernel.
 
     ``e = r / sigma``, ``w`` its IRLS weight, ``A = sqrt(w) J / sigma``, ``b = -sqrt(w) e``: the factor of a
-    GTSAM ``noiseModel.Robust`` (``Scalar``) over ``Diagonal.Sigmas`` linearised."""
+    GTSAM ``noiseModel.Robust`` (``Scalar``) over ``Diagonal.Sigmas`` linearised.  ``columns``: the factor
+    columns the Jacobian's (G, m, c') columns are (the others are zero; :attr:`NormalEquations.columns`)."""
     white = residual * inverse_sigmas
     loss, weight = robust_rows(white, kernels)
     used = inverse_sigmas > 0
@@ -125,7 +135,8 @@ def rows_normal_equations(keys: list[tuple[int, ...]], residual: np.ndarray, jac
     a = jacobian * (scale * inverse_sigmas)[:, :, None]
     b = -scale * white
     a_t = np.swapaxes(a, 1, 2)
-    return NormalEquations(keys, error, a_t @ a, (a_t @ b[:, :, None])[:, :, 0], np.sum(b * b, axis=1))
+    return NormalEquations(keys, error, a_t @ a, (a_t @ b[:, :, None])[:, :, 0], np.sum(b * b, axis=1),
+                           columns=columns)
 
 
 def factor_normal_equations(cache, kind: str, keys_list: list[tuple[int, ...]], noise_of: Callable[[Any], RowNoise],

@@ -36,7 +36,7 @@ def test_residual_is_the_lower_ankle_height_minus_the_ankle_height():
     up = np.array([0.3, -0.2, -0.93])                   # a z-down world, slightly tilted
     up /= np.linalg.norm(up)
     points = rng.normal(size=(3, 18, 3))
-    r, _ = ground_contact_batch(points, np.tile(up, (3, 1)), np.full(3, -1.5), np.full(3, 0.08))
+    r, _ = ground_contact_batch(points[:, ANKLES], np.tile(up, (3, 1)), np.full(3, -1.5), np.full(3, 0.08))
     heights = points[:, ANKLES] @ up + 1.5
     np.testing.assert_allclose(r, heights.min(axis=1) - 0.08)
     assert 0.0 < ankle_height_m(synthetic_context().model) < 0.5      # ankle above the sole, body-sized

@@ -90,6 +90,7 @@ class BatchedBodyModel:
         self._last_signature: tuple | None = None
         self._memo: dict = {}
         self._frame_of: dict[int, int] = {}
+        self._index_memo: dict[tuple, np.ndarray] = {}
         self._last_jacobians = False
         self.frame_states: tuple[list[FrameKeys], list[FrameState]] = ([], [])
         """The frame keys and states of the last prefetch."""
@@ -147,8 +148,13 @@ class BatchedBodyModel:
     def frame_index(self, keys_list) -> np.ndarray:
         """The frame (position in the last prefetch's keys) of each factor of ``keys_list``, by its first
         root, translation or body-pose key."""
-        where = self._frame_of
-        return np.array([next(where[k] for k in keys if k in where) for keys in keys_list], dtype=np.int64)
+        tag = tuple(keys_list)
+        hit = self._index_memo.get(tag)
+        if hit is None:
+            where = self._frame_of
+            hit = self._index_memo[tag] = np.array([next(where[k] for k in keys if k in where) for keys in keys_list],
+                                                   dtype=np.int64)
+        return hit
 
     def memo(self, name, build):
         """``build()``, remembered under ``name`` until the registry changes (for arrays derived from the
@@ -343,7 +349,9 @@ class BatchedBodyModel:
         self.frame_arrays = {"pose": pose, "betas": betas, "trans": trans,
                              "world_R_body": np.stack([st.world_R_body for st in states])}
         self._root_keys = {k.root for k in keys}
-        self._frame_of = {int(key): i for i, k in enumerate(keys) for key in (k.root, k.trans, k.body_pose)}
+        frame_of = {int(key): i for i, k in enumerate(keys) for key in (k.root, k.trans, k.body_pose)}
+        if frame_of != self._frame_of:
+            self._frame_of, self._index_memo = frame_of, {}
         for k, st in zip(keys, states):
             self._key_bytes[k.root] = np.ascontiguousarray(st.world_R_body).tobytes()
             self._key_bytes[k.trans] = st.trans.tobytes()

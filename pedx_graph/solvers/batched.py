@@ -82,8 +82,27 @@ class BatchedLinearizer:
         """Scatter a term's normal equations into ``system`` (the temporal pair's compact form in place)."""
         if ne.hess is None and ne.structure is not None:
             self._add_pair(system, ne.keys, ne.structure)
+        elif ne.columns is not None:
+            self._add_columns(system, ne)
         else:
             self.scatter(system, ne.keys, ne.hess, ne.grad)
+
+    def _add_columns(self, system: ChainSystem, ne: NormalEquations) -> None:
+        """Normal equations on a few of their factors' columns (:attr:`NormalEquations.columns`): added entry by
+        entry into one frame's block when they all lie there, else expanded to all columns and scattered."""
+        pattern = self.layout.segments(ne.keys[0])
+        width = sum(w for _, w, _, _ in pattern)
+        where = [next((f, o + c - start) for start, w, f, o in pattern if start <= c < start + w) for c in ne.columns]
+        if any(f != pattern[0][2] or f < 0 for f, _ in where):
+            hess, grad = np.zeros((len(ne.keys), width, width)), np.zeros((len(ne.keys), width))
+            hess[:, ne.columns[:, None], ne.columns[None, :]] = ne.hess
+            grad[:, ne.columns] = ne.grad
+            self.scatter(system, ne.keys, hess, grad)
+            return
+        offsets = np.array([o for _, o in where])
+        firsts = self._firsts(ne.keys)
+        np.add.at(system.frame, (firsts[:, None, None], offsets[None, :, None], offsets[None, None, :]), ne.hess)
+        np.add.at(system.grad_frame, (firsts[:, None], offsets[None, :]), ne.grad)
 
     def _firsts(self, keys_list) -> np.ndarray:
         return np.array([self.layout.segments(keys)[0][2] for keys in keys_list])

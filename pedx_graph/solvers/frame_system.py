@@ -119,6 +119,8 @@ def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.nd
         ne = TERMS[kind].assemble(body, keys_list, True)
         frames = np.array([position[next(k for k in fk if k in position)] for fk in ne.keys], dtype=np.int64)
         cols = _columns(ne.keys[0], keys[frames[0]], num_betas)
+        if ne.columns is not None:                       # the term's Jacobian touches only these columns
+            cols = cols[ne.columns]
         np.add.at(hess, (frames[:, None, None], cols[None, :, None], cols[None, None, :]), ne.hess)
         np.add.at(grad, (frames[:, None], cols[None, :]), ne.grad)
         np.add.at(const, frames, ne.bb)
