@@ -9,7 +9,8 @@ from factors.stereo_reprojection import (DEFAULT_KEYPOINT_WEIGHTS, ImageKeypoint
                                          make_stereo_reprojection_factor, stereo_dense_rows, stereo_pixels,
                                          stereo_reprojection_batch, stereo_reprojection_error)
 from factors.testing import (ToyBodyModel, assert_factor_jacobians, frame_values, make_test_calibration,
-                             standing_rotation, synthetic_body_model)
+                             standing_rotation)
+from synthetic_model import synthetic_body_model
 from pedx_graph.data.types import View2D
 
 KEYS = FrameKeys.for_frame(2)
