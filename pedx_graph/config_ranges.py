@@ -253,6 +253,12 @@ RULES: dict[str, Range | Choice] = {
     "SceneVariant.distance_std_m": NON_NEGATIVE,
     "ReportConfig.floor_samples": COUNT,
     "ReportConfig.seed": NON_NEGATIVE_INT,
+    # pedx_graph.export and the simulator's rendered images
+    "ExportConfig.overlay_every": COUNT,
+    "ExportConfig.overlay_scale": POSITIVE,
+    "ExportConfig.fps": POSITIVE,
+    "ImageConfig.scale": POSITIVE,
+    "ImageConfig.jpeg_quality": Range(1.0, 100.0, integer=True),
     "DetectorNoiseConfig.sigma_px": NON_NEGATIVE,
     "DetectorNoiseConfig.sigma_height_frac": NON_NEGATIVE,
     "DetectorNoiseConfig.occluded_sigma_factor": POSITIVE,
