@@ -171,6 +171,6 @@ def test_import_detections(tmp_path):
     assert summary["counts"]["done"] == len(summary["tracks"]) >= 2
     labels = sorted((out / "imported" / "labels" / "2d").rglob("*.json"))
     assert labels and all(json.loads(p.read_text())["keypoint_set"] == "body25" for p in labels)   # the set's own
-    # seed 1 measured 44, 70, 71 mm for three labelled people (and a bystander's track with no truth nearby)
-    good = [t for t in summary["tracks"] if t["keypoint_error_mm"] < 110]
+    # seed 1 measured 36, 53, 62 mm for three labelled people (and a bystander's track with no truth nearby)
+    good = [t for t in summary["tracks"] if t["keypoint_error_mm"] < 95]
     assert len(good) >= 2 and len({t["person"] for t in good}) == len(good)
