@@ -33,8 +33,9 @@ with different K at once by padding every frame to the batch's largest K with im
 ``[0 0 0 0; 0 0 0 0; 0 0 0 1]`` (pixels 0, derivative 0) and whose rows carry inverse sigma 0
 (:func:`stereo_dense_rows`).  The residual, its whitening and the normal equations of those batches are
 defined here once (:func:`stereo_pixels`, :func:`reprojection_whiten`, :func:`reprojection_normal_equations`)
-and used by :mod:`pedx_graph.graph.batch`, :mod:`pedx_graph.solvers.batched` and
-:mod:`pedx_graph.solvers.frame_system`.
+and reach the batch linearizer and the stream's frame systems through this term's assembler
+(:func:`assemble`, registered in :mod:`factors.registry`); the term cache (:mod:`pedx_graph.graph.batch`)
+evaluates the pixels.
 """
 from __future__ import annotations
 
