@@ -1,4 +1,4 @@
-"""Benchmark / calibration: pixel noise of detector keypoints as a function of their confidence (seeded).
+"""Benchmark / calibration: pixel noise of detector keypoints vs their confidence and the person's size (seeded).
 
 The simulator writes detector output (``simulate --detections``: OpenPose BODY_25 / BODY_25B / COCO-18 and COCO
 results on distorted raw images, confidences from its detector model, :mod:`pedx_graph.sim.detections`).  Here
@@ -6,18 +6,23 @@ every written detection of a *person* (the simulator's truth records: not clutte
 truth exists at that frame is read back with our readers, undistorted and rectified
 (:func:`pedx_graph.detections.undistort.rectified`), and compared with the exact rectified projection of the
 true body's keypoints of the same set (the set's own definitions, ``BodyModel.for_keypoint_set``).  The
-residuals are binned by confidence and :func:`pedx_graph.detections.noise.fit_sigma_curve` fits the
-sigma-vs-confidence curve (robust spread per bin, non-increasing) per keypoint set and pooled over all sets.
+person's image height is measured on the detection itself (vertical span of its present rectified keypoints,
+:func:`pedx_graph.detections.noise.detection_height_px`), as the import measures it.  Per keypoint set,
+:func:`~pedx_graph.detections.noise.keypoint_scales` gives each keypoint's relative noise factor (confidence
+>= 0.5); the residuals divided by their factor are pooled over all sets and
+:func:`~pedx_graph.detections.noise.fit_noise_model` fits the size-independent floor and the
+sigma-vs-confidence curve at the reference height (``DetectionNoiseConfig.reference_height_px``); the same fit
+per set is reported for comparison.
 
-The drop threshold is the lowest knot whose fitted sigma is at most ``--max-sigma-px`` (a keypoint noisier than
-that says little about a pedestrian a few hundred pixels tall, and the low-confidence bins hold the detector
-model's gross outliers and left/right swaps: their RMS exceeds their robust sigma).
+The drop threshold is the lowest knot whose fitted sigma at the reference height is at most ``--max-sigma-px``
+(a keypoint noisier than 10 % of the person's height says little, and the low-confidence bins hold the
+detector model's gross outliers and left/right swaps: their RMS exceeds their robust sigma).
 
     python benchmarks/bench_detection_noise.py [--seed 0] [--scenes 2] [--pedestrians 8] [--frames 20]
                                                [--out benchmarks/results]
 
-Writes ``bench_detection_noise.json`` and ``.md``; the pooled curve and threshold are the defaults of
-:class:`pedx_graph.detections.noise.DetectionNoiseConfig`.
+Writes ``bench_detection_noise.json`` and ``.md``; the pooled floor, curve and threshold and the per-set
+keypoint factors are the defaults of :class:`pedx_graph.detections.noise.DetectionNoiseConfig`.
 """
 from __future__ import annotations
 
@@ -40,7 +45,8 @@ from pedx_graph.body import BodyModel  # noqa: E402
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_smpl_labels  # noqa: E402
 from pedx_graph.detections.coco import read_coco_results  # noqa: E402
-from pedx_graph.detections.noise import fit_sigma_curve  # noqa: E402
+from pedx_graph.detections.noise import (DetectionNoiseConfig, detection_height_px, fit_noise_model,  # noqa: E402
+                                         keypoint_scales)
 from pedx_graph.detections.openpose import read_openpose  # noqa: E402
 from pedx_graph.detections.undistort import find_camera, rectified  # noqa: E402
 from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig  # noqa: E402
@@ -62,8 +68,8 @@ def read_format(root: Path, fmt: str, seq: str) -> list:
 
 
 def residuals(root: Path, fmt: str, model: BodyModel) -> dict[str, np.ndarray]:
-    """Confidence (N,), residual (N, 2) px and person image height (N,) px of every present keypoint of every
-    person detection of ``fmt`` with an SMPL truth."""
+    """Confidence (N,), residual (N, 2) px, person image height measured on the detection (N,) px and keypoint
+    index (N,) of every present keypoint of every person detection of ``fmt`` with an SMPL truth."""
     seq = next(p.name for p in (root / "truth" / "detections").iterdir())
     truth_records = json.loads((root / "truth" / "detections" / seq / f"{fmt}.json").read_text())
     calibs = read_calibrations(root / "calib")
@@ -76,7 +82,7 @@ def residuals(root: Path, fmt: str, model: BodyModel) -> dict[str, np.ndarray]:
     records: dict[tuple, list] = defaultdict(list)
     for rec in truth_records:
         records[(rec["camera"], rec["frame"])].append(rec)
-    conf, res, height = [], [], []
+    conf, res, height, kp_index = [], [], [], []
     for key, recs in records.items():
         found = by_image.get(key, [])
         if fmt == "coco":
@@ -93,12 +99,14 @@ def residuals(root: Path, fmt: str, model: BodyModel) -> dict[str, np.ndarray]:
             true_uv = calib.project(world)[0 if side == "left" else 1]
             uv = rectified(det, calibs)
             ok = det.present & np.all(np.isfinite(uv), axis=1)
-            h = float(np.ptp(true_uv[:, 1]))
+            h = detection_height_px(np.where(ok[:, None], uv, np.nan))
             conf.append(det.confidence[ok])
             res.append(uv[ok] - true_uv[ok])
             height.append(np.full(int(ok.sum()), h))
+            kp_index.append(np.flatnonzero(ok))
     cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
-    return {"confidence": cat(conf, (0,)), "residual": cat(res, (0, 2)), "height": cat(height, (0,))}
+    return {"confidence": cat(conf, (0,)), "residual": cat(res, (0, 2)), "height": cat(height, (0,)),
+            "keypoint": cat(kp_index, (0,)).astype(int)}
 
 
 def threshold(knots: tuple[float, ...], sigma_px: tuple[float, ...], max_sigma_px: float) -> float:
@@ -119,46 +127,65 @@ def run(seed: int, scenes: int, pedestrians: int, frames: int, work: Path, max_s
         simulate(root, cfg, seed=seed + s)
         for fmt in DETECTOR_FORMATS:
             data[DETECTOR_FORMATS[fmt]].append(residuals(root, fmt, model))
-    out = {"sets": {}}
-    pooled = {"confidence": [], "residual": []}
+    href = DetectionNoiseConfig().reference_height_px
+    out = {"sets": {}, "reference_height_px": href}
+    pooled = {"confidence": [], "residual": [], "height": []}
     for set_name, parts in sorted(data.items()):
         conf = np.concatenate([p["confidence"] for p in parts])
         res = np.concatenate([p["residual"] for p in parts])
+        height = np.concatenate([p["height"] for p in parts])
+        index = np.concatenate([p["keypoint"] for p in parts])
+        good = conf >= 0.5
+        scales = keypoint_scales(index[good], res[good], height[good], int(index.max()) + 1, href)
+        res = res / scales[index][:, None]
         pooled["confidence"].append(conf)
         pooled["residual"].append(res)
-        curve, rows = fit_sigma_curve(conf, res, KNOTS)
-        out["sets"][set_name] = {"keypoints": int(len(conf)), "sigma_px": list(curve.sigma_px), "bins": rows,
+        pooled["height"].append(height)
+        floor, curve, rows = fit_noise_model(conf, res, height, KNOTS, href)
+        out["sets"][set_name] = {"keypoints": int(len(conf)), "floor_px": floor, "sigma_px": list(curve.sigma_px),
+                                 "bins": rows, "keypoint_scale": [float(v) for v in scales],
                                  "min_confidence": threshold(KNOTS, curve.sigma_px, max_sigma_px)}
     conf = np.concatenate(pooled["confidence"])
     res = np.concatenate(pooled["residual"])
-    curve, rows = fit_sigma_curve(conf, res, KNOTS)
-    out["pooled"] = {"keypoints": int(len(conf)), "sigma_px": list(curve.sigma_px), "bins": rows,
-                     "min_confidence": threshold(KNOTS, curve.sigma_px, max_sigma_px)}
+    height = np.concatenate(pooled["height"])
+    floor, curve, rows = fit_noise_model(conf, res, height, KNOTS, href)
+    out["pooled"] = {"keypoints": int(len(conf)), "floor_px": floor, "sigma_px": list(curve.sigma_px),
+                     "bins": rows, "min_confidence": threshold(KNOTS, curve.sigma_px, max_sigma_px)}
     out["knots"] = list(KNOTS)
     return out
 
 
 def markdown(result: dict, command: str) -> str:
     knots = result["knots"]
-    lines = ["# Detector keypoint noise vs confidence (simulated detector)", "",
+    href = result["reference_height_px"]
+    lines = ["# Detector keypoint noise vs confidence and person size (simulated detector)", "",
              "Method: `simulate --detections` (all formats) on seeded default-rig scenes; each person detection's "
              "keypoints read back with our readers, undistorted and rectified, and compared with the rectified "
-             "projection of the true body's keypoints of the same set. Per confidence bin (nearest knot): "
-             "robust sigma per axis (MAD x 1.4826 over both axes, non-increasing fit; a bin with fewer than 30 "
-             "residuals takes its neighbour's value). The drop threshold is the lowest knot whose sigma is at "
-             f"most {result['max_sigma_px']:g} px.", "",
+             "projection of the true body's keypoints of the same set. Model: `sigma = k_scale[k] * "
+             "sqrt(floor^2 + (curve(c) * h / h_ref)^2)`, `h` the person's height measured on the detection "
+             f"(span of its present keypoints), h_ref = {href:g} px. Per set, each keypoint's factor is its "
+             "robust spread of size-normalised residuals (confidence >= 0.5) over the set's median. Per "
+             "confidence bin (nearest knot), the reference sigma makes the robust spread (MAD x 1.4826 over both "
+             "axes) of the normalised residuals 1 (non-increasing fit); the floor is the one that equalises that "
+             "spread over the height quartiles. The drop threshold is the lowest knot whose reference sigma is "
+             f"at most {result['max_sigma_px']:g} px.", "",
              f"Command: `{command}`", "", f"Hardware: {hardware()}; {result['seconds']:.0f} s.", "",
-             "| set | keypoints | min_confidence | " + " | ".join(f"sigma@{k:g}" for k in knots) + " |",
-             "|---|---|---|" + "---|" * len(knots)]
+             "| set | keypoints | floor px | min_confidence | "
+             + " | ".join(f"sigma@{k:g}" for k in knots) + " |",
+             "|---|---|---|---|" + "---|" * len(knots)]
     for name, entry in list(result["sets"].items()) + [("pooled (shipped default)", result["pooled"])]:
-        lines.append(f"| {name} | {entry['keypoints']} | {entry['min_confidence']:g} | "
+        lines.append(f"| {name} | {entry['keypoints']} | {entry['floor_px']:g} | {entry['min_confidence']:g} | "
                      + " | ".join(f"{s:.2f}" for s in entry["sigma_px"]) + " |")
-    lines += ["", "Pooled bins (count, robust sigma px, raw RMS px, fraction beyond 5 sigma):", "",
-              "| knot | bin | count | sigma px | RMS px | beyond 5 sigma |", "|---|---|---|---|---|---|"]
+    lines += ["", "Per-keypoint factors (shipped as `keypoint_scale`, set order):", ""]
+    for name, entry in result["sets"].items():
+        lines.append(f"- {name}: " + ", ".join(f"{v:.2f}" for v in entry["keypoint_scale"]))
+    lines += ["", "Pooled bins (count, reference sigma px, RMS and fraction beyond 5 of the normalised "
+              "residuals):", "",
+              "| knot | bin | count | sigma px | RMS / sigma | beyond 5 sigma |", "|---|---|---|---|---|---|"]
     for row in result["pooled"]["bins"]:
         lo, hi = row["bin"]
         lines.append(f"| {row['knot']:g} | {lo:.2f}-{hi:.2f} | {row['count']} | {row['sigma_px']:.2f} | "
-                     f"{row['rms_px']:.1f} | {row['frac_beyond_5sigma']:.3f} |")
+                     f"{row['rms_normalised']:.2f} | {row['frac_beyond_5sigma']:.3f} |")
     return "\n".join(lines) + "\n"
 
 

@@ -22,7 +22,7 @@ INF = math.inf
 
 @dataclass(frozen=True)
 class Range:
-    """A number (or every number of a tuple) within ``lo``-``hi``."""
+    """A number (or every number of a tuple, or of a mapping's values and their tuples) within ``lo``-``hi``."""
 
     lo: float = -INF
     hi: float = INF
@@ -36,6 +36,8 @@ class Range:
     """A tuple of exactly this many numbers."""
 
     def problem(self, value) -> str | None:
+        if isinstance(value, dict):                         # e.g. keypoint set -> per-keypoint numbers
+            return next((p for p in map(self.problem, value.values()) if p), None)
         values = list(value) if isinstance(value, (list, tuple)) else [value]
         if self.length is not None and (not isinstance(value, (list, tuple)) or len(values) != self.length):
             return f"must be {self.length} numbers"
@@ -316,6 +318,9 @@ RULES: dict[str, Range | Choice] = {
     "DetectionNoiseConfig.min_confidence": FRACTION,
     "DetectionNoiseConfig.annotation_sigma_px": POSITIVE,
     "DetectionNoiseConfig.occluded_sigma_factor": POSITIVE,
+    "DetectionNoiseConfig.reference_height_px": POSITIVE,
+    "DetectionNoiseConfig.floor_px": NON_NEGATIVE,
+    "DetectionNoiseConfig.keypoint_scale": POSITIVE,
     # pedx_graph.priors.train.TrainConfig
     "TrainConfig.fps": POSITIVE,
     "TrainConfig.pose_fps": POSITIVE,

@@ -12,7 +12,8 @@ import pytest
 from pedx_graph.data.types import DataFormatError
 from pedx_graph.detections.coco import read_coco
 from pedx_graph.detections.naming import compile_patterns, parse_name
-from pedx_graph.detections.noise import DetectionNoiseConfig, SigmaCurve, fit_sigma_curve
+from pedx_graph.detections.noise import (DetectionNoiseConfig, SigmaCurve, fit_noise_model, fit_sigma_curve,
+                                         keypoint_scales)
 from pedx_graph.detections.openpose import read_openpose
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "detections"
@@ -147,9 +148,19 @@ def test_not_json(tmp_path):
 
 
 def test_confidence_noise_and_curve_fit():
-    config = DetectionNoiseConfig(min_confidence=0.25, default=SigmaCurve((0.3, 0.9), (10.0, 2.0)))
+    config = DetectionNoiseConfig(min_confidence=0.25, default=SigmaCurve((0.3, 0.9), (10.0, 2.0)), floor_px=0.0,
+                                  keypoint_scale={})
     sigma = config.sigma("coco17", np.array([0.1, 0.3, 0.6, 0.95]))
     assert np.isnan(sigma[0]) and sigma[1] == 10.0 and sigma[2] == pytest.approx(6.0) and sigma[3] == 2.0
+    # the noise scales with the person's measured height; the floor adds in quadrature; per-keypoint factors
+    np.testing.assert_allclose(config.sigma("coco17", np.array([0.3, 0.9]), height_px=400.0), [20.0, 4.0])
+    config.floor_px = 3.0
+    np.testing.assert_allclose(config.sigma("coco17", np.array([0.3]), height_px=50.0), [np.hypot(3.0, 2.5)])
+    config.keypoint_scale = {"coco17": (2.0, 0.5)}
+    np.testing.assert_allclose(config.sigma("coco17", np.array([0.9, 0.9]), height_px=800.0),
+                               [2.0 * np.hypot(3.0, 8.0), 0.5 * np.hypot(3.0, 8.0)])
+    config.floor_px = 0.0
+    config.keypoint_scale = {}
     sigma = config.sigma("coco17", np.ones(2), occluded=np.array([False, True]), annotation=True)
     np.testing.assert_allclose(sigma, [3.0, 7.5])
     with pytest.raises(ValueError):
@@ -162,6 +173,16 @@ def test_confidence_noise_and_curve_fit():
     curve, rows = fit_sigma_curve(conf, residual, (0.3, 0.5, 0.7, 0.9))
     np.testing.assert_allclose(curve.sigma_px, [2.0 + 10.0 * (1 - k) for k in (0.3, 0.5, 0.7, 0.9)], rtol=0.12)
     assert all(r["count"] > 1000 for r in rows)
+    # Size-scaled fit: a known floor and reference curve come back from people of many sizes.
+    height = rng.uniform(40.0, 800.0, len(conf))
+    true_sigma = np.hypot(2.0, (1.0 + 8.0 * (1 - conf)) * height / 200.0)
+    residual = rng.normal(size=(len(conf), 2)) * true_sigma[:, None]
+    floor, curve, rows = fit_noise_model(conf, residual, height, (0.3, 0.5, 0.7, 0.9), 200.0)
+    assert floor == pytest.approx(2.0, abs=0.5)
+    np.testing.assert_allclose(curve.sigma_px, [1.0 + 8.0 * (1 - k) for k in (0.3, 0.5, 0.7, 0.9)], rtol=0.12)
+    index = rng.integers(0, 3, len(conf))
+    scales = keypoint_scales(index, residual * np.array([1.0, 2.0, 1.0])[index][:, None], height, 3, 200.0)
+    np.testing.assert_allclose(scales, [1.0, 2.0, 1.0], rtol=0.1)
 
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/detections is absent")
@@ -199,6 +220,11 @@ def test_shipped_noise_defaults_are_the_calibration_result():
     assert list(config.default.confidence_knots) == result["knots"]
     np.testing.assert_allclose(config.default.sigma_px, result["pooled"]["sigma_px"], atol=1e-3)
     assert config.min_confidence == result["pooled"]["min_confidence"]
+    assert config.floor_px == result["pooled"]["floor_px"]
+    assert config.reference_height_px == result["reference_height_px"]
+    assert set(config.keypoint_scale) == set(result["sets"])
+    for name, entry in result["sets"].items():
+        np.testing.assert_allclose(config.keypoint_scale[name], entry["keypoint_scale"], atol=1e-3)
     assert np.all(np.diff(config.default.sigma_px) <= 0)        # less confident, noisier
 
 
@@ -207,7 +233,7 @@ def test_noise_config_from_yaml(tmp_path):
     from pedx_graph.detections.importer import ImportConfig
 
     path = tmp_path / "import.yaml"
-    path.write_text("noise:\n  min_confidence: 0.4\n  default:\n    confidence_knots: [0.2, 0.8]\n"
+    path.write_text("noise:\n  min_confidence: 0.4\n  floor_px: 0.0\n  default:\n    confidence_knots: [0.2, 0.8]\n"
                     "    sigma_px: [30.0, 4.0]\n  per_set:\n    coco17:\n      confidence_knots: [0.5]\n"
                     "      sigma_px: [2.5]\n")
     config = load_config(ImportConfig, path)

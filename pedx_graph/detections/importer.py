@@ -29,7 +29,7 @@ from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.lidar_cut import LidarCutConfig
-from pedx_graph.detections.noise import DetectionNoiseConfig
+from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import rectified
 from pedx_graph.utils import atomic_write_json
@@ -91,10 +91,12 @@ class _Clouds(Mapping):
 
 def detection_view(det: Detection, calibrations, noise: DetectionNoiseConfig) -> View2D:
     """The :class:`View2D` of one detection: rectified pixels, keypoints below the threshold dropped,
-    per-keypoint confidence and sigma_px (annotations: :attr:`DetectionNoiseConfig.annotation_sigma_px`)."""
+    per-keypoint confidence and sigma_px from the confidence and the person's height measured on the detection
+    (annotations: :attr:`DetectionNoiseConfig.annotation_sigma_px`)."""
     uv = rectified(det, calibrations)
     annotation = det.occluded is not None
-    sigma = noise.sigma(det.keypoint_set, det.confidence, det.occluded, annotation=annotation)
+    height = detection_height_px(np.where(det.present[:, None], uv, np.nan))
+    sigma = noise.sigma(det.keypoint_set, det.confidence, det.occluded, annotation=annotation, height_px=height)
     keep = np.all(np.isfinite(uv), axis=1) & np.isfinite(sigma)
     uv[~keep] = np.nan
     visible = keep & (~det.occluded if det.occluded is not None else True)

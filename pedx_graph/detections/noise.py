@@ -1,12 +1,20 @@
-"""Detector confidences -> per-keypoint pixel noise (sigma, px) and the drop threshold, in physical units.
+"""Detector confidences and person size -> per-keypoint pixel noise (sigma, px) and the drop threshold.
 
-A detector's confidence is no noise model; what the fit needs is the pixel standard deviation of a keypoint
-of that confidence.  :class:`DetectionNoiseConfig` holds it as a piecewise-linear curve ``sigma_px(c)`` over
-confidence knots (per keypoint set, one default curve for sets without their own), and the confidence below
-which a keypoint is dropped (treated as absent, never invented).  The curve is *measured*, not chosen:
-:func:`fit_sigma_curve` fits it from residuals of simulated detections against the true projections
-(``benchmarks/bench_detection_noise.py`` runs it on the simulator's detector output and writes the numbers
-that are shipped here as defaults).
+A detector's confidence is no noise model; what the fit needs is the pixel standard deviation of a keypoint.
+A detector's pixel error grows with the person's image size (COCO's OKS likewise scores keypoint error
+relative to the object's scale), so the model is::
+
+    sigma_px(c, h, k) = k_scale[k] * sqrt(floor_px^2 + (curve(c) * h / reference_height_px)^2)
+
+``c`` the keypoint's confidence, ``h`` the person's image height measured on the detection itself (vertical
+span of its present keypoints, rectified pixels, :func:`detection_height_px`; never from truth), ``curve`` a
+piecewise-linear sigma at the reference height over confidence knots (one default curve, optionally one per
+keypoint set), ``k_scale`` a per-keypoint relative factor per keypoint set (wrists are noisier than
+shoulders, like OKS's per-keypoint sigmas; 1 where none is given) and ``floor_px`` the size-independent
+part.  Keypoints below ``min_confidence`` are dropped (treated as absent, never invented).  Everything is
+*measured*, not chosen: :func:`fit_noise_model` fits it from residuals of simulated detections against the
+true projections (``benchmarks/bench_detection_noise.py`` runs it on the simulator's detector output and
+writes the numbers that are shipped here as defaults).
 """
 from __future__ import annotations
 
@@ -20,14 +28,16 @@ MAD_TO_SIGMA = 1.4826
 
 @dataclass
 class SigmaCurve:
-    """Pixel noise of a keypoint as a function of its detector confidence (per axis, rectified pixels)."""
+    """Pixel noise of a keypoint of a person of the reference height as a function of its detector confidence
+    (per axis, rectified pixels)."""
 
     confidence_knots: tuple[float, ...] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
     """Confidences (increasing; detectors' are in [0, 1]) at which the noise is given; constant beyond the end
     knots."""
-    sigma_px: tuple[float, ...] = (48.219, 20.659, 14.164, 11.361, 9.548, 7.317, 5.126, 3.65, 3.116)
-    """Standard deviation per image axis at each knot, pixels (linear in between).  Default: the pooled fit over
-    all keypoint sets of ``python benchmarks/bench_detection_noise.py --scenes 2 --pedestrians 8 --frames 20``
+    sigma_px: tuple[float, ...] = (30.938, 15.584, 10.837, 7.745, 6.802, 5.262, 3.345, 1.898, 1.192)
+    """Standard deviation per image axis at each knot for a person of
+    :attr:`DetectionNoiseConfig.reference_height_px`, pixels (linear in between; scales with the person's
+    height).  Default: the pooled fit over all keypoint sets of ``python benchmarks/bench_detection_noise.py``
     (benchmarks/results/bench_detection_noise.md)."""
 
     def __post_init__(self) -> None:
@@ -40,22 +50,55 @@ class SigmaCurve:
             raise ValueError(f"sigma_px must be positive, got {list(sig)}")
 
     def __call__(self, confidence: np.ndarray) -> np.ndarray:
-        """Sigma (px) of each confidence (same shape)."""
+        """Sigma (px at the reference height) of each confidence (same shape)."""
         return np.interp(np.asarray(confidence, dtype=float), self.confidence_knots, self.sigma_px)
+
+
+def detection_height_px(uv: np.ndarray) -> float:
+    """A person's image height measured on its detection: the vertical span of its present keypoints ((K, 2)
+    pixels, NaN = absent), pixels; 0 with fewer than two."""
+    v = np.asarray(uv, dtype=float).reshape(-1, 2)
+    v = v[np.all(np.isfinite(v), axis=1), 1]
+    return float(np.ptp(v)) if len(v) >= 2 else 0.0
+
+
+#: Shipped per-keypoint relative factors (``python benchmarks/bench_detection_noise.py``).
+_KEYPOINT_SCALE: dict[str, tuple[float, ...]] = {
+    "body25": (0.492, 1, 0.894, 1.561, 1.65, 1.054, 1.51, 1.563, 1.704, 1.836, 1.365, 1.01, 2.002, 1.44, 1.02,
+               0.51, 0.492, 0.716, 0.667, 0.957, 0.879, 0.969, 0.948, 0.928, 0.987),
+    "body25b": (0.513, 0.516, 0.487, 0.743, 0.673, 1.05, 0.984, 1.626, 1.507, 1.636, 1.566, 2.026, 1.908, 1.486,
+                1.38, 0.937, 0.969, 0.994, 1.141, 1.001, 1.005, 1, 0.946, 0.927, 0.939),
+    "coco17": (0.49, 0.46, 0.507, 0.72, 0.647, 0.935, 1, 1.487, 1.375, 1.721, 1.536, 2.222, 1.968, 1.4, 1.462,
+               0.945, 0.978),
+    "coco18": (0.458, 0.97, 0.89, 1.311, 1.414, 1.03, 1.36, 1.469, 1.96, 1.278, 0.852, 1.996, 1.32, 0.894, 0.399,
+               0.504, 0.66, 0.675),
+}
 
 
 @dataclass
 class DetectionNoiseConfig:
-    """How detector confidences become pixel noise for the fit (``pedx-graph import``, the labels' sigma_px)."""
+    """How detector confidences and person size become pixel noise for the fit (``pedx-graph import``, the
+    labels' sigma_px; model in the module docstring)."""
 
-    min_confidence: float = 0.3
+    min_confidence: float = 0.2
     """Keypoints whose confidence is below this are dropped (unlabelled).  Default: the lowest knot whose
-    simulated-detector sigma is at most 20 px (benchmarks/results/bench_detection_noise.md; below it the
-    residuals are tens of pixels with heavy tails: gross outliers and left/right swaps)."""
+    simulated-detector sigma at the reference height is at most 10 % of it
+    (benchmarks/results/bench_detection_noise.md; below it the residuals are tens of percent of the person's
+    height with heavy tails: gross outliers and left/right swaps)."""
+    reference_height_px: float = 200.0
+    """The person image height the curves' ``sigma_px`` are given for, pixels (a convention of the curves,
+    not a property of the data)."""
+    floor_px: float = 1.75
+    """Size-independent part of a detected keypoint's noise per axis (added in quadrature), pixels.
+    Default: measured with the curve (benchmarks/results/bench_detection_noise.md)."""
     default: SigmaCurve = field(default_factory=SigmaCurve)
     """Sigma-vs-confidence curve of every keypoint set without its own entry in :attr:`per_set`."""
     per_set: dict[str, SigmaCurve] = field(default_factory=dict)
     """Keypoint set name (``coco17``, ``body25``, ...) -> its own curve."""
+    keypoint_scale: dict[str, tuple[float, ...]] = field(default_factory=lambda: dict(_KEYPOINT_SCALE))
+    """Keypoint set name -> a relative noise factor per keypoint in the set's order (median 1); a set without
+    an entry uses 1 for every keypoint.  Default: measured per set
+    (benchmarks/results/bench_detection_noise.md)."""
     annotation_sigma_px: float = 3.0
     """Sigma of a keypoint from a manual annotation file (COCO annotations: confidence 1 by visibility, no
     detector score), pixels per axis."""
@@ -69,23 +112,40 @@ class DetectionNoiseConfig:
             self.default = SigmaCurve(**self.default)
         self.per_set = {name: curve if isinstance(curve, SigmaCurve) else SigmaCurve(**curve)
                         for name, curve in dict(self.per_set).items()}
+        self.keypoint_scale = {name: tuple(float(v) for v in values)
+                               for name, values in dict(self.keypoint_scale).items()}
+        for name, values in self.keypoint_scale.items():
+            if not values or not all(np.isfinite(v) and v > 0 for v in values):
+                raise ValueError(f"keypoint_scale[{name!r}] must be positive numbers, got {list(values)}")
 
     def curve(self, keypoint_set: str) -> SigmaCurve:
         """The curve used for ``keypoint_set``."""
         return self.per_set.get(keypoint_set, self.default)
 
+    def scale(self, keypoint_set: str, count: int) -> np.ndarray:
+        """(count,) per-keypoint relative factors of ``keypoint_set`` (ones when the set has none or they do
+        not fit its size)."""
+        values = self.keypoint_scale.get(keypoint_set)
+        if values is None or len(values) != count:
+            return np.ones(count)
+        return np.asarray(values, dtype=float)
+
     def sigma(self, keypoint_set: str, confidence: np.ndarray, occluded: np.ndarray | None = None,
-              annotation: bool = False) -> np.ndarray:
+              annotation: bool = False, height_px: float | None = None) -> np.ndarray:
         """(K,) sigma (px) per keypoint; NaN where the keypoint is dropped (confidence below the threshold).
 
-        ``annotation``: the keypoints are a manual annotation (sigma :attr:`annotation_sigma_px`, times
-        :attr:`occluded_sigma_factor` where ``occluded``), not detector output.
+        ``height_px``: the person's image height measured on the detection (:func:`detection_height_px`);
+        None = the reference height.  ``annotation``: the keypoints are a manual annotation (sigma
+        :attr:`annotation_sigma_px`, times :attr:`occluded_sigma_factor` where ``occluded``), not detector
+        output.
         """
         confidence = np.asarray(confidence, dtype=float)
         if annotation:
             out = np.full(confidence.shape, float(self.annotation_sigma_px))
         else:
-            out = self.curve(keypoint_set)(confidence)
+            height = self.reference_height_px if height_px is None else max(float(height_px), 0.0)
+            relative = self.curve(keypoint_set)(confidence) * height / self.reference_height_px
+            out = np.hypot(self.floor_px, relative) * self.scale(keypoint_set, confidence.shape[-1])
         if occluded is not None:
             out = np.where(np.asarray(occluded, dtype=bool), out * self.occluded_sigma_factor, out)
         return np.where(confidence >= max(self.min_confidence, 1e-12), out, np.nan)
@@ -129,6 +189,97 @@ def fit_sigma_curve(confidence: np.ndarray, residual_px: np.ndarray, knots: tupl
     # A noise that grows as confidence falls: enforce monotonic non-increase (pool adjacent violators).
     sig = _non_increasing(sig, np.array([max(r["count"], 1) for r in rows], dtype=float))
     return SigmaCurve(confidence_knots=knots, sigma_px=tuple(round(float(s), 3) for s in sig)), rows
+
+
+def _robust_sigma(residual: np.ndarray) -> float:
+    """Robust per-axis spread of (N, 2) residuals: 1.4826 MAD over both axes about their median."""
+    centred = residual - np.median(residual, axis=0)
+    return float(MAD_TO_SIGMA * np.median(np.abs(centred)))
+
+
+def keypoint_scales(keypoint: np.ndarray, residual_px: np.ndarray, height_px: np.ndarray, count: int,
+                    reference_height_px: float, min_samples: int = 30) -> np.ndarray:
+    """(count,) relative noise factor of each keypoint of a set (median 1): the robust spread of its residuals
+    divided by the person's relative height ``h / reference_height_px``, over the median of those spreads.
+    ``keypoint`` (N,) index of each residual; a keypoint with fewer than ``min_samples`` residuals gets 1."""
+    keypoint = np.asarray(keypoint, dtype=int)
+    scaled = np.asarray(residual_px, dtype=float).reshape(-1, 2) / (
+        np.maximum(np.asarray(height_px, dtype=float), 1.0) / reference_height_px)[:, None]
+    spread = np.full(count, np.nan)
+    for k in range(count):
+        sel = keypoint == k
+        if sel.sum() >= min_samples:
+            spread[k] = _robust_sigma(scaled[sel])
+    if np.all(np.isnan(spread)):
+        return np.ones(count)
+    out = spread / np.nanmedian(spread)
+    return np.round(np.where(np.isnan(out), 1.0, out), 3)
+
+
+def fit_noise_model(confidence: np.ndarray, residual_px: np.ndarray, height_px: np.ndarray,
+                    knots: tuple[float, ...], reference_height_px: float,
+                    floors_px: tuple[float, ...] = tuple(np.arange(0.0, 6.01, 0.25)), min_samples: int = 30
+                    ) -> tuple[float, SigmaCurve, list[dict]]:
+    """Fit the size-scaled model of the module docstring (floor and curve; residuals already divided by their
+    keypoint's factor) from detections' residuals against the truth.
+
+    ``confidence`` (N,), ``residual_px`` (N, 2) rectified pixel errors, ``height_px`` (N,) the person's image
+    height measured on its detection.  For each candidate floor, each knot's reference sigma ``g`` makes the
+    robust spread (1.4826 MAD over both axes) of ``residual / sqrt(floor^2 + (g h / h_ref)^2)`` equal 1 over
+    the residuals nearest that knot (bisection; a bin with fewer than ``min_samples`` takes its neighbour's
+    value); the floor kept is the one whose normalised residuals have the most equal spread over the four
+    height quartiles (the model's claim: the same noise per sigma at every size).  Returns the floor, the
+    (non-increasing) curve and a per-bin table (knot, bin, count, reference sigma, the normalised residuals'
+    RMS and fraction beyond 5 sigma).
+    """
+    confidence = np.asarray(confidence, dtype=float)
+    residual_px = np.asarray(residual_px, dtype=float).reshape(-1, 2)
+    rel = np.maximum(np.asarray(height_px, dtype=float), 1.0) / reference_height_px
+    knots = tuple(float(k) for k in knots)
+    edges = np.concatenate([[-np.inf], 0.5 * (np.array(knots[1:]) + np.array(knots[:-1])), [np.inf]])
+    bins = [(confidence >= edges[i]) & (confidence < edges[i + 1]) for i in range(len(knots))]
+    counts = np.array([int(b.sum()) for b in bins])
+    if np.all(counts < min_samples):
+        raise ValueError("no confidence bin holds enough residuals to fit a sigma")
+    quartiles = np.quantile(rel, [0.25, 0.5, 0.75])
+    size_bin = np.searchsorted(quartiles, rel)
+
+    def fit_bins(floor: float) -> np.ndarray:
+        out = np.full(len(knots), np.nan)
+        for i, sel in enumerate(bins):
+            if counts[i] < min_samples:
+                continue
+            res, r = residual_px[sel], rel[sel]
+            lo, hi = 1e-3, 1e4
+            for _ in range(60):                       # spread decreases as g grows
+                g = np.sqrt(lo * hi)
+                spread = _robust_sigma(res / np.hypot(floor, g * r)[:, None])
+                lo, hi = (g, hi) if spread > 1.0 else (lo, g)
+            out[i] = np.sqrt(lo * hi)
+        good = np.flatnonzero(~np.isnan(out))
+        for i in np.flatnonzero(np.isnan(out)):
+            out[i] = out[good[np.argmin(np.abs(good - i))]]
+        return _non_increasing(out, np.maximum(counts, 1).astype(float))
+
+    best = None
+    for floor in floors_px:
+        g = fit_bins(float(floor))
+        sigma = np.hypot(floor, np.interp(confidence, knots, g) * rel)
+        z = residual_px / sigma[:, None]
+        spreads = [_robust_sigma(z[size_bin == q]) for q in range(4) if np.sum(size_bin == q) >= min_samples]
+        badness = float(np.sum(np.log(np.array(spreads)) ** 2))
+        if best is None or badness < best[0]:
+            best = (badness, float(floor), g, z)
+    _, floor, g, z = best
+    rows = []
+    for i, sel in enumerate(bins):
+        zs = z[sel]
+        rows.append({"knot": knots[i], "bin": [float(edges[i]), float(edges[i + 1])], "count": int(counts[i]),
+                     "sigma_px": float(g[i]),
+                     "rms_normalised": float(np.sqrt(np.mean(zs ** 2))) if len(zs) else float("nan"),
+                     "frac_beyond_5sigma": float(np.mean(np.abs(zs) > 5)) if len(zs) else float("nan")})
+    curve = SigmaCurve(confidence_knots=knots, sigma_px=tuple(round(float(v), 3) for v in g))
+    return floor, curve, rows
 
 
 def _non_increasing(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
