@@ -1,5 +1,16 @@
-"""Keypoint names shared by every layer (labels, body model, evaluation)."""
+"""Keypoint names shared by every layer (labels, body model, evaluation), and the shipped keypoint sets' names.
+
+A keypoint set (one detector format: ``pedx18``, ``coco17``, ``coco18``, ``body25``, ``body25b``) is a data file
+``pedx_graph/body/data/keypoint_sets/<set>.json``; :func:`load_keypoint_set` reads its names, PedX
+equivalents and definitions.  Where those points sit on a body model (the linear map over vertices and
+joints) is :mod:`pedx_graph.body.keypoint_defs`; the label readers need only the names, so they live here.
+"""
 from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 #: The 18 PedX keypoint names, in the order used everywhere in this package (pedx-format notes).
 PEDX_KEYPOINTS: tuple[str, ...] = (
@@ -26,3 +37,51 @@ SMPL_JOINTS: tuple[str, ...] = (
 SMPL_PARENTS: tuple[int, ...] = (
     -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
 )
+
+
+#: Folder of the keypoint-set data files, one ``<set>.json`` each (written by ``tools/build_keypoint_sets.py``).
+KEYPOINT_SET_DIR = Path(__file__).resolve().parent / "body" / "data" / "keypoint_sets"
+
+
+@dataclass(frozen=True)
+class KeypointSet:
+    """One detector format's keypoints: names in file order, and their definitions on the body model.
+
+    ``definitions`` maps a topology (``"open"``: the open default model, identified by its faces' digest;
+    ``"smpl"``: the SMPL topology, V = 6890) to ``name -> {"vertices": [[id, w], ...], "joints": [[id, w], ...]}``.
+    ``pedx_equivalent`` maps the names that are PedX's points (same body point) to the PedX name; the steps
+    that need a named point (initialisation, flips, body size) look names up through it (:meth:`index_of`).
+    """
+
+    name: str
+    keypoints: tuple[str, ...]
+    pedx_equivalent: dict[str, str]
+    definitions: dict[str, dict]
+    description: str = ""
+
+    def index_of(self, pedx_name: str) -> int | None:
+        """Index in this set of the keypoint that is PedX's ``pedx_name``, or None when the set lacks it."""
+        for i, n in enumerate(self.keypoints):
+            if self.pedx_equivalent.get(n) == pedx_name:
+                return i
+        return None
+
+
+def keypoint_set_names() -> tuple[str, ...]:
+    """Names of the shipped keypoint sets (the data files' stems), sorted."""
+    return tuple(sorted(p.stem for p in KEYPOINT_SET_DIR.glob("*.json")))
+
+
+@lru_cache(maxsize=None)
+def load_keypoint_set(name: str) -> KeypointSet:
+    """The shipped keypoint set ``name`` (``pedx18``, ``coco17``, ``coco18``, ``body25``, ``body25b``).
+
+    Raises KeyError naming the known sets when there is no such data file.
+    """
+    path = KEYPOINT_SET_DIR / f"{name}.json"
+    if not path.is_file():
+        raise KeyError(f"unknown keypoint set {name!r}; known: {', '.join(keypoint_set_names())}")
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    return KeypointSet(name=doc["name"], keypoints=tuple(doc["keypoints"]),
+                       pedx_equivalent=dict(doc["pedx_equivalent"]), definitions=doc["definitions"],
+                       description=doc.get("description", ""))

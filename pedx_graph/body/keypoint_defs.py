@@ -17,16 +17,14 @@ Sources, in order:
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
 from pedx_graph.keypoints import PEDX_KEYPOINTS
+from pedx_graph.keypoints import KEYPOINT_SET_DIR, KeypointSet, keypoint_set_names, load_keypoint_set  # noqa: F401
 
 log = logging.getLogger(__name__)
 
@@ -172,52 +170,8 @@ def keypoint_map_for_model(data, joints_only: bool = False) -> KeypointMap:
 
 
 # ------------------------------------------------------------------------------------------------ keypoint sets
-#: Folder of the keypoint-set data files, one ``<set>.json`` each (written by ``tools/build_keypoint_sets.py``).
-KEYPOINT_SET_DIR = Path(__file__).resolve().parent / "data" / "keypoint_sets"
-
-
-@dataclass(frozen=True)
-class KeypointSet:
-    """One detector format's keypoints: names in file order, and their definitions on the body model.
-
-    ``definitions`` maps a topology (``"open"``: the open default model, identified by its faces' digest;
-    ``"smpl"``: the SMPL topology, V = 6890) to ``name -> {"vertices": [[id, w], ...], "joints": [[id, w], ...]}``.
-    ``pedx_equivalent`` maps the names that are PedX's points (same body point) to the PedX name; the steps
-    that need a named point (initialisation, flips, body size) look names up through it (:meth:`index_of`).
-    """
-
-    name: str
-    keypoints: tuple[str, ...]
-    pedx_equivalent: dict[str, str]
-    definitions: dict[str, dict]
-    description: str = ""
-
-    def index_of(self, pedx_name: str) -> int | None:
-        """Index in this set of the keypoint that is PedX's ``pedx_name``, or None when the set lacks it."""
-        for i, n in enumerate(self.keypoints):
-            if self.pedx_equivalent.get(n) == pedx_name:
-                return i
-        return None
-
-
-def keypoint_set_names() -> tuple[str, ...]:
-    """Names of the shipped keypoint sets (the data files' stems), sorted."""
-    return tuple(sorted(p.stem for p in KEYPOINT_SET_DIR.glob("*.json")))
-
-
-@lru_cache(maxsize=None)
-def load_keypoint_set(name: str) -> KeypointSet:
-    """The shipped keypoint set ``name`` (``pedx18``, ``coco17``, ``coco18``, ``body25``, ``body25b``).
-
-    Raises KeyError naming the known sets when there is no such data file.
-    """
-    path = KEYPOINT_SET_DIR / f"{name}.json"
-    if not path.is_file():
-        raise KeyError(f"unknown keypoint set {name!r}; known: {', '.join(keypoint_set_names())}")
-    doc = json.loads(path.read_text(encoding="utf-8"))
-    return KeypointSet(name=doc["name"], keypoints=tuple(doc["keypoints"]),
-                       pedx_equivalent=dict(doc["pedx_equivalent"]), definitions=doc["definitions"],
-                       description=doc.get("description", ""))
+# The sets' names and data files are read by :mod:`pedx_graph.keypoints` (the label readers need them below the
+# body layer); re-exported here beside their definitions on the body model.
 
 
 def faces_digest(faces: np.ndarray) -> str:

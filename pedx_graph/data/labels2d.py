@@ -38,6 +38,7 @@ import numpy as np
 
 from pedx_graph.data.jsonfile import read_json_file
 from pedx_graph.data.types import PEDX_KEYPOINTS, DataFormatError, View2D
+from pedx_graph.keypoints import keypoint_set_names, load_keypoint_set
 from pedx_graph.utils import atomic_write_json
 
 logger = logging.getLogger(__name__)
@@ -244,7 +245,6 @@ def _keypoint_set(data: dict, path) -> tuple[str, tuple[str, ...]]:
     name = data.get("keypoint_set", "pedx18")
     if name == "pedx18":
         return "pedx18", PEDX_KEYPOINTS
-    from pedx_graph.body.keypoint_defs import keypoint_set_names, load_keypoint_set
     if not isinstance(name, str) or name not in keypoint_set_names():
         raise DataFormatError(path, "keypoint_set", f"unknown set {name!r} (known: {', '.join(keypoint_set_names())})")
     return name, load_keypoint_set(name).keypoints
@@ -320,7 +320,6 @@ def screen_label(label: Label2D, image_size: tuple[int, int], margin: float = 0.
 def _names(view: View2D) -> tuple[str, ...]:
     if view.keypoint_set == "pedx18":
         return PEDX_KEYPOINTS
-    from pedx_graph.body.keypoint_defs import load_keypoint_set
     return load_keypoint_set(view.keypoint_set).keypoints
 
 
