@@ -246,14 +246,16 @@ def group_robust_weights(norms: np.ndarray, kernel: str, scale: float) -> tuple[
     raise ValueError(f"unknown robust kernel {kernel!r}; expected one of {ROBUST_KERNELS}")
 
 
-def robustify_groups(white: np.ndarray, kernel: str, scale: float,
-                     blocks: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, list[np.ndarray] | None]:
+def robustify_groups(white: np.ndarray, kernel: str, scale: float, blocks: Sequence[np.ndarray] | None = None,
+                     block_scale: float = 1.0) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Robust kernel on groups of whitened rows (e.g. the 3 rows of one LiDAR point), inside a factor.
 
     ``white`` (G, d) whitened residuals, ``blocks`` Jacobians of ``white`` flattened, each (G*d, k).  Each
     group ``r`` becomes ``s = g(|r|) r`` so that ``0.5 |s|^2 = rho(|r|)`` (rotation invariant, unlike a
     per-row kernel), with Jacobian ``ds/dr = g I + h r r^T`` (:func:`group_robust_weights`).  Use with a unit
-    noise model.  Returns ``s`` flattened (G*d,) and the transformed blocks.
+    noise model.  Returns ``s`` flattened (G*d,) and the transformed blocks.  ``block_scale``: the blocks are
+    the Jacobians of ``white / block_scale`` (e.g. unwhitened, with ``block_scale`` = 1 / sigma), folded into
+    ``g`` and ``h`` at no extra cost.
     """
     white = np.asarray(white, dtype=np.float64)
     norms = np.sqrt((white * white).sum(axis=1))
@@ -263,11 +265,12 @@ def robustify_groups(white: np.ndarray, kernel: str, scale: float,
         return s, None
     out = []
     num_g, d = white.shape
+    g_b, h_b = g * block_scale, h * block_scale
     for block in blocks:
         jr = np.asarray(block, dtype=np.float64).reshape(num_g, d, -1)
         rt_j = np.einsum("gd,gdk->gk", white, jr)
-        new = g[:, None, None] * jr
-        new += (h[:, None] * white)[:, :, None] * rt_j[:, None, :]
+        new = g_b[:, None, None] * jr
+        new += (h_b[:, None] * white)[:, :, None] * rt_j[:, None, :]
         out.append(as_f64(new.reshape(num_g * d, -1)))
     return s, out
 

@@ -128,7 +128,7 @@ def chamfer_whiten(offsets: np.ndarray, blocks: list[np.ndarray] | None, spec: C
     Returns ``s`` (3M,) and the transformed blocks (the factor's residual under its unit noise model)."""
     inv = 1.0 / spec.sigma_m
     return robustify_groups(np.asarray(offsets, dtype=np.float64).reshape(-1, 3) * inv, spec.robust,
-                            spec.robust_scale, None if blocks is None else [b * inv for b in blocks])
+                            spec.robust_scale, blocks, block_scale=inv)
 
 
 def chamfer_residual(model: BodyModelLike, state: FrameState, spec: ChamferSpec, want_jacobians: bool,
