@@ -36,8 +36,6 @@ RANKS = {
 
 #: Upward imports that exist today, each the work of an open change elsewhere (issue 15 / 16); no new entry.
 KNOWN_UPWARD = {
-    ("pedx_graph.detections.lidar_cut", "pedx_graph.sim.labels"),         # LiDAR cut from scene clouds
-    ("pedx_graph.eval.detector_noise", "pedx_graph.sim.labels"),          # simulated detector noise
     ("pedx_graph.eval.experiments", "pedx_graph.sim.config"),             # experiments run the simulator
     ("pedx_graph.eval.experiments", "pedx_graph.sim.simulate"),
 }

@@ -31,8 +31,8 @@ import cv2
 import numpy as np
 
 from pedx_graph.data.ground import GroundFrame
+from pedx_graph.data.segment_cut import segment_indices_from_projection
 from pedx_graph.data.types import StereoCalibration
-from pedx_graph.sim.labels import segment_indices_from_projection
 
 log = logging.getLogger(__name__)
 

@@ -179,7 +179,7 @@ def make_noisy_dataset(src: str | os.PathLike, dst: str | os.PathLike, config: D
     from pedx_graph.data.reader import camera_sides, list_sequences, read_scene_points, resolve_root
     from pedx_graph.data.types import View2D
     from pedx_graph.data.writer import write_segment
-    from pedx_graph.sim.labels import depth_gate, segment_indices_from_projection
+    from pedx_graph.data.segment_cut import depth_gate, segment_indices_from_projection
 
     config = config or DetectorNoiseConfig()
     src, dst = resolve_root(src), Path(dst)

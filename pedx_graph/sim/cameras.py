@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pedx_graph.data.segment_cut import points_in_polygon  # noqa: F401  (the labelling's polygon test)
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.sim.config import SimConfig, StereoPairConfig
 from pedx_graph.sim.scene import RayScene
@@ -249,26 +250,3 @@ def silhouette_polygon(sil: Silhouette, epsilon_px: float) -> np.ndarray | None:
     # sub-cell j (of the padded, upsampled grid) has its centre at image x0 + (j + 0.5) * sub_px - pad * cell
     return np.stack([x0 + (contour[:, 0] + 0.5) * sub_px - pad * sil.cell_px,
                      y0 + (contour[:, 1] + 0.5) * sub_px - pad * sil.cell_px], axis=-1)
-
-
-def points_in_polygon(uv: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """(N,) bool: pixel points (N, 2) inside the closed pixel polygon (K, 2) (boundary counts as inside).
-
-    Rasterises the polygon over its bounding box at 1/8-px vertex precision and looks the points up.
-    """
-    inside = np.zeros(len(uv), dtype=bool)
-    if len(uv) == 0 or polygon is None or len(polygon) < 3:
-        return inside
-    lo = np.floor(polygon.min(axis=0)).astype(int)
-    hi = np.ceil(polygon.max(axis=0)).astype(int)
-    size = hi - lo + 1
-    mask = np.zeros((size[1], size[0]), dtype=np.uint8)
-    shift = 3
-    pts = np.round((polygon - lo - 0.5) * (1 << shift)).astype(np.int32)
-    # pixel (i, j) of the mask covers image [lo + i, lo + i + 1): its centre lo + i + 0.5 is sampled
-    cv2.fillPoly(mask, [pts.reshape(-1, 1, 2)], 1, lineType=cv2.LINE_8, shift=shift)
-    idx = np.floor(uv - lo).astype(np.int64)
-    ok = np.all(np.isfinite(uv), axis=1)
-    ok &= (idx[:, 0] >= 0) & (idx[:, 0] < size[0]) & (idx[:, 1] >= 0) & (idx[:, 1] < size[1])
-    inside[ok] = mask[idx[ok, 1], idx[ok, 0]] > 0
-    return inside

@@ -15,12 +15,14 @@ clipped to the image and, with ``integer_clicks``, rounded to whole pixels (poly
 File quirks (:func:`file_quirks`, real PedX): a file may carry no keypoints (polygon only) or miss one.
 
 Segments, as in the PedX paper: the LiDAR points of an instance are the points of the full sweep that
-project inside its polygon in the *left* image of the pair (in front of the camera).  This keeps the
+project inside its polygon in the *left* image of the pair (in front of the camera; the cut itself is
+:mod:`pedx_graph.data.segment_cut`, shared with the detections' LiDAR cut).  This keeps the
 paper's mistakes: ground, background or other people seen through/around the silhouette, and points
 visible to the LiDAR but hidden from the camera (the sensors sit ~0.3 m apart).  The exact membership
 (hit object == this person) is kept separately under ``truth/``.
 
-The labelling tool then applies a far-side depth gate (:func:`depth_gate`): points whose horizontal range
+The labelling tool then applies a far-side depth gate
+(:func:`pedx_graph.data.segment_cut.depth_gate`): points whose horizontal range
 from the LiDAR exceeds the segment's median range by more than ``LabelConfig.segment_depth_gate_m`` are
 dropped.  That removes the ground and walls seen *behind* the person through the silhouette edge (most of
 them come from the camera-LiDAR parallax) but keeps every mistake at the person's own depth or in front
@@ -33,8 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from pedx_graph.data.segment_cut import depth_gate, segment_indices_from_projection  # noqa: F401
 from pedx_graph.data.types import View2D
-from pedx_graph.sim.cameras import CameraView, points_in_polygon
+from pedx_graph.sim.cameras import CameraView
 from pedx_graph.sim.config import LabelConfig
 
 
@@ -130,28 +133,3 @@ def segment_indices(view: CameraView, world_points: np.ndarray, polygon: np.ndar
         return np.zeros(0, dtype=np.int64)
     uv, depth = view.project(world_points)
     return segment_indices_from_projection(uv, depth, polygon, min_depth_m)
-
-
-def segment_indices_from_projection(uv: np.ndarray, depth: np.ndarray, polygon: np.ndarray,
-                                    min_depth_m: float = 0.5) -> np.ndarray:
-    """:func:`segment_indices` from precomputed pixels (N, 2) and depths (N,) of the sweep points."""
-    if polygon is None or len(uv) == 0:
-        return np.zeros(0, dtype=np.int64)
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    u, v = uv[:, 0], uv[:, 1]
-    cand = np.flatnonzero((u >= lo[0]) & (u <= hi[0]))
-    cand = cand[(v[cand] >= lo[1]) & (v[cand] <= hi[1]) & (depth[cand] > min_depth_m)]
-    return cand[points_in_polygon(uv[cand], polygon)]
-
-
-def depth_gate(index: np.ndarray, world_points: np.ndarray, gate_m: float) -> np.ndarray:
-    """The rows of ``index`` (into the (N, 3) LiDAR-frame ``world_points``) kept by the far-side depth gate.
-
-    A point is kept when its horizontal range ``|p_xy|`` (metres, from the LiDAR) is at most
-    ``median(|p_xy| over index) + gate_m``.  ``gate_m <= 0`` keeps everything.
-    """
-    index = np.asarray(index, dtype=np.int64)
-    if gate_m <= 0 or len(index) == 0:
-        return index
-    ranges = np.hypot(world_points[index, 0], world_points[index, 1])
-    return index[ranges <= np.median(ranges) + gate_m]
