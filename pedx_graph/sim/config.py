@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pedx_graph.config import ConfigError, from_dict, read_yaml, to_dict
+from pedx_graph.data.detector_model import DetectorNoiseConfig
 from pedx_graph.sim.render import ImageConfig
-from pedx_graph.eval.detector_noise import DetectorNoiseConfig
 
 #: Stereo pair names of the release: forward and left-facing pairs.
 FORWARD_PAIR = "ylw79D0-red707B"
@@ -313,7 +313,7 @@ class DetectorOutputConfig:
     """Formats to write (keys of :data:`DETECTOR_FORMATS`); empty = none (and undistorted calibration files)."""
     keypoint_noise: DetectorNoiseConfig = field(default_factory=lambda: DetectorNoiseConfig(use_truth=True))
     """Per-keypoint noise, misses, left/right swaps and outliers (the detector model of
-    :mod:`pedx_graph.eval.detector_noise`; its polygon and segment fields are not used here)."""
+    :mod:`pedx_graph.data.detector_model`; its polygon and segment fields are not used here)."""
     person_miss_prob: float = 0.03
     """Probability that a detectable person is not detected at all in one image."""
     occluded_miss_prob: float = 0.5

@@ -44,8 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from pedx_graph.body.keypoint_defs import load_keypoint_set
+from pedx_graph.data.detector_model import corrupt_keypoints
 from pedx_graph.data.types import RawCamera, StereoCalibration
-from pedx_graph.eval.detector_noise import corrupt_keypoints
 from pedx_graph.sim import cameras
 from pedx_graph.sim.config import DETECTOR_FORMATS, PEDX_VERTICAL_DISPARITY_SD_PX, DetectorOutputConfig
 from pedx_graph.utils import atomic_write_bytes
