@@ -15,13 +15,10 @@ from typing import Any, TypeVar
 
 import yaml
 
+from pedx_graph.config_ranges import ConfigError, check_config
 from pedx_graph.utils import atomic_write_text, to_jsonable
 
 T = TypeVar("T")
-
-
-class ConfigError(ValueError):
-    """A configuration file or field is malformed."""
 
 
 def _is_dataclass_type(tp: Any) -> bool:
@@ -149,8 +146,6 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
 def load_config(cls: type[T], path: str | os.PathLike | None = None) -> T:
     """Load ``cls`` from a YAML file (``None``: all defaults), every value's range checked
     (:func:`pedx_graph.config_ranges.check_config`: :class:`ConfigError` naming the file and the key)."""
-    from pedx_graph.config_ranges import check_config
-
     if path is None:
         return check_config(cls(), "<defaults>")
     data = read_yaml(path)

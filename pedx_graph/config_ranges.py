@@ -20,6 +20,13 @@ from typing import Any, Callable
 INF = math.inf
 
 
+class ConfigError(ValueError):
+    """A configuration file or field is malformed (bad YAML, unknown key, wrong type, value out of range).
+
+    Defined here, below :mod:`pedx_graph.config` (which re-exports it), so that the range checks need nothing
+    from the YAML loader."""
+
+
 @dataclass(frozen=True)
 class Range:
     """A number (or every number of a tuple, or of a mapping's values and their tuples) within ``lo``-``hi``."""
@@ -387,9 +394,7 @@ def _walk(cfg, prefix: str) -> None:
 
 def check_config(cfg, source: str = "<config>"):
     """``cfg`` (any config dataclass, nested ones included) when every value is allowed (module docstring);
-    :class:`~pedx_graph.config.ConfigError` naming ``source`` and the key otherwise."""
-    from pedx_graph.config import ConfigError
-
+    :class:`ConfigError` naming ``source`` and the key otherwise."""
     try:
         _walk(cfg, "")
     except _Problem as exc:
