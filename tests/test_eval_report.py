@@ -197,7 +197,7 @@ def tiny_experiment(tmp_path_factory):
     """Two tiny scenes merged, the triangulation baseline on clean and detector labels."""
     from pedx_graph.baselines.run import fit_dataset_baseline
     from pedx_graph.eval.detector_noise import make_noisy_dataset
-    from pedx_graph.eval.experiments import merge_scenes, scene_config
+    from pedx_graph.experiment_runner import merge_scenes, scene_config
     from pedx_graph.sim.simulate import simulate
 
     work = tmp_path_factory.mktemp("report")

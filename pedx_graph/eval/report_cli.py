@@ -88,8 +88,9 @@ def _run_experiments(args: argparse.Namespace) -> int:
     import json
 
     from pedx_graph.config import load_config
-    from pedx_graph.eval.experiments import ExperimentConfig, run_experiments
+    from pedx_graph.eval.experiments import ExperimentConfig
     from pedx_graph.eval.tables import render_markdown
+    from pedx_graph.experiment_runner import run_experiments
 
     config = load_config(ExperimentConfig, args.config)
     if config.fit_config:                                   # the presets it names, checked before anything runs
