@@ -13,7 +13,7 @@ output) against a simulated dataset and writes ``report.json``, ``report.md`` an
   (:func:`error_floor`), and each method's ratio to it.
 
 A results folder may carry ``experiment.json`` (``name``, ``label``, ``group``, ``labels``) written by
-:mod:`pedx_graph.eval.experiments`; otherwise the name is the folder's, the group ``methods``.
+:mod:`pedx_graph.experiment_runner`; otherwise the name is the folder's, the group ``methods``.
 """
 from __future__ import annotations
 

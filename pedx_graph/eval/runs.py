@@ -1,7 +1,7 @@
 """What a results folder is: its name, label, group and energy-term switches, and the ablation rows.
 
 A results folder may carry ``experiment.json`` (``name``, ``label``, ``group``, ``labels``, ``ablation_row``)
-written by :mod:`pedx_graph.eval.experiments`; otherwise the name is the folder's, the group ``methods``.
+written by :mod:`pedx_graph.experiment_runner`; otherwise the name is the folder's, the group ``methods``.
 Table IV rows (:data:`ABLATION_ROWS`): the pose and shape priors and the joint limits stay on in every row;
 the heading prior E_D comes from the LiDAR trajectory, so it is switched with E_T.  Both the experiment (which
 runs the rows) and the report (which tabulates them) read them here.
