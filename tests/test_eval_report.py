@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pedx_graph.data.detector_model import SWAP_PAIRS, DetectorNoiseConfig, corrupt_keypoints, corrupt_polygon
 from pedx_graph.eval import floor as fl
 from pedx_graph.eval import report as rp
 from pedx_graph.eval import runs
 from pedx_graph.eval import tables as tb
-from pedx_graph.eval.detector_noise import SWAP_PAIRS, DetectorNoiseConfig, corrupt_keypoints, corrupt_polygon
 from pedx_graph.eval.experiments import ABLATION_ROWS, ExperimentConfig, SceneVariant
 from pedx_graph.eval.metrics import summarise
 from pedx_graph.keypoints import EVAL_JOINTS, PEDX_KEYPOINTS

@@ -203,7 +203,7 @@ def test_unoccluded_pedestrian_segment_is_mostly_on_the_person(tmp_path, body):
 
 
 def test_depth_gate_keeps_near_and_drops_far_points():
-    from pedx_graph.sim.labels import depth_gate
+    from pedx_graph.data.segment_cut import depth_gate
 
     pts = np.array([[10.0, 0, 0], [10.2, 0, 0], [9.9, 0.1, 0], [10.1, 0, 1], [12.0, 0, 0], [5.0, 0, 0]])
     idx = np.arange(6)
