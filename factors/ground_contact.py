@@ -142,8 +142,12 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
     st = stacked(cache, KIND, keys_list, ("world_up", "ground_offset_m", "ankle_height_m", "sigma_m"))
     r, jac = ground_contact_batch(kp["points"][ankles], st["world_up"], st["ground_offset_m"], st["ankle_height_m"],
                                   [kp[name][ankles] for name in _JACOBIANS] if jacobians else None)
+    columns = None
+    if jacobians:                  # the ankles do not move with most joints: only the columns that are not 0
+        columns = np.flatnonzero(np.any(jac != 0.0, axis=(0, 1)))
+        jac = jac[:, :, columns]
     return rows_normal_equations(keys_list, r[:, None], jac, 1.0 / st["sigma_m"][:, None],
-                                 kernels(cache, KIND, keys_list, noise_of))
+                                 kernels(cache, KIND, keys_list, noise_of), columns)
 
 
 def frame_factor(keys, frame, model, ctx, config, ground):

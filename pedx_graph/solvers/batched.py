@@ -89,20 +89,32 @@ class BatchedLinearizer:
 
     def _add_columns(self, system: ChainSystem, ne: NormalEquations) -> None:
         """Normal equations on a few of their factors' columns (:attr:`NormalEquations.columns`): added entry by
-        entry into one frame's block when they all lie there, else expanded to all columns and scattered."""
+        entry into the blocks of one frame and the shape when they lie there, else expanded to all columns and
+        scattered."""
         pattern = self.layout.segments(ne.keys[0])
-        width = sum(w for _, w, _, _ in pattern)
         where = [next((f, o + c - start) for start, w, f, o in pattern if start <= c < start + w) for c in ne.columns]
-        if any(f != pattern[0][2] or f < 0 for f, _ in where):
+        frame = next(f for _, _, f, _ in pattern if f >= 0)
+        if any(f >= 0 and f != frame for f, _ in where):
+            width = sum(w for _, w, _, _ in pattern)
             hess, grad = np.zeros((len(ne.keys), width, width)), np.zeros((len(ne.keys), width))
             hess[:, ne.columns[:, None], ne.columns[None, :]] = ne.hess
             grad[:, ne.columns] = ne.grad
             self.scatter(system, ne.keys, hess, grad)
             return
-        offsets = np.array([o for _, o in where])
-        firsts = self._firsts(ne.keys)
-        np.add.at(system.frame, (firsts[:, None, None], offsets[None, :, None], offsets[None, None, :]), ne.hess)
-        np.add.at(system.grad_frame, (firsts[:, None], offsets[None, :]), ne.grad)
+        in_frame = np.array([f >= 0 for f, _ in where])
+        fc, sc = np.flatnonzero(in_frame), np.flatnonzero(~in_frame)
+        fo = np.array([o for f, o in where if f >= 0], dtype=np.int64)
+        so = np.array([o for f, o in where if f < 0], dtype=np.int64)
+        firsts = np.array([next(f for _, _, f, _ in self.layout.segments(keys) if f >= 0) for keys in ne.keys])
+        hess, grad = ne.hess, ne.grad
+        add = add_at if len(np.unique(firsts)) == len(firsts) else np.add.at
+        add(system.frame, (firsts[:, None, None], fo[None, :, None], fo[None, None, :]), hess[:, fc[:, None], fc[None, :]])
+        add(system.grad_frame, (firsts[:, None], fo[None, :]), grad[:, fc])
+        if len(sc):
+            add(system.frame_shape, (firsts[:, None, None], fo[None, :, None], so[None, None, :]),
+                hess[:, fc[:, None], sc[None, :]])
+            system.shape[np.ix_(so, so)] += hess[:, sc[:, None], sc[None, :]].sum(axis=0)
+            system.grad_shape[so] += grad[:, sc].sum(axis=0)
 
     def _firsts(self, keys_list) -> np.ndarray:
         return np.array([self.layout.segments(keys)[0][2] for keys in keys_list])
@@ -142,3 +154,8 @@ class BatchedLinearizer:
         grad[fi, 6:] -= lb
         grad[fj, :6] += ub[:, 6:]
         grad[fj, 6:] += lb
+
+
+def add_at(target: np.ndarray, index: tuple, values: np.ndarray) -> None:
+    """``target[index] += values`` for an index without repeated entries (``np.add.at`` is the slow general case)."""
+    target[index] += values

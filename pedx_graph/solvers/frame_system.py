@@ -25,6 +25,7 @@ import numpy as np
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, FrameKeys
 from factors.registry import OWN_FRAME_KINDS, TERMS
 from factors.temporal_prior import temporal_prior_batch
+from pedx_graph.solvers.batched import add_at
 
 #: Factor kinds whose frame systems are formed here (a frame's own factors: every registered term that acts
 #: on one frame's variables).
@@ -121,9 +122,10 @@ def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.nd
         cols = _columns(ne.keys[0], keys[frames[0]], num_betas)
         if ne.columns is not None:                       # the term's Jacobian touches only these columns
             cols = cols[ne.columns]
-        np.add.at(hess, (frames[:, None, None], cols[None, :, None], cols[None, None, :]), ne.hess)
-        np.add.at(grad, (frames[:, None], cols[None, :]), ne.grad)
-        np.add.at(const, frames, ne.bb)
+        add = add_at if len(np.unique(frames)) == len(frames) else np.add.at
+        add(hess, (frames[:, None, None], cols[None, :, None], cols[None, None, :]), ne.hess)
+        add(grad, (frames[:, None], cols[None, :]), ne.grad)
+        add(const, frames, ne.bb)
     return hess, grad, const
 
 
