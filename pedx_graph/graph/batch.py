@@ -62,6 +62,10 @@ def _unique_per_frame(ids: list[np.ndarray], num_vertices: int) -> tuple[np.ndar
     return np.diff(starts), padded, inverse.reshape(-1) - starts[frame]
 
 
+#: Keypoints computed outside a prefetch that are remembered (by the exact bytes of their inputs).
+_RECENT = 8
+
+
 @dataclass(frozen=True)
 class _FrameJacobians:
     points: np.ndarray
@@ -80,6 +84,7 @@ class BatchedBodyModel:
         self._keypoint_jacobians: dict[bytes, _FrameJacobians] = {}
         self._keypoints: dict[bytes, np.ndarray] = {}
         self._subset_vertices: dict[bytes, np.ndarray] = {}
+        self._recent_keypoints: dict[bytes, np.ndarray] = {}
         self._specs: dict[str, dict[tuple[int, ...], object]] = {}
         self._terms: dict[tuple[str, tuple[int, ...]], tuple] = {}
         self._terms_have_jacobians = False
@@ -412,6 +417,12 @@ class BatchedBodyModel:
             jac = self._keypoint_jacobians.get(tag)
             if jac is not None:
                 return jac.points
+            hit = self._recent_keypoints.get(tag)
+            if hit is None:        # outside the prefetch: remember a few (several factors of a frame ask in a row)
+                if len(self._recent_keypoints) >= _RECENT:
+                    self._recent_keypoints.pop(next(iter(self._recent_keypoints)))
+                hit = self._recent_keypoints[tag] = self.model.keypoints(pose, betas, trans)
+            return hit
         return self.model.keypoints(pose, betas, trans)
 
     def vertices_subset(self, pose, betas, trans, vertex_ids):
