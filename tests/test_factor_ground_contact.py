@@ -31,7 +31,6 @@ def test_jacobians_equal_numerical_derivatives(seed):
 
 
 def test_residual_is_the_lower_ankle_height_minus_the_ankle_height():
-    model = ToyBodyModel(seed=1)
     rng = np.random.default_rng(5)
     up = np.array([0.3, -0.2, -0.93])                   # a z-down world, slightly tilted
     up /= np.linalg.norm(up)
