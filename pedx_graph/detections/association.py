@@ -22,23 +22,36 @@ Steps:
 2. **Duplicates** in one image (a detector reporting a person twice, or a fragment: legs alone) are dropped:
    two detections sharing at least ``min_shared_keypoints`` keypoints whose median distance is below
    ``duplicate_frac`` of the larger one's height keep only the higher score.
-3. **Stereo** (per pair and frame, :func:`match_stereo`): a left and a right detection of one person lie on
-   the same rectified rows, with a positive disparity giving a depth within the rig's range, and the same
-   size.  Over the keypoints present in both (confidence >= ``min_confidence``):
+3. **Each camera over time first** (:func:`camera_tracklets`): a
+   :class:`~pedx_graph.detections.tracker.Tracker` per camera (``tracklet`` config) links its detections into
+   2D tracklets — Hungarian matching on constant-velocity predicted keypoints and keypoint-span size, gated;
+   identity in one image is decided by motion, before any stereo pairing.
+4. **Tracklets across the pair** (:func:`pair_tracklets`).  Per frame, a left and a right detection of one
+   person (:func:`stereo_cost`, over the keypoints present in both with confidence >= ``min_confidence``):
 
    - row residual ``median(v_l - v_r) / (1.2533 sqrt(2) sigma / sqrt(n))`` over the ``n`` shared keypoints
      (the standard error of a median of differences of two detections), ``sigma = keypoint_sigma_px +
      keypoint_sigma_frac * h``;
    - disparity spread ``1.4826 MAD(u_l - u_r) / (sqrt(2) sigma)`` (a person's points share one depth);
    - size ``log(span_l / span_r) / size_sigma`` (keypoint spans: vertical extents of the shared keypoints);
+   - person height: the nose-to-ankle height the pairing implies (pixel span x baseline / disparity,
+     :func:`implied_height_m`) against ``person_height_m``, ``log`` ratio over ``person_height_sigma``
+     (a disparity borrowed from someone at another depth implies a giant or a dwarf);
 
-   a pair is gated out when a residual exceeds ``gate_sigmas``, the disparity is not positive or the depth
-   ``f b / median(u_l - u_r)`` lies outside ``[min_depth_m, max_depth_m]``; the mean squared residual is
-   the cost; :func:`scipy.optimize.linear_sum_assignment` picks the pairs.  An unmatched detection stays a
-   one-image observation.  A matched pair is triangulated at its median disparity (depth uncertainty from the
-   disparities' spread, :func:`triangulate_centre`).
-4. **Over frames**: one :class:`~pedx_graph.detections.tracker.Tracker` per pair (keypoints in both images
-   + the 3D centre, constant-velocity prediction, birth/death, minimum length and score).
+   gated out when a residual exceeds ``gate_sigmas``, the disparity is not positive or the depth lies outside
+   ``[min_depth_m, max_depth_m]``.  A left and a right tracklet are scored over all their shared frames
+   (:func:`_pair_evidence`): the per-frame disparities must follow one smooth depth (a line in time whose
+   slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each shared frame passing
+   every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``.
+   Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
+   already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
+   sharing a tracklet make one person unless that would put two detections of one image in one frame.
+   A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time,
+   agree best (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of
+   their own.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
+   ``clouds``, a LiDAR centre replaces the stereo one where it agrees.  A person with fewer than
+   ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
+   flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
    person: over at least ``merge_min_shared_frames`` shared frames (a track's centre between two of its 3D
    frames is interpolated), the median of the horizontal distance
@@ -50,6 +63,7 @@ Steps:
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Mapping
@@ -57,6 +71,7 @@ from typing import Mapping
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedx_graph.body.keypoint_defs import load_keypoint_set
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
@@ -92,7 +107,12 @@ class AssociationConfig:
     """Nearest depth a matched pair may have (the rig's range), metres."""
     max_depth_m: float = 80.0
     """Farthest depth a matched pair may have, metres."""
-    merge_distance_m: float = 0.8
+    person_height_m: float = 1.45
+    """Typical nose-to-ankle height of a walking adult, metres: a stereo pairing implying a person far
+    taller or shorter (its disparity belongs to someone at another depth) is unlikely ..."""
+    person_height_sigma: float = 0.2
+    """... by ``log(implied / person_height_m) / person_height_sigma`` (adults and children, pose)."""
+    merge_distance_m: float = 0.5
     """Tracks of two pairs are one person when their centres agree to this, metres, beyond their depth
     uncertainties (step 5)."""
     merge_min_shared_frames: int = 3
@@ -109,8 +129,20 @@ class AssociationConfig:
     the ground plane, metres."""
     lidar_sigma_m: float = 0.1
     """Uncertainty of a LiDAR centre along the ray (the median of a person's points vs its centre), metres."""
+    disparity_smooth_px: float = 1.0
+    """How far a person's per-frame disparity may leave a straight line over the frames two tracklets share
+    (depth is smooth, disparity ~ 1/depth is not exactly linear), pixels; added to the disparity's standard
+    error in quadrature."""
+    tracklet: TrackerConfig = field(default_factory=lambda: TrackerConfig(
+        confirm_hits=1, min_track_frames=1, min_mean_score=0.0, max_misses=4, size_sigma=0.25))
+    """The per-camera 2D tracker (constant velocity in the image, keypoints, size; every detection above
+    ``birth_min_score`` ends in a tracklet: the people are judged after pairing)."""
+    tracklet_switch_cost: float = 1.0
+    """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
+    that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
-    """The across-frame tracker of each pair."""
+    """What makes a pair's person a track: ``min_track_frames``, ``min_mean_score``, and the speed limits
+    (``max_speed_mps``, ``frame_interval_s``) bounding how fast a person's disparity may change."""
     lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
     """How a person's LiDAR points are cut from a scene cloud (when clouds are given)."""
 
@@ -184,10 +216,38 @@ def drop_duplicates(items: list[tuple[Detection, np.ndarray]], config: Associati
     return [items[i] for i in sorted(kept)]
 
 
+@functools.lru_cache(maxsize=None)
+def _nose_and_ankles(keypoint_set: str) -> tuple[int, tuple[int, ...]]:
+    """Index of a set's nose (its first keypoint in every shipped set) and of its ankles."""
+    names = load_keypoint_set(keypoint_set).keypoints
+    return 0, tuple(i for i, name in enumerate(names) if "ankl" in name.lower())
+
+
+def implied_height_m(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
+                     keypoint_set: str | None) -> float | None:
+    """Nose-to-ankle height in metres a left/right pairing implies (pixel span times the depth of the median
+    disparity over the focal length), or None when the nose or both ankles are missing in either image."""
+    if keypoint_set is None:
+        return None
+    nose, ankles = _nose_and_ankles(keypoint_set)
+    if uv_left.shape[0] <= max((nose,) + ankles, default=0):
+        return None
+    both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
+    feet = [a for a in ankles if both[a]]
+    if not both[nose] or not feet or both.sum() < 3:
+        return None
+    d_med = float(np.median(uv_left[both, 0] - uv_right[both, 0]))
+    if d_med <= 0:
+        return None
+    span = float(np.mean([uv_left[a, 1] - uv_left[nose, 1] for a in feet]))
+    return span * calib.baseline_m / d_med
+
+
 def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
-                config: AssociationConfig) -> float:
+                config: AssociationConfig, keypoint_set: str | None = None) -> float:
     """Cost of matching a left and a right detection (rectified (K, 2) pixels, unusable keypoints NaN); a
-    value >= 1e9 means gated out (module docstring, step 3)."""
+    value >= 1e9 means gated out (module docstring, step 4).  With ``keypoint_set`` given, the person height
+    the pairing implies (:func:`implied_height_m`) is a fourth term where the nose and an ankle are seen."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     if both.sum() < config.min_shared_keypoints:
         return _GATED
@@ -205,7 +265,11 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
     spread = 1.4826 * float(np.median(np.abs(disparity - d_med))) / (np.sqrt(2.0) * sigma)
     span_l, span_r = np.ptp(left[:, 1]), np.ptp(right[:, 1])
     size = float(np.log(max(span_l, 1.0) / max(span_r, 1.0))) / config.size_sigma if min(span_l, span_r) > 4 else 0.0
-    terms = np.array([row, spread, size])
+    terms = [row, spread, size]
+    height_m = implied_height_m(uv_left, uv_right, calib, keypoint_set)
+    if height_m is not None:
+        terms.append(float(np.log(max(height_m, 1e-3) / config.person_height_m)) / config.person_height_sigma)
+    terms = np.array(terms)
     if np.any(np.abs(terms) > config.gate_sigmas):
         return _GATED
     return float(np.mean(terms ** 2))
@@ -241,7 +305,9 @@ def match_stereo(left: list[tuple[Detection, np.ndarray]], right: list[tuple[Det
     pairs: list[tuple[int | None, int | None]] = []
     used_l, used_r = set(), set()
     if left and right:
-        cost = np.array([[stereo_cost(l_uv, r_uv, calib, config) for _, r_uv in right] for _, l_uv in left])
+        cost = np.array([[stereo_cost(l_uv, r_uv, calib, config,
+                                      l_det.keypoint_set if l_det.keypoint_set == r_det.keypoint_set else None)
+                          for r_det, r_uv in right] for l_det, l_uv in left])
         rows, cols = linear_sum_assignment(cost)
         for r, c in zip(rows, cols):
             if cost[r, c] < _GATED:
@@ -261,47 +327,264 @@ def _camera_centre(calib: StereoCalibration, side: str) -> np.ndarray:
     return centre
 
 
+# ---------------------------------------------------------------------------------------------- tracklets
+
+def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]], config: AssociationConfig
+                     ) -> list[list[tuple[int, Detection, np.ndarray]]]:
+    """One camera's detections linked over frames (module docstring, step 3): ``per_frame`` maps a frame to its
+    de-duplicated ``(detection, rectified uv)``; returns tracklets, each a list of ``(frame, detection, uv)`` in
+    frame order (a detection in exactly one tracklet, low-score ones alone)."""
+    tracker = Tracker(config.tracklet)
+    frames = sorted(per_frame)
+    for frame in frames:
+        tracker.step(frame, [Observation(frame=frame, uv={"left": uv}, score=float(det.score), payload=(det, uv))
+                             for det, uv in per_frame[frame]])
+    out = [[(o.frame, o.payload[0], o.payload[1]) for o in obs] for obs in tracker.tracks()]
+    seen = {id(det) for tracklet in out for _, det, _ in tracklet}
+    for frame in frames:                                   # below the birth score: one-frame tracklets
+        out += [[(frame, det, uv)] for det, uv in per_frame[frame] if id(det) not in seen]
+    return out
+
+
+def _frame_terms(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
+                 config: AssociationConfig, keypoint_set: str | None = None) -> tuple[float, float, float] | None:
+    """One frame's stereo evidence of a left and a right detection: ``(cost, disparity px, its standard error
+    px)``; None when gated (:func:`stereo_cost`)."""
+    cost = stereo_cost(uv_left, uv_right, calib, config, keypoint_set)
+    if cost >= _GATED:
+        return None
+    both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
+    left, right = uv_left[both], uv_right[both]
+    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))
+    se = 1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left))
+    return cost, float(np.median(left[:, 0] - right[:, 0])), float(se)
+
+
+def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray, calib: StereoCalibration,
+                      config: AssociationConfig) -> np.ndarray:
+    """Normalised residuals of per-frame disparities about the best line ``d(f) = a + b f`` whose slope a
+    walker's depth change allows (``|b| <= d^2 / (f_px B) * max_speed * dt``); robust (iterated, outliers
+    down-weighted)."""
+    if len(frames) < 2:
+        return np.zeros(len(frames))
+    sigma = np.hypot(se, config.disparity_smooth_px)
+    d_med = float(np.median(disparity))
+    max_slope = d_med ** 2 / (calib.focal_px * calib.baseline_m) * config.tracker.max_speed_mps \
+        * config.tracker.frame_interval_s
+    f0 = float(np.median(frames))
+    weight = 1.0 / sigma ** 2
+    a, b = d_med, 0.0
+    for _ in range(4):
+        x = frames - f0
+        wsum = weight.sum()
+        xm, ym = (weight * x).sum() / wsum, (weight * disparity).sum() / wsum
+        var = (weight * (x - xm) ** 2).sum()
+        b = float(np.clip((weight * (x - xm) * (disparity - ym)).sum() / var if var > 0 else 0.0,
+                          -max_slope, max_slope))
+        a = ym - b * xm
+        z = (disparity - a - b * x) / sigma
+        weight = np.where(np.abs(z) > config.gate_sigmas, 1e-6, 1.0) / sigma ** 2
+    return (disparity - a - b * (frames - f0)) / sigma
+
+
+def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig
+                   ) -> tuple[float, list[int]]:
+    """Evidence that a left and a right tracklet are one person over their shared frames, and the frames where
+    they are paired.  Each shared frame whose stereo terms pass the gates and whose disparity lies within
+    ``gate_sigmas`` of the tracklets' smooth disparity adds ``gate_sigmas^2 / 2 - cost``; every other shared
+    frame subtracts ``gate_sigmas^2 / 2`` (the pairing evidence changes there: those frames stay unpaired)."""
+    by_frame = {frame: (det, uv) for frame, det, uv in right}
+    items = []
+    for frame, det, uv_left in left:
+        if frame in by_frame:
+            kset = det.keypoint_set if det.keypoint_set == by_frame[frame][0].keypoint_set else None
+            items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset)))
+    if not items:
+        return -np.inf, []
+    c0 = 0.5 * config.gate_sigmas ** 2
+    good = [(frame, terms) for frame, terms in items if terms is not None]
+    evidence = -c0 * (len(items) - len(good))
+    if not good:
+        return evidence, []
+    frames = np.array([f for f, _ in good], dtype=float)
+    z = _smooth_disparity(frames, np.array([t[1] for _, t in good]), np.array([t[2] for _, t in good]), calib,
+                          config)
+    paired = []
+    for (frame, (cost, _, _)), zf in zip(good, z):
+        if abs(zf) > config.gate_sigmas:
+            evidence -= c0
+            continue
+        evidence += c0 - 0.5 * (cost + zf ** 2)       # the stereo terms and the disparity residual
+        paired.append(frame)
+    return evidence, paired
+
+
+def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: AssociationConfig) -> float | None:
+    """Normalised median keypoint distance of ``uv`` from a person's keypoints in the same image at ``frame``,
+    linearly interpolated between its nearest observations before and after (held when only one side
+    exists); ``observed``: frame -> (tracklet, detection, uv).  None when the person has no observation of
+    that image within ``tracklet.max_misses`` frames."""
+    frames = np.array(sorted(observed))
+    if len(frames) == 0 or frame in observed:
+        return None
+    before, after = frames[frames < frame], frames[frames > frame]
+    f0 = int(before[-1]) if len(before) else None
+    f1 = int(after[0]) if len(after) else None
+    gaps = [abs(frame - g) for g in (f0, f1) if g is not None]
+    if min(gaps) > config.tracklet.max_misses:
+        return None
+    if f0 is not None and f1 is not None:
+        w = (frame - f0) / (f1 - f0)
+        predicted = (1 - w) * observed[f0][2] + w * observed[f1][2]
+        gap = min(gaps)
+    else:
+        predicted = observed[f0 if f0 is not None else f1][2]
+        gap = gaps[0] * 2                          # held, not interpolated: walking moves it
+    both = np.all(np.isfinite(predicted), axis=1) & np.all(np.isfinite(uv), axis=1)
+    if both.sum() < config.min_shared_keypoints:
+        return None
+    height = max(np.ptp(predicted[both, 1]), np.ptp(uv[both, 1]), 1.0)
+    sigma = config.tracklet.keypoint_sigma_px + config.tracklet.motion_frac * height * np.sqrt(max(gap, 1))
+    return float(np.median(np.linalg.norm(predicted[both] - uv[both], axis=1))) / sigma
+
+
+@dataclass
+class _Person:
+    """A pair track under construction: per side, frame -> (tracklet index, detection, uv)."""
+
+    sides: dict = field(default_factory=lambda: {"left": {}, "right": {}})
+    tracklets: set = field(default_factory=set)
+    paired: set = field(default_factory=set)
+    """Frames whose left and right detections were paired by tracklet evidence (the ones triangulated)."""
+
+    def conflicts(self, side: str, frames) -> bool:
+        return any(f in self.sides[side] for f in frames)
+
+
+def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration, config: AssociationConfig
+                   ) -> list[_Person]:
+    """Group one pair's left and right tracklets into people (module docstring, step 4)."""
+    edges = []
+    for i, lt in enumerate(left):
+        l_frames = {f for f, _, _ in lt}
+        for j, rt in enumerate(right):
+            if not l_frames & {f for f, _, _ in rt}:
+                continue
+            evidence, paired = _pair_evidence(lt, rt, calib, config)
+            if evidence > 0 and paired:
+                edges.append((-evidence, i, j, paired))
+    edges.sort(key=lambda e: e[:3])
+    people: list[_Person] = []
+    used = {"left": defaultdict(set), "right": defaultdict(set)}      # tracklet -> frames already paired
+    for _, i, j, paired in edges:
+        frames = [f for f in paired if f not in used["left"][i] and f not in used["right"][j]]
+        if not frames:
+            continue
+        l_items = {f: (i, d, uv) for f, d, uv in left[i] if f in frames}
+        r_items = {f: (j, d, uv) for f, d, uv in right[j] if f in frames}
+        candidates = [p for p in people if ("left", i) in p.tracklets or ("right", j) in p.tracklets]
+        joined = [p for p in candidates if not p.conflicts("left", l_items) and not p.conflicts("right", r_items)]
+        if joined:
+            target = joined[0]
+            for other in joined[1:]:                # the edge links two people: one person if they never clash
+                if not any(target.conflicts(s, other.sides[s]) for s in ("left", "right")):
+                    for s in ("left", "right"):
+                        target.sides[s].update(other.sides[s])
+                    target.tracklets |= other.tracklets
+                    target.paired |= other.paired
+                    people.remove(other)
+        else:
+            target = _Person()
+            people.append(target)
+        target.sides["left"].update(l_items)
+        target.sides["right"].update(r_items)
+        target.tracklets |= {("left", i), ("right", j)}
+        target.paired.update(frames)
+        used["left"][i].update(frames)
+        used["right"][j].update(frames)
+    # the tracklets' unpaired frames go to the person whose own observations of that image, interpolated in
+    # time, agree best (a tracklet that took another person's detection for a frame gives it back)
+    leftovers = [(side, index, f, d, uv) for side, tracklets in (("left", left), ("right", right))
+                 for index, tracklet in enumerate(tracklets) for f, d, uv in tracklet if f not in used[side][index]]
+    snapshot = [{s: dict(p.sides[s]) for s in ("left", "right")} for p in people]
+    options = []
+    for n, (side, index, f, _, uv) in enumerate(leftovers):
+        for k, person in enumerate(people):
+            cost = _interpolation_cost(snapshot[k][side], f, uv, config)
+            if cost is None:
+                continue
+            if (side, index) not in person.tracklets:
+                cost += config.tracklet_switch_cost
+            if cost <= config.tracklet.gate_sigmas:
+                options.append((cost, n, k))
+    placed = set()
+    for _, n, k in sorted(options):
+        side, index, f, d, uv = leftovers[n]
+        if n in placed or f in people[k].sides[side]:
+            continue
+        people[k].sides[side][f] = (index, d, uv)
+        people[k].tracklets.add((side, index))
+        placed.add(n)
+    alone: dict[tuple[str, int], _Person] = {}
+    for n, (side, index, f, d, uv) in enumerate(leftovers):
+        if n not in placed:
+            alone.setdefault((side, index), _Person(tracklets={(side, index)})).sides[side][f] = (index, d, uv)
+    people += list(alone.values())
+    return people
+
+
 # ---------------------------------------------------------------------------------------------- observations
 
-def pair_observations(detections: list[Detection], calib: StereoCalibration, config: AssociationConfig,
-                      ground: GroundFrame, clouds: Mapping[int, np.ndarray] | None = None
-                      ) -> dict[int, list[Observation]]:
-    """``{frame: [Observation]}`` of one pair: rectified, de-duplicated, stereo-matched, triangulated (or
-    centred on their LiDAR cut when ``clouds`` holds the frame)."""
+def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: AssociationConfig,
+                ground: GroundFrame, clouds: Mapping[int, np.ndarray] | None = None) -> list[list[Observation]]:
+    """The people one pair saw, each a list of per-frame :class:`Observation` in frame order (module
+    docstring, steps 1-4): rectified, de-duplicated, tracked per camera, tracklets paired by their shared
+    frames' evidence, paired frames triangulated (or centred on their LiDAR cut when ``clouds`` holds the
+    frame); people with fewer than ``tracker.min_track_frames`` frames or a mean score below
+    ``tracker.min_mean_score`` are dropped."""
     left_name, right_name = calib.name.split("-")
-    per_image: dict[tuple[int, str], list[tuple[Detection, np.ndarray]]] = defaultdict(list)
+    per_image: dict[str, dict[int, list]] = {"left": defaultdict(list), "right": defaultdict(list)}
     for det in detections:
         if det.camera not in (left_name, right_name):
             continue
         uv = _usable(rectified(det, calib), det.confidence, config.min_confidence)
-        per_image[(det.frame, "left" if det.camera == left_name else "right")].append((det, uv))
-    frames = sorted({frame for frame, _ in per_image})
-    out: dict[int, list[Observation]] = {}
+        per_image["left" if det.camera == left_name else "right"][det.frame].append((det, uv))
+    tracklets = {}
+    for side, frames in per_image.items():
+        deduplicated = {frame: drop_duplicates(items, config) for frame, items in sorted(frames.items())}
+        tracklets[side] = camera_tracklets(deduplicated, config)
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
-    for frame in frames:
-        left = drop_duplicates(per_image.get((frame, "left"), []), config)
-        right = drop_duplicates(per_image.get((frame, "right"), []), config)
-        observations = []
-        projections: dict[str, tuple[np.ndarray, np.ndarray]] = {}       # scene cloud in each image, once
-        for i, j in match_stereo(left, right, calib, config):
-            uv, payload, score = {}, {}, 0.0
-            if i is not None:
-                uv["left"], payload["left"] = left[i][1], left[i][0]
-                score = max(score, left[i][0].score)
-            if j is not None:
-                uv["right"], payload["right"] = right[j][1], right[j][0]
-                score = max(score, right[j][0].score)
-            obs = Observation(frame=frame, uv=uv, score=float(score), payload=payload)
-            if i is not None and j is not None:
+    out = []
+    projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
+    for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config):
+        frames = sorted(set(person.sides["left"]) | set(person.sides["right"]))
+        if len(frames) < config.tracker.min_track_frames:
+            continue
+        track = []
+        for frame in frames:
+            uv, payload = {}, {}
+            for side in ("left", "right"):
+                if frame in person.sides[side]:
+                    _, det, side_uv = person.sides[side][frame]
+                    uv[side], payload[side] = side_uv, det
+            obs = Observation(frame=frame, uv=uv, score=float(max(d.score for d in payload.values())),
+                              payload=payload)
+            if frame in person.paired:
                 obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground,
                                                                     sigma_disparity)
                 obs.world_p_camera = _camera_centre(calib, "left")
                 both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                 obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
-            if clouds is not None and obs.world_p is not None and frame in clouds:
-                _lidar_centre(obs, calib, clouds[frame], ground, config, projections)
-            observations.append(obs)
-        out[frame] = observations
+            track.append(obs)
+        if float(np.mean([o.score for o in track])) < config.tracker.min_mean_score:
+            continue
+        if clouds is not None:
+            for obs in track:
+                if obs.world_p is not None and obs.frame in clouds:
+                    views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
+                    _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views)
+                    projections.update({(obs.frame, side): v for side, v in views.items()})
+        out.append(track)
     return out
 
 
@@ -316,7 +599,7 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     if obs.world_p is not None:
         depth = float(calib.world_to_rect(obs.world_p)[2])
     cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
-    if side not in projections:
+    if projections.get(side) is None:
         projections[side] = project_cloud(calib, side, cloud)
     points = cut_person(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                         projection=projections[side])
@@ -408,18 +691,14 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
         except KeyError:
             continue
         by_pair[calib.name].append(det)
-    pair_tracks: list[tuple[str, list[Observation]]] = []
+    tracks: list[tuple[str, list[Observation]]] = []
     for pair in sorted(by_pair):
-        observations = pair_observations(by_pair[pair], calibrations[pair], config, ground, clouds)
-        tracker = Tracker(config.tracker, world_up=ground.world_up)
-        for frame in sorted(observations):
-            tracker.step(frame, observations[frame])
-        pair_tracks += [(pair, track) for track in tracker.tracks()]
+        tracks += [(pair, track) for track in pair_tracks(by_pair[pair], calibrations[pair], config, ground, clouds)]
     people = []
-    for group in merge_pair_tracks(pair_tracks, ground, config):
+    for group in merge_pair_tracks(tracks, ground, config):
         frames: dict[int, DetectedTrackFrame] = {}
         for index in group:
-            pair, track = pair_tracks[index]
+            pair, track = tracks[index]
             left_name, right_name = pair.split("-")
             for obs in track:
                 entry = frames.setdefault(obs.frame, DetectedTrackFrame(frame=obs.frame, detections={}))
@@ -432,7 +711,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
             distance = float(np.median(ground.horizontal_distance(centres)))
             if not config.min_distance_m <= distance <= config.max_distance_m:
                 continue
-        pairs = tuple(sorted({pair_tracks[i][0] for i in group}))
+        pairs = tuple(sorted({tracks[i][0] for i in group}))
         people.append((min(frames), pairs, [frames[f] for f in sorted(frames)]))
     people.sort(key=lambda item: (item[0], item[1], sorted(item[2][0].detections)))
     out = []

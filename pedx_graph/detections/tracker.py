@@ -11,7 +11,8 @@ ray.  :class:`Tracker` links them over frames:
 
   - keypoints, per image side both carry: the median over shared keypoints of ``|uv_pred - uv_obs|``
     divided by ``sigma_2d = keypoint_sigma_px + motion_frac * h * sqrt(df)`` (``h`` the person's image height
-    in pixels, ``df`` the frames since the track's last observation on that side);
+    in pixels, ``df`` the frames since the track's last observation on that side), and with ``size_sigma`` > 0
+    the log ratio of the shared keypoints' vertical spans divided by it;
   - 3D centre, when both have one: the residual split along the viewing ray (divided by the two depth
     uncertainties and the motion noise, added in quadrature) and across it (divided by
     ``lateral_sigma_m`` and the motion noise) — stereo depth is poor at range, bearings are not;
@@ -63,6 +64,10 @@ class TrackerConfig:
     min_box_iou: float = 0.0
     """Extra gate: predicted and observed keypoint boxes of each shared image side overlap at least this much
     (intersection over union); 0 = off (the keypoint and 3D residuals gate)."""
+    size_sigma: float = 0.0
+    """Expected frame-to-frame spread of ``log(span_observed / span_predicted)`` (vertical spans of the shared
+    keypoints of each image side: a person's image size changes slowly, two people at different depths differ);
+    0 = no size term."""
     velocity_smoothing: float = 0.5
     """Weight of the newest velocity measurement in the smoothed velocity (1 = no smoothing)."""
     birth_min_score: float = 0.2
@@ -196,6 +201,13 @@ class Tracker:
                 if box_pred is None or box_obs is None or box_iou(box_pred, box_obs) < cfg.min_box_iou:
                     return _GATED
             terms.append(residual ** 2)
+            if cfg.size_sigma > 0:
+                span_pred, span_obs = np.ptp(uv_pred[both, 1]), np.ptp(uv_obs[both, 1])
+                if min(span_pred, span_obs) > 4 * cfg.keypoint_sigma_px:
+                    size = float(np.log(span_obs / span_pred)) / cfg.size_sigma
+                    if abs(size) > cfg.gate_sigmas:
+                        return _GATED
+                    terms.append(size ** 2)
         has_3d = track.world_p is not None and obs.world_p is not None
         if has_3d:
             dt_frames = obs.frame - track.world_frame
