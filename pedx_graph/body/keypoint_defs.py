@@ -97,18 +97,7 @@ class KeypointMap:
 def _build(entries: dict[str, tuple[tuple[tuple[int, float], ...], tuple[tuple[int, float], ...]]],
            num_joints: int, source: str) -> KeypointMap:
     """entries: name -> ((vertex, coeff)...,), ((joint, coeff)...,) for every PEDX keypoint."""
-    used = sorted({v for name in PEDX_KEYPOINTS for v, _ in entries[name][0]})
-    col = {v: i for i, v in enumerate(used)}
-    vertex_coeffs = np.zeros((len(PEDX_KEYPOINTS), len(used)))
-    joint_coeffs = np.zeros((len(PEDX_KEYPOINTS), num_joints))
-    for k, name in enumerate(PEDX_KEYPOINTS):
-        verts, joints = entries[name]
-        for v, c in verts:
-            vertex_coeffs[k, col[v]] += c
-        for j, c in joints:
-            joint_coeffs[k, j] += c
-    return KeypointMap(names=PEDX_KEYPOINTS, vertex_ids=np.array(used, dtype=np.int64),
-                       vertex_coeffs=vertex_coeffs, joint_coeffs=joint_coeffs, source=source)
+    return _build_named(PEDX_KEYPOINTS, entries, num_joints, source)
 
 
 def from_ids(vertex_ids: np.ndarray, joint_ids: np.ndarray, num_joints: int = 24,
@@ -204,6 +193,7 @@ def keypoint_set_map(data, set_name: str) -> KeypointMap:
 
 
 def _build_named(names: tuple[str, ...], entries: dict, num_joints: int, source: str) -> KeypointMap:
+    """entries: name -> ((vertex, coeff)...,), ((joint, coeff)...,) for every name of ``names``."""
     used = sorted({v for name in names for v, _ in entries[name][0]})
     col = {v: i for i, v in enumerate(used)}
     vertex_coeffs = np.zeros((len(names), len(used)))

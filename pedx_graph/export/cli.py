@@ -18,7 +18,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", default=None, help="output folder (default: RESULTS/export)")
     p.add_argument("--frame", choices=("lidar", "world"), default="lidar",
                    help="frame of the meshes: lidar (as the results) or world (level frame of the derived "
-                        "ground: z up, ground at z = 0) (default: %(default)s)")
+                        "ground: its z is the derived up, ground at z = 0) (default: %(default)s)")
     p.add_argument("--formats", default="ply,obj", help="mesh formats, comma-separated (default: %(default)s)")
     p.add_argument("--tracks", default="", help="comma-separated tracking ids (prefixes) to export (default: all)")
     p.add_argument("--every", type=int, default=1, help="overlay every n-th frame (default: %(default)s)")

@@ -46,8 +46,8 @@ class ExportConfig:
     """What ``pedx-graph export`` writes."""
 
     frame: str = "lidar"
-    """Frame of the meshes: ``lidar`` (as the results) or ``world`` (the level frame of the derived ground,
-    z up, ground at z = 0)."""
+    """Frame of the meshes: ``lidar`` (as the results) or ``world`` (the level frame of the derived ground:
+    its z is the up axis derived from the data, ground at z = 0)."""
     formats: tuple[str, ...] = ("ply", "obj")
     """Mesh file formats."""
     meshes: bool = True

@@ -202,8 +202,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     ctx = context or estimator_context(config)
     t0 = time.perf_counter()
     report_ctx = ctx                          # results: PedX keypoints of the original model, whatever the labels
-    if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
-        track, ctx, config = fit_layout(track, ctx, config)
+    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points in the 18-row layout
     stage_iterations = 0
     initial = None
     if config.terms.lidar_chamfer:

@@ -40,8 +40,7 @@ def stream_track(track: Track, ctx, config: FitConfig, stream_config: StreamConf
     of every frame whose update succeeded, and ``{"frame" or "stage", "error"}`` of each failed update and
     of each piece refused as implausible."""
     report_model = ctx.model                  # results: PedX keypoints of the original model, whatever the labels
-    if track.keypoint_set != "pedx18":        # detector labels: the set's own points in the 18-row fit layout
-        track, ctx, config = fit_layout(track, ctx, config)
+    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points in the 18-row layout
     estimator = StreamingEstimator(ctx, config, copy.deepcopy(stream_config), sequence=track.sequence,
                                    ground=track.ground)
     results, causal, failed = [], [], []
