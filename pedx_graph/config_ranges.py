@@ -300,6 +300,8 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.person_height_sigma": POSITIVE,
     "AssociationConfig.disparity_smooth_px": NON_NEGATIVE,
     "AssociationConfig.tracklet_switch_cost": NON_NEGATIVE,
+    "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,
+    "AssociationConfig.smooth_motion_m": POSITIVE,
     "TrackerConfig.frame_interval_s": POSITIVE,
     "TrackerConfig.keypoint_sigma_px": POSITIVE,
     "TrackerConfig.motion_frac": NON_NEGATIVE,

@@ -59,6 +59,11 @@ Steps:
    at most 1; merged greedily, best agreement first, never two tracks of one pair.
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
+7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
+   becomes the weighted line fit, in the ground plane, of the track's centres within
+   ``smooth_window_frames`` (weights: each centre's depth uncertainty and ``smooth_motion_m`` in
+   quadrature; centres beyond ``gate_sigmas`` left out) — one frame's noisy stereo depth or a cut that caught
+   a passing car no longer sets the gate, and frames seen in one image get a depth too.
 """
 from __future__ import annotations
 
@@ -140,6 +145,12 @@ class AssociationConfig:
     tracklet_switch_cost: float = 1.0
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
+    smooth_window_frames: int = 5
+    """Each frame's centre is the track's centres within this many frames fitted by a line in time
+    (step 7), frames."""
+    smooth_motion_m: float = 0.15
+    """How far a walker leaves a straight line within that window (added to each centre's uncertainty in
+    quadrature), metres."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """What makes a pair's person a track: ``min_track_frames``, ``min_mean_score``, and the speed limits
     (``max_speed_mps``, ``frame_interval_s``) bounding how fast a person's disparity may change."""
@@ -674,6 +685,42 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
     return [sorted(m) for _, m in sorted(members.items())]
 
 
+# ---------------------------------------------------------------------------------------------- smoothing
+
+def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config: AssociationConfig) -> None:
+    """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place."""
+    known = [(fr.frame, ground.to_level(fr.world_p), min(float(fr.depth_sigma_m), 5.0))
+             for fr in frames if fr.world_p is not None]
+    if not known:
+        return
+    t = np.array([k[0] for k in known], dtype=float)
+    level = np.array([k[1] for k in known], dtype=float)
+    sigma = np.hypot(np.array([k[2] for k in known]), config.smooth_motion_m)
+    height = float(np.median(level[:, 2]))
+    world_R_level = ground.world_R_level
+    for fr in frames:
+        near = np.abs(t - fr.frame) <= config.smooth_window_frames
+        if not near.any():
+            continue
+        x, y, w = t[near] - fr.frame, level[near, :2], 1.0 / sigma[near] ** 2
+        keep = np.ones(len(x), dtype=bool)
+        for _ in range(3):                       # weighted line per axis; outlying centres left out
+            if len(np.unique(x[keep])) >= 2:
+                a = np.stack([np.ones(keep.sum()), x[keep]], axis=1) * np.sqrt(w[keep])[:, None]
+                coef = np.linalg.lstsq(a, y[keep] * np.sqrt(w[keep])[:, None], rcond=None)[0]
+            else:
+                coef = np.stack([np.average(y[keep], axis=0, weights=w[keep]), np.zeros(2)])
+            residual = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) / sigma[near]
+            new_keep = residual <= config.gate_sigmas
+            if not new_keep.any() or np.array_equal(new_keep, keep):
+                break
+            keep = new_keep
+        fit_sigma = float(1.0 / np.sqrt(w[keep].sum()))
+        level_p = np.array([coef[0][0], coef[0][1], height])
+        fr.world_p = ground.world_p_sensor + world_R_level @ level_p
+        fr.depth_sigma_m = min(float(fr.depth_sigma_m), fit_sigma) if fr.frame in set(t[near][keep]) else fit_sigma
+
+
 # ---------------------------------------------------------------------------------------------- entry point
 
 def associate(detections: list[Detection], calibrations: Mapping[str, StereoCalibration],
@@ -711,6 +758,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
             distance = float(np.median(ground.horizontal_distance(centres)))
             if not config.min_distance_m <= distance <= config.max_distance_m:
                 continue
+        smooth_centres([frames[f] for f in sorted(frames)], ground, config)
         pairs = tuple(sorted({tracks[i][0] for i in group}))
         people.append((min(frames), pairs, [frames[f] for f in sorted(frames)]))
     people.sort(key=lambda item: (item[0], item[1], sorted(item[2][0].detections)))
