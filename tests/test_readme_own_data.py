@@ -84,7 +84,7 @@ class Readme:
         self.yaml = block(own, "yaml")
         names = own[own.index("The keypoint names:"):].split("(")[0]
         self.keypoint_names = re.findall(r"`([a-z]+)`", names)
-        commands = block(own, "bash")
+        commands = block(own, "bash", "pedx-graph fit MYDATA")
         self.fit_command = next(line.split("#")[0].strip() for line in commands.splitlines()
                                 if line.startswith("pedx-graph fit "))
         self.frame_fields = table_fields(own, "**What comes out.**")
