@@ -124,12 +124,12 @@ class ChainLayout:
             firsts = np.array([f for f, _, _ in items])
             hess = np.stack([a.T @ a for _, a, _ in items])
             grad = np.stack([a.T @ b for _, a, b in items])
-            self._scatter(system, pattern, firsts, hess, grad)
+            self.scatter_group(system, pattern, firsts, hess, grad)
         return system
 
     @staticmethod
-    def _scatter(system: ChainSystem, pattern: tuple, firsts: np.ndarray, hess: np.ndarray,
-                 grad: np.ndarray) -> None:
+    def scatter_group(system: ChainSystem, pattern: tuple, firsts: np.ndarray, hess: np.ndarray,
+                      grad: np.ndarray) -> None:
         """Add a group's (G, c, c) Hessians and (G, c) gradients into ``system`` (``firsts``: each factor's
         first frame; ``pattern``: its segments with frames relative to that first frame)."""
         start = int(firsts[0])

@@ -124,7 +124,7 @@ class BatchedLinearizer:
         keys in order) into ``system``."""
         pattern = self.layout.segments(keys_list[0])
         rel = tuple((c, w, f - pattern[0][2] if f >= 0 else -1, o) for c, w, f, o in pattern)
-        self.layout._scatter(system, rel, self._firsts(keys_list), hess, grad)
+        self.layout.scatter_group(system, rel, self._firsts(keys_list), hess, grad)
 
     def _add_pair(self, system: ChainSystem, keys_list, pair: dict) -> None:
         """Temporal factors in the compact form of :func:`factors.temporal_prior.pair_normal_equations`: on

@@ -27,8 +27,8 @@ from scipy.linalg import LinAlgError
 from pedx_graph.graph.config import MarginalsConfig  # noqa: F401  (defined with the fit's config)
 from pedx_graph.solvers.chain import FRAME_DIM, NotAChainError  # noqa: F401
 from pedx_graph.solvers.marginals.chain import (POSE_SLICE, ROOT_SLICE, TRANS_SLICE, ChainInformation,  # noqa: F401
-                                                TrackMarginals, _dims_of, chain_information, chain_marginals,
-                                                gtsam_marginals, isam_frame_covariance, joint_marginal_matrix)
+                                                TrackMarginals, chain_information, chain_marginals, gtsam_marginals,
+                                                isam_frame_covariance, joint_marginal_matrix, key_dims)
 from pedx_graph.solvers.marginals.decode import chamfer_plane_rows, point_to_plane_rows  # noqa: F401
 from pedx_graph.solvers.marginals.fields import (frame_fields, keypoint_covariances,  # noqa: F401
                                                  keypoint_covariances_batch, marginals_to_fields)
@@ -75,7 +75,7 @@ def compute_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, k
     takes the information from its batched evaluation (equal to the linearisation, no callbacks) and the
     chamfer's matched vertices from the cache."""
     config = config or MarginalsConfig()
-    num_betas = _dims_of(values, int(keys[0].betas))
+    num_betas = key_dims(values, int(keys[0].betas))
     if config.method == "gtsam":
         return gtsam_marginals(graph, values, keys, num_betas)
     if config.method != "chain":

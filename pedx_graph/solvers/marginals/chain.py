@@ -62,7 +62,8 @@ class TrackMarginals:
         return self.frame_covariances[0, FRAME_DIM:, FRAME_DIM:]
 
 
-def _dims_of(values: gtsam.Values, key: int) -> int:
+def key_dims(values: gtsam.Values, key: int) -> int:
+    """Tangent dimension of ``key`` in ``values`` (3 for a rotation, else the vector's length)."""
     try:
         values.atRot3(key)
         return 3
