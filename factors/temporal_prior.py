@@ -28,8 +28,8 @@ import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, component_grams, mixture_for
 from factors.terms import NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations
-from pedx_graph.body.rotation import hat, log_so3, right_jacobian_inverse
-from pedx_graph.priors.difference import temporal_difference
+from pedx_graph.body.rotation import hat, right_jacobian_inverse
+from pedx_graph.priors.difference import difference_parts, temporal_difference
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
 KIND = "temporal_prior"
@@ -55,16 +55,14 @@ def sequence_differences(world_R_body: np.ndarray, trans: np.ndarray, body_pose:
 
 
 def _difference_parts(world_R_body_i, trans_i, body_pose_i, world_R_body_j, trans_j, body_pose_j):
-    """Batched over P pairs: d (P, 75), the step s (P, 3), R_i^T (P, 3, 3), R_ij = R_i^T R_j (P, 3, 3) and
-    J_r^-1(w) (P, 3, 3)."""
-    rot_i_t = np.swapaxes(as_f64(world_R_body_i).reshape(-1, 3, 3), 1, 2)
-    step = np.einsum("pab,pb->pa", rot_i_t, as_f64(trans_j).reshape(-1, 3) - as_f64(trans_i).reshape(-1, 3))
-    rel = rot_i_t @ as_f64(world_R_body_j).reshape(-1, 3, 3)
-    w = log_so3(rel)
-    jr_inv = right_jacobian_inverse(w)
-    pose_diff = as_f64(body_pose_j).reshape(len(step), -1) - as_f64(body_pose_i).reshape(len(step), -1)
-    d = np.concatenate([step, w, pose_diff], axis=1)
-    return d, step, rot_i_t, rel, jr_inv
+    """Batched over P pairs: :func:`pedx_graph.priors.difference.difference_parts` — d (P, 75), the step s
+    (P, 3), R_i^T (P, 3, 3), R_ij = R_i^T R_j (P, 3, 3) — and J_r^-1(w) (P, 3, 3) of w = d[:, 3:6]."""
+    pairs = len(as_f64(trans_i).reshape(-1, 3))
+    d, step, rot_i_t, rel = difference_parts(
+        as_f64(world_R_body_i).reshape(-1, 3, 3), as_f64(trans_i).reshape(-1, 3),
+        as_f64(body_pose_i).reshape(pairs, -1), as_f64(world_R_body_j).reshape(-1, 3, 3),
+        as_f64(trans_j).reshape(-1, 3), as_f64(body_pose_j).reshape(pairs, -1))
+    return d, step, rot_i_t, rel, right_jacobian_inverse(d[:, 3:6])
 
 
 def temporal_difference_jacobians(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,

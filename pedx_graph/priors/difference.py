@@ -25,9 +25,21 @@ def temporal_difference(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_po
 
     Shapes: rotations (..., 3, 3), translations (..., 3) metres, body poses (..., 69) radians -> (..., 75).
     """
-    rot_i = np.asarray(world_R_body_i, dtype=np.float64)
+    return difference_parts(world_R_body_i, trans_i, body_pose_i, world_R_body_j, trans_j, body_pose_j)[0]
+
+
+def difference_parts(world_R_body_i: np.ndarray, trans_i: np.ndarray, body_pose_i: np.ndarray,
+                     world_R_body_j: np.ndarray, trans_j: np.ndarray, body_pose_j: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """d(i, j) (..., 75) with the intermediate quantities its Jacobians reuse (``factors.temporal_prior``):
+    the step ``s = world_R_body_i^T (trans_j - trans_i)`` (..., 3), ``world_R_body_i^T`` (..., 3, 3) and the
+    relative rotation ``world_R_body_i^T world_R_body_j`` (..., 3, 3) (``d[..., 3:6]`` is its Log)."""
+    body_i_R_world = np.swapaxes(np.asarray(world_R_body_i, dtype=np.float64), -1, -2)
     rot_j = np.asarray(world_R_body_j, dtype=np.float64)
-    step = np.einsum("...ji,...j->...i", rot_i, np.asarray(trans_j, float) - np.asarray(trans_i, float))
-    rel = np.swapaxes(rot_i, -1, -2) @ rot_j
-    return np.concatenate([step, log_so3(rel),
-                           np.asarray(body_pose_j, float) - np.asarray(body_pose_i, float)], axis=-1)
+    step = np.einsum("...ab,...b->...a", body_i_R_world,
+                     np.asarray(trans_j, dtype=np.float64) - np.asarray(trans_i, dtype=np.float64))
+    rel = body_i_R_world @ rot_j
+    d = np.concatenate([step, log_so3(rel),
+                        np.asarray(body_pose_j, dtype=np.float64) - np.asarray(body_pose_i, dtype=np.float64)],
+                       axis=-1)
+    return d, step, body_i_R_world, rel
