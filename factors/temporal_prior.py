@@ -27,7 +27,8 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, component_grams, mixture_for
-from factors.terms import NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations
+from factors.terms import (NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations,
+                           rows_normal_equations)
 from pedx_graph.body.rotation import hat, right_jacobian_inverse
 from pedx_graph.priors.difference import difference_parts, temporal_difference
 
@@ -153,6 +154,37 @@ def make_temporal_prior_factor(key_root_i: int, key_trans_i: int, key_body_pose_
 def noise_of(spec: tuple[MaxMixture, int]) -> RowNoise:
     """Unit noise: the mixture whitens (the spec is ``(mixture, frame_gap)``)."""
     return RowNoise(None)
+
+
+def pair_terms(pairs: list[tuple]) -> list[tuple[np.ndarray, list[np.ndarray]]]:
+    """Residuals (76,) and six Jacobian blocks (as the factor's callback returns them) of several pairs of frames
+    in one :func:`temporal_prior_batch` call per mixture: ``pairs`` of ``(frame i (world_R_body, trans,
+    body_pose), frame j (the same), mixture, gap)``."""
+    out: list = [None] * len(pairs)
+    by_mixture: dict[int, list[int]] = {}
+    for n, pair in enumerate(pairs):
+        by_mixture.setdefault(id(pair[2]), []).append(n)
+    for members in by_mixture.values():
+        items = [pairs[n] for n in members]
+        states = [np.stack([np.asarray(it[side][n], float) for it in items]) for side in (0, 1) for n in range(3)]
+        r, blocks = temporal_prior_batch(*states, items[0][2], np.array([it[3] for it in items], float), True)
+        for m, n in enumerate(members):
+            out[n] = (np.ascontiguousarray(r[m]), [np.ascontiguousarray(b[m]) for b in blocks])
+    return out
+
+
+def held_normal_equations(keys_list: list[tuple[int, ...]], pairs: list[tuple],
+                          terms: list[tuple[np.ndarray, list[np.ndarray]]]) -> NormalEquations:
+    """The temporal factors ``keys_list`` with frame i held (the stream's presolve: the previous frame at its
+    estimate): their rows on frame j's columns ``[root_j, trans_j, body_pose_j]`` only (``columns`` 75..149),
+    from the factors' ``terms`` (:func:`pair_terms` of ``pairs``) and their declared noise (:func:`noise_of`)
+    through the shared assembler (:func:`factors.terms.rows_normal_equations`)."""
+    residual = np.stack([r for r, _ in terms])
+    jacobian = np.stack([np.concatenate(blocks[3:], axis=1) for _, blocks in terms])
+    noises = [noise_of((mixture, gap)) for _, _, mixture, gap in pairs]
+    inverse = np.stack([noise.inverse_sigmas(residual.shape[1]) for noise in noises])
+    return rows_normal_equations(keys_list, residual, jacobian, inverse, [noise.kernel for noise in noises],
+                                 columns=np.arange(TEMPORAL_DIM, 2 * TEMPORAL_DIM))
 
 
 def pair_normal_equations(r: np.ndarray, blocks: list[np.ndarray], mixture: MaxMixture, best: np.ndarray,

@@ -154,7 +154,8 @@ def test_recorder_serves_batched_temporal_terms_only_at_their_point(ctx):
     they were computed at (the batched terms equal the callback's own), and computes them itself elsewhere."""
     from factors.common import FrameKeys
     from factors.temporal_prior import make_temporal_prior_factor
-    from pedx_graph.solvers.frame_system import SpecRecorder, temporal_terms
+    from factors.temporal_prior import pair_terms
+    from pedx_graph.solvers.frame_system import SpecRecorder
 
     ka, kb = FrameKeys.for_frame(0), FrameKeys.for_frame(1)
     recorder = SpecRecorder()
@@ -173,7 +174,7 @@ def test_recorder_serves_batched_temporal_terms_only_at_their_point(ctx):
         values.insert(k.trans, trans)
         values.insert(k.body_pose, pose)
         state.append((rot.matrix(), trans, pose))
-    (r, blocks), = temporal_terms([(state[0], state[1], ctx.temporal_mixture, 2)])
+    (r, blocks), = pair_terms([(state[0], state[1], ctx.temporal_mixture, 2)])
     keys = recorder.specs[0][1]
     recorder.serve("temporal_prior", keys, [*state[0], *state[1]], r, blocks)
     expected = _augmented(plain.linearize(values), keys)

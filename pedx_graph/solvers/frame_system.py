@@ -24,7 +24,7 @@ import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, FrameKeys
 from factors.registry import OWN_FRAME_KINDS, TERMS
-from factors.temporal_prior import temporal_prior_batch
+from factors.terms import NormalEquations
 from pedx_graph.solvers.batched import add_at
 
 #: Factor kinds whose frame systems are formed here (a frame's own factors: every registered term that acts
@@ -129,34 +129,17 @@ def frame_systems(body, keys: list[FrameKeys], kinds) -> tuple[np.ndarray, np.nd
     return hess, grad, const
 
 
-def temporal_terms(pairs: list[tuple]) -> list[tuple[np.ndarray, list[np.ndarray]]]:
-    """Temporal-prior residuals and six Jacobian blocks (as the factor's callback returns them) of several
-    pairs of frames in batched calls: ``pairs`` of ``(previous (world_R_body, trans, body_pose), next (the
-    same), mixture, gap)``."""
-    out: list = [None] * len(pairs)
-    by_mixture: dict[int, list[int]] = {}
-    for n, pair in enumerate(pairs):
-        by_mixture.setdefault(id(pair[2]), []).append(n)
-    for members in by_mixture.values():
-        items = [pairs[n] for n in members]
-        states = [np.stack([np.asarray(it[side][n], float) for it in items]) for side in (0, 1) for n in range(3)]
-        r, blocks = temporal_prior_batch(*states, items[0][2], np.array([it[3] for it in items], float), True)
-        for m, n in enumerate(members):
-            out[n] = (np.ascontiguousarray(r[m]), [np.ascontiguousarray(b[m]) for b in blocks])
-    return out
-
-
-def add_temporal_new_frame(system: tuple[np.ndarray, np.ndarray, np.ndarray], frames: list[int],
-                           terms: list[tuple[np.ndarray, list[np.ndarray]]]) -> None:
-    """Add to ``system`` (:func:`frame_systems`' ``(H, g, f)``) the temporal priors between frames and their
-    tracks' previous frames, held: ``terms`` (:func:`temporal_terms`) of frame ``frames[n]``; only the rows
-    on the new frame's columns (the presolve's free block); unit noise (the mixture whitens)."""
+def add_new_frame_rows(system: tuple[np.ndarray, np.ndarray, np.ndarray], frames: list[int],
+                       ne: NormalEquations) -> None:
+    """Add to ``system`` (:func:`frame_systems`' ``(H, g, f)``) a term's normal equations on the new frames'
+    own columns ``[root, trans, body_pose]`` (factor ``n`` into frame ``frames[n]``): the presolve's temporal
+    priors to the held previous frames (:func:`factors.temporal_prior.held_normal_equations`)."""
     hess, grad, const = system
-    for j, (r, blocks) in zip(frames, terms):
-        a = np.concatenate(blocks[3:], axis=1)                           # (76, 75): the new frame's columns
-        hess[j, :_FRAME_DIM, :_FRAME_DIM] += a.T @ a
-        grad[j, :_FRAME_DIM] -= a.T @ r
-        const[j] += float(r @ r)
+    rows = np.asarray(frames, dtype=np.int64)
+    add = add_at if len(np.unique(rows)) == len(rows) else np.add.at
+    add(hess, (rows, slice(0, _FRAME_DIM), slice(0, _FRAME_DIM)), ne.hess)
+    add(grad, (rows, slice(0, _FRAME_DIM)), ne.grad)
+    add(const, rows, ne.bb)
 
 
 def hessian_factor(frame_keys: FrameKeys, present, hess: np.ndarray, grad: np.ndarray, const: float

@@ -6,9 +6,9 @@ import gtsam
 import numpy as np
 
 from factors.common import FrameKeys
+from factors.temporal_prior import held_normal_equations, pair_terms
 from pedx_graph.graph.batch import BatchedBodyModel
-from pedx_graph.solvers.frame_system import (OWN_KINDS, add_temporal_new_frame, frame_systems, register_sample,
-                                             temporal_terms)
+from pedx_graph.solvers.frame_system import OWN_KINDS, add_new_frame_rows, frame_systems, register_sample
 from pedx_graph.solvers.stream.config import StreamConfig
 from pedx_graph.solvers.stream.step import Step
 
@@ -79,9 +79,10 @@ def form_systems(body: BatchedBodyModel, steps: list[Step], presolve: bool, stre
         rot = rot.matrix() if isinstance(rot, gtsam.Rot3) else np.asarray(rot)
         pairs.append((previous, (rot, np.asarray(trans), np.asarray(body_pose)), mixture, gap))
         owners.append(j)
-    terms = temporal_terms(pairs) if pairs else []
-    if presolve and terms:
-        add_temporal_new_frame(systems, owners, terms)
+    terms = pair_terms(pairs) if pairs else []
+    if presolve and terms:              # the temporal term's rows on the new frames, through its assembler
+        add_new_frame_rows(systems, owners, held_normal_equations([steps[j].temporal[0] for j in owners], pairs,
+                                                                  terms))
     elif terms:
         for j, pair, (r, blocks) in zip(owners, pairs, terms):
             step = steps[j]
