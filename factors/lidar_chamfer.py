@@ -36,8 +36,8 @@ from scipy.spatial.distance import cdist
 
 from factors.common import (BodyModelLike, FrameKeys, FrameState, as_f64, frame_key_list, read_frame_state,
                             robustify_groups)
-from factors.terms import (NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations,
-                           frame_dims)
+from factors.terms import (NormalEquations, Prefetched, RowNoise, Term, cached_callback, concatenate,
+                           factor_normal_equations, frame_dims, jacobian_rows)
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
 KIND = "lidar_chamfer"
@@ -226,4 +226,98 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
                               cached_callback(KIND, cache, compute, frame_dims))
 
 
-TERM = Term(KIND, assemble)
+def unique_per_frame(ids: list[np.ndarray], num_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sorted distinct vertex ids of each frame's (non-empty) ``ids``, from one ``np.unique`` over all
+    frames: their counts (F,), padded into one (F, W) array (short rows repeat their first id), and the
+    position of every id in its frame's row (the ids of all frames concatenated)."""
+    counts = np.array([len(x) for x in ids])
+    frame = np.repeat(np.arange(len(ids)), counts)
+    distinct, inverse = np.unique(frame * num_vertices + np.concatenate(ids), return_inverse=True)
+    owner, vertex = np.divmod(distinct, num_vertices)
+    starts = np.searchsorted(owner, np.arange(len(ids) + 1))
+    padded = np.repeat(vertex[starts[:-1], None], int(np.diff(starts).max()), axis=1)
+    padded[owner, np.arange(len(distinct)) - starts[owner]] = vertex
+    return np.diff(starts), padded, inverse.reshape(-1) - starts[frame]
+
+
+def _nearest(cache, state: FrameState, spec: ChamferSpec, subset_vertices: np.ndarray | None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nearest_vertices` of one factor, searched directly in the prefetched posed subset vertices
+    (C, 3) of the term cache when its candidates are that subset."""
+    cand, subset = spec.candidate_vertex_ids, cache.subset_vertex_ids
+    if subset_vertices is None or cand is None or not (cand is subset or np.array_equal(cand, subset)):
+        return nearest_vertices(cache, state, spec.world_points, cand)
+    nn = nearest_indices(subset_vertices, spec.world_points)
+    return cand[nn], subset_vertices[nn]
+
+
+def _group(cache, chamfer: list, matches: list, vjac, local) -> None:
+    """The factors of all frames as one group: every point's whitened, per-point robustified residual ``s``
+    (N, 3) and (with ``vjac``, the padded per-frame vertex Jacobians, and ``local``, each point's matched
+    vertex's position in its frame's row of them) its Jacobian rows ``a`` (N, 3, 75 + B) — one
+    :func:`chamfer_whiten` call for all points."""
+    spec = chamfer[0][1]
+    counts = np.array([len(m[0]) for m in matches])
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    points = np.concatenate([sp.world_points for _, sp in chamfer])
+    verts = np.concatenate([m[1] for m in matches])
+    a = None
+    if vjac is not None:
+        frame_idx = np.repeat(np.arange(len(matches)), counts)
+        a = np.concatenate([vjac.d_root[frame_idx, local], vjac.d_trans[frame_idx, local],
+                            vjac.d_body_pose[frame_idx, local], vjac.d_betas[frame_idx, local]], axis=2)
+    s_flat, blocks = chamfer_whiten(verts - points, None if a is None else [a.reshape(-1, a.shape[2])], spec)
+    if a is not None:
+        a = blocks[0].reshape(a.shape)
+    cache.add_batch(KIND, {"keys": [fk for fk, _ in chamfer], "offsets": offsets, "s": s_flat.reshape(-1, 3),
+                           "a": a})
+
+
+def evaluate(cache, specs: dict, prefetched: Prefetched) -> None:
+    """The term cache's batched evaluation (:attr:`factors.terms.Term.evaluate`): each factor's nearest
+    vertices (its k-d tree or direct search, in the prefetched subset when it can), recorded in
+    ``cache.chamfer_matches``; with Jacobians the matched vertices' Jacobians of every frame in one batched
+    pass; one group for all factors when they share a per-point robust noise setting, else factor by factor."""
+    frame_of, states = prefetched.frame_of, prefetched.states
+    chamfer = [(fk, spec) for fk, spec in specs.items() if fk[0] in frame_of]
+    if not chamfer:
+        return
+    frames = np.array([frame_of[fk[0]] for fk, _ in chamfer], dtype=np.int64)
+    fstates = [states[f] for f in frames]
+    subset = prefetched.subset_vertices
+    matches = [_nearest(cache, st, spec, None if subset is None else subset[f])
+               for st, f, (_, spec) in zip(fstates, frames, chamfer)]
+    vjac = distinct = local = None
+    if prefetched.jacobians:          # the matched vertices' Jacobians of every frame in one batched pass
+        distinct, padded, local = unique_per_frame([ids for ids, _ in matches], cache.model.num_vertices)
+        arrays = cache.frame_arrays
+        every = len(frames) == len(states) and np.array_equal(frames, np.arange(len(states)))
+        setup = prefetched.setup
+        vjac = cache.model.vertex_jacobians_per_frame(
+            arrays["pose"][frames], arrays["betas"][frames], arrays["trans"][frames], padded,
+            setup=setup if every else setup.rows(frames))
+    for (fk, _), match in zip(chamfer, matches):
+        cache.chamfer_matches[fk] = match[0]
+    kernels = {(spec.sigma_m, spec.robust, spec.robust_scale, spec.robust_per_point) for _, spec in chamfer}
+    if len(kernels) == 1 and chamfer[0][1].robust_per_point:
+        _group(cache, chamfer, matches, vjac, local)
+        return
+    for n, ((fk, spec), st, match) in enumerate(zip(chamfer, fstates, matches)):      # mixed noise settings
+        vj = None if vjac is None else jacobian_rows(jacobian_rows(vjac, n), slice(0, distinct[n]))
+        cache.set_factor_terms(KIND, fk, chamfer_residual(cache, st, spec, prefetched.jacobians, match, vj))
+
+
+def materialise(group: dict, n: int, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Factor ``n`` of a group of :func:`evaluate`: its points' rows and the blocks ``[root, trans,
+    body_pose, betas]``."""
+    lo, hi = group["offsets"][n], group["offsets"][n + 1]
+    r = group["s"][lo:hi].reshape(-1)
+    if not jacobians:
+        return r, None
+    rows = group["a"][lo:hi].reshape(3 * (hi - lo), -1)
+    bounds = np.cumsum([0, 3, 3, 69])
+    return r, [np.ascontiguousarray(rows[:, bounds[i]:bounds[i + 1]]) for i in range(3)] + \
+        [np.ascontiguousarray(rows[:, bounds[3]:])]
+
+
+TERM = Term(KIND, assemble, evaluate=evaluate, materialise=materialise, subset_vertices=True)

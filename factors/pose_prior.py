@@ -19,7 +19,8 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, MaxMixture, as_f64, component_grams, mixture_for
-from factors.terms import NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations
+from factors.terms import (NormalEquations, Prefetched, RowNoise, Term, cached_callback, concatenate,
+                           factor_normal_equations)
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
 KIND = "pose_prior"
@@ -83,4 +84,19 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
     return concatenate(parts)
 
 
-TERM = Term(KIND, assemble)
+def evaluate(cache, specs: dict, prefetched: Prefetched) -> None:
+    """The term cache's batched evaluation (:attr:`factors.terms.Term.evaluate`): one
+    ``MaxMixture.residual_batch`` per mixture over the body poses of its factors' frames."""
+    pose_index = {k.body_pose: i for i, k in enumerate(prefetched.keys)}
+    for mixture in {id(m): m for m in specs.values()}.values():
+        fkeys = [fk for fk, m in specs.items() if m is mixture and fk[0] in pose_index]
+        res, best = mixture.residual_batch(np.stack([prefetched.states[pose_index[fk[0]]].body_pose for fk in fkeys]))
+        cache.add_batch(KIND, {"keys": fkeys, "r": res, "best": best, "mixture": mixture})
+
+
+def materialise(group: dict, n: int, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Factor ``n`` of a group of :func:`evaluate`: its residual and the selected component's Jacobian."""
+    return group["r"][n], ([group["mixture"].jacobian(group["best"][n])] if jacobians else None)
+
+
+TERM = Term(KIND, assemble, evaluate=evaluate, materialise=materialise)

@@ -46,8 +46,8 @@ import gtsam
 import numpy as np
 
 from factors.common import BodyModelLike, FrameKeys, FrameState, as_f64, frame_key_list, read_frame_state
-from factors.terms import (NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations,
-                           frame_dims, robust_rows)
+from factors.terms import (NormalEquations, Prefetched, RowNoise, Term, cached_callback, concatenate,
+                           factor_normal_equations, frame_dims, jacobian_rows, robust_rows)
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
@@ -484,4 +484,26 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
     return concatenate(parts)
 
 
-TERM = Term(KIND, assemble)
+def evaluate(cache, specs: dict, prefetched: Prefetched) -> None:
+    """The term cache's batched evaluation (:attr:`factors.terms.Term.evaluate`): the pixels of every factor's
+    frame and camera in one :func:`stereo_pixels` call (their derivatives w.r.t. the keypoints with Jacobians),
+    filed as one group with the keypoints' Jacobians of those frames."""
+    frame_of = prefetched.frame_of
+    fkeys = [fk for fk in specs if fk[0] in frame_of]
+    idx = np.array([frame_of[fk[0]] for fk in fkeys], dtype=np.int64)
+    jac = prefetched.keypoint_jacobians
+    sub = None if jac is None else jacobian_rows(jac, idx)
+    points = prefetched.keypoints[idx] if jac is None else sub.points
+    setups = [specs[fk].setup for fk in fkeys]
+    uv, d_uv = stereo_pixels(points, setups, prefetched.jacobians)
+    cache.add_batch(KIND, {"keys": fkeys, "uv": uv, "d_uv": d_uv, "jac": sub, "setups": setups})
+
+
+def materialise(group: dict, n: int, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Factor ``n`` of a group of :func:`evaluate` (its blocks formed for the whole group on first use)."""
+    if jacobians and "full" not in group:
+        group["full"] = stereo_blocks(group["d_uv"], group["jac"])
+    return stereo_select(group["uv"], group.get("full"), group["setups"][n], n)
+
+
+TERM = Term(KIND, assemble, evaluate=evaluate, materialise=materialise)

@@ -27,8 +27,8 @@ import gtsam
 import numpy as np
 
 from factors.common import BODY_POSE_DIM, ROOT_DIM, TRANS_DIM, MaxMixture, as_f64, component_grams, mixture_for
-from factors.terms import (NormalEquations, RowNoise, Term, cached_callback, concatenate, factor_normal_equations,
-                           rows_normal_equations)
+from factors.terms import (NormalEquations, Prefetched, RowNoise, Term, cached_callback, concatenate,
+                           factor_normal_equations, rows_normal_equations)
 from pedx_graph.body.rotation import hat, right_jacobian_inverse
 from pedx_graph.priors.difference import difference_parts, temporal_difference
 
@@ -156,15 +156,20 @@ def noise_of(spec: tuple[MaxMixture, int]) -> RowNoise:
     return RowNoise(None)
 
 
+def _by_mixture(mixtures: list) -> list[list[int]]:
+    """The positions of ``mixtures`` grouped by mixture object (first-seen order): one batched call each."""
+    groups: dict[int, list[int]] = {}
+    for n, mixture in enumerate(mixtures):
+        groups.setdefault(id(mixture), []).append(n)
+    return list(groups.values())
+
+
 def pair_terms(pairs: list[tuple]) -> list[tuple[np.ndarray, list[np.ndarray]]]:
     """Residuals (76,) and six Jacobian blocks (as the factor's callback returns them) of several pairs of frames
     in one :func:`temporal_prior_batch` call per mixture: ``pairs`` of ``(frame i (world_R_body, trans,
     body_pose), frame j (the same), mixture, gap)``."""
     out: list = [None] * len(pairs)
-    by_mixture: dict[int, list[int]] = {}
-    for n, pair in enumerate(pairs):
-        by_mixture.setdefault(id(pair[2]), []).append(n)
-    for members in by_mixture.values():
+    for members in _by_mixture([pair[2] for pair in pairs]):
         items = [pairs[n] for n in members]
         states = [np.stack([np.asarray(it[side][n], float) for it in items]) for side in (0, 1) for n in range(3)]
         r, blocks = temporal_prior_batch(*states, items[0][2], np.array([it[3] for it in items], float), True)
@@ -248,4 +253,29 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
     return out
 
 
-TERM = Term(KIND, assemble, own_frame=False)
+def evaluate(cache, specs: dict, prefetched: Prefetched) -> None:
+    """The term cache's batched evaluation (:attr:`factors.terms.Term.evaluate`): the factors whose two frames
+    were prefetched, one :func:`temporal_prior_batch` per mixture, filed with their selected components."""
+    frame_of, states = prefetched.frame_of, prefetched.states
+    items = [(fk, mixture, gap) for fk, (mixture, gap) in specs.items() if fk[0] in frame_of and fk[3] in frame_of]
+    for members in _by_mixture([mixture for _, mixture, _ in items]):
+        group = [items[n] for n in members]
+        a = [states[frame_of[fk[0]]] for fk, _, _ in group]
+        b = [states[frame_of[fk[3]]] for fk, _, _ in group]
+        gaps = np.array([gap for _, _, gap in group], dtype=np.float64)
+        best: list = []
+        res, blocks = temporal_prior_batch(
+            np.stack([s.world_R_body for s in a]), np.stack([s.trans for s in a]),
+            np.stack([s.body_pose for s in a]), np.stack([s.world_R_body for s in b]),
+            np.stack([s.trans for s in b]), np.stack([s.body_pose for s in b]), group[0][1],
+            gaps, prefetched.jacobians, components=best)
+        cache.add_batch(KIND, {"keys": [fk for fk, _, _ in group], "r": res, "blocks": blocks,
+                               "mixture": group[0][1], "best": best[0], "gap": gaps})
+
+
+def materialise(group: dict, n: int, jacobians: bool) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Factor ``n`` of a group of :func:`evaluate`: its residual and six Jacobian blocks."""
+    return group["r"][n], ([blk[n] for blk in group["blocks"]] if jacobians else None)
+
+
+TERM = Term(KIND, assemble, own_frame=False, evaluate=evaluate, materialise=materialise)

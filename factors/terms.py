@@ -19,11 +19,16 @@ keypoints, chamfer groups, max-mixtures, the temporal pair) assemble themselves 
 
 ``cache`` is the track's term cache (:class:`pedx_graph.graph.batch.BatchedBodyModel`, duck-typed here:
 the factors never import the solver layers): ``specs(kind)``, ``batch(kind)``, ``factor_terms(kind, keys)``,
-``frame_index(keys_list)``, ``frame_arrays``, ``has_jacobians`` and ``memo(name, builder)``.
+``frame_index(keys_list)``, ``frame_arrays``, ``has_jacobians`` and ``memo(name, builder)``; a term's
+batched evaluation at a prefetch (:attr:`Term.evaluate`, given a :class:`Prefetched`) files its results with
+``add_batch(kind, group)`` / ``set_factor_terms(kind, keys, terms)`` and reads them back per factor with
+:attr:`Term.materialise` — the cache itself names no term.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Callable, Sequence
 
 import gtsam
@@ -176,6 +181,42 @@ def cached_callback(kind: str, cache, compute: Callable, dims: Callable[[Sequenc
 
 
 @dataclass(frozen=True)
+class Prefetched:
+    """What the term cache's prefetch hands each term's batched evaluation (:attr:`Term.evaluate`): the
+    frames it evaluated and the body-model quantities every term shares."""
+
+    keys: list
+    """The frames' keys (``factors.common.FrameKeys``), in frame order."""
+    states: list
+    """Each frame's ``factors.common.FrameState``."""
+    keypoint_jacobians: Any | None
+    """The keypoints of all frames with their Jacobians (a ``PointJacobians`` with leading dimension T), or
+    None when the prefetch has no Jacobians."""
+    keypoints: np.ndarray | None
+    """(T, K, 3) world keypoints, metres, when the prefetch has no Jacobians (else None)."""
+    setup: Any | None
+    """The body model's ``JacobianSetup`` of all frames (with Jacobians), else None."""
+    subset_vertices: np.ndarray | None
+    """(T, C, 3) posed vertices of the cache's vertex subset, metres, or None."""
+
+    @property
+    def jacobians(self) -> bool:
+        """Whether the terms are evaluated with their Jacobians."""
+        return self.keypoint_jacobians is not None
+
+    @cached_property
+    def frame_of(self) -> dict[int, int]:
+        """Root key -> frame index."""
+        return {k.root: i for i, k in enumerate(self.keys)}
+
+
+def jacobian_rows(jacobians, index) -> Any:
+    """The frames ``index`` of a ``PointJacobians`` (every field indexed along its leading dimension)."""
+    return dataclasses.replace(jacobians, **{f.name: getattr(jacobians, f.name)[index]
+                                             for f in dataclasses.fields(jacobians)})
+
+
+@dataclass(frozen=True)
 class Term:
     """One energy term as the solvers see it (declared at the end of its ``factors/<term>.py``)."""
 
@@ -187,6 +228,18 @@ class Term:
     own_frame: bool = True
     """The factors act on one frame's variables (and the shape) only: the stream forms their systems per
     frame in a batch.  False for terms linking frames (the temporal prior)."""
+    evaluate: Callable[[Any, dict, Prefetched], None] | None = None
+    """``evaluate(cache, specs, prefetched)``: the term's registered factors ``specs`` (keys -> spec) at the
+    cache's prefetch (:class:`Prefetched`) in batched calls, filed with ``cache.add_batch(kind, group)`` (a
+    dict with ``keys`` and the arrays; :attr:`materialise` reads one factor back) or, factor by factor,
+    ``cache.set_factor_terms(kind, keys, (residual, blocks))``.  Called by the term cache's prefetch for every
+    registered term that has one; None: the term's assembler evaluates it from the cache's frame arrays."""
+    materialise: Callable[[dict, int, bool], tuple] | None = None
+    """``materialise(group, n, jacobians)``: factor ``n`` of a group filed by :attr:`evaluate` as the
+    ``(residual, blocks)`` its GTSAM callback returns (``blocks`` None without ``jacobians``)."""
+    subset_vertices: bool = False
+    """Its :attr:`evaluate` reads the posed vertex subset (:attr:`Prefetched.subset_vertices`): the prefetch
+    poses it when factors of this term are registered."""
     frame_factor: Callable[..., Any] | None = None
     """``frame_factor(keys, frame, model, ctx, config, ground)`` -> a factor of one frame or None, called by
     ``pedx_graph.graph.build.frame_factors`` for every registered term that has one (terms built there

@@ -228,11 +228,11 @@ def test_shared_jacobian_setup_gives_the_same_results():
 
 
 def test_unique_per_frame_equals_np_unique():
-    from pedx_graph.graph.batch import _unique_per_frame
+    from factors.lidar_chamfer import unique_per_frame
 
     rng = np.random.default_rng(8)
     ids = [rng.integers(0, 50, size=m) for m in (1, 6, 12, 3)]
-    counts, padded, local = _unique_per_frame(ids, 50)
+    counts, padded, local = unique_per_frame(ids, 50)
     assert padded.shape == (4, max(len(np.unique(x)) for x in ids))
     for n, x in enumerate(ids):
         u = np.unique(x)
@@ -300,3 +300,37 @@ def test_stereo_batch_equals_single_frames():
         np.testing.assert_allclose(batch[i][0], r1, atol=1e-9)
         for a, b in zip(batch[i][1], b1):
             np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+@pytest.mark.parametrize("per_point", [(True, False), (False, False)])
+def test_chamfer_factors_served_factor_by_factor_equal_their_own_rows(per_point):
+    """Chamfer factors whose noise settings differ (or that robustify per coordinate row) are evaluated by
+    the term cache factor by factor: what it serves equals what each factor computes without the cache."""
+    from factors.common import FrameKeys
+    from factors.lidar_chamfer import make_lidar_chamfer_factor
+    from pedx_graph.graph.batch import BatchedBodyModel
+
+    ctx = synthetic_context()
+    body = BatchedBodyModel(ctx.model)
+    rng = np.random.default_rng(4)
+    keys = [FrameKeys.for_frame(i) for i in range(2)]
+    values = gtsam.Values()
+    for i, k in enumerate(keys):
+        values.insert(k.root, random_rot3(rng, max_angle=1.0))
+        values.insert(k.trans, rng.normal(scale=0.5, size=3))
+        values.insert(k.body_pose, rng.normal(scale=0.2, size=69))
+    values.insert(keys[0].betas, rng.normal(scale=0.5, size=ctx.model.num_betas))
+    factors, plain = [], []
+    for i, (k, flag) in enumerate(zip(keys, per_point)):
+        points = values.atVector(k.trans) + rng.normal(scale=0.3, size=(40, 3))
+        kw = dict(sigma_m=0.03 * (i + 1), robust_per_point=flag)
+        factors.append(make_lidar_chamfer_factor(k, body, points, **kw))
+        plain.append(make_lidar_chamfer_factor(k, ctx.model, points, **kw))
+    body.prefetch(values, keys, jacobians=True)
+    assert body.batch("lidar_chamfer") == []                        # not one group: factor by factor
+    for k in keys:
+        assert body.lookup("lidar_chamfer", k.as_list(), values, True) is not None
+    for cached, own in zip(factors, plain):
+        a, b = cached.linearize(values), own.linearize(values)
+        np.testing.assert_allclose(a.augmentedInformation(), b.augmentedInformation(), rtol=1e-10, atol=1e-9)
+        assert cached.error(values) == pytest.approx(own.error(values), rel=1e-12)

@@ -12,33 +12,31 @@ all frames are evaluated in one batched call and cached by the exact bytes of ea
 depend on the cache — only speed does.
 
 It is also the factors' *term cache* (``term_cache``): the factors of a track register what they measure
-when they are built (:meth:`register`).  :meth:`prefetch` evaluates the stereo, chamfer, pose-prior and
-temporal terms for all frames in batched calls (``stereo_pixels``, the chamfer's matched-vertex
-Jacobians of every frame in one pass after its per-frame k-d trees, ``MaxMixture.residual_batch``,
-``temporal_prior_batch``) and keeps the batched arrays (:meth:`batch`, used by
-:class:`pedx_graph.solvers.batched.BatchedLinearizer`).  A factor's callback takes its residual and
-Jacobians from :meth:`lookup` — after checking that the values it is called with are exactly the
-prefetched ones (otherwise it computes them itself) — so one GTSAM callback costs a look-up instead of the
-term's numpy work.  The translation, heading, joint-limit and ground-contact factors only register their
-specs (their assemblers evaluate them in batch from :attr:`frame_arrays` / :attr:`keypoint_arrays`).
+when they are built (:meth:`register`).  :meth:`prefetch` evaluates the body model for all frames and hands
+it (:class:`factors.terms.Prefetched`) to every registered term that declares a batched evaluation
+(``Term.evaluate`` in its ``factors/`` file, found through :data:`factors.registry.TERMS`; today the stereo,
+chamfer, pose-prior and temporal terms), which files its batched arrays here (:meth:`add_batch`, read by
+:meth:`batch` and by the term's assembler).  A factor's callback takes its residual and Jacobians from
+:meth:`lookup` — the term's ``Term.materialise`` of its group, after checking that the values it is called
+with are exactly the prefetched ones (otherwise it computes them itself) — so one GTSAM callback costs a
+look-up instead of the term's numpy work.  Terms without ``evaluate`` (translation, heading, joint limits,
+ground contact) only register their specs (their assemblers evaluate them in batch from
+:attr:`frame_arrays` / :attr:`keypoint_arrays`).  Nothing here names a term.
 
 Public API (all the factors, the terms' assemblers and the solvers use): :meth:`register`,
 :meth:`clear_registry`, :meth:`specs`, :meth:`kinds`, :meth:`lookup`, :meth:`prefetch`, :meth:`batch`,
-:meth:`factor_terms`, :meth:`frame_index`, :meth:`memo`, :attr:`has_jacobians`, :attr:`frame_states`,
+:meth:`factor_terms`, :meth:`add_batch`, :meth:`set_factor_terms`, :meth:`frame_index`, :meth:`memo`, :attr:`has_jacobians`, :attr:`frame_states`,
 :attr:`frame_arrays`, :attr:`keypoint_arrays`, :attr:`chamfer_matches`, and the body-model methods
 (``point_jacobians``, ``keypoints``, ``vertices_subset`` and the model's attributes).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import gtsam
 import numpy as np
 
 from factors.common import FrameKeys, FrameState, read_frame_state
-from factors.lidar_chamfer import chamfer_residual, chamfer_whiten, nearest_indices, nearest_vertices
-from factors.stereo_reprojection import stereo_blocks, stereo_pixels, stereo_select
-from factors.temporal_prior import temporal_prior_batch
+from factors.registry import TERMS
+from factors.terms import Prefetched, jacobian_rows
 from pedx_graph.body import BodyModel
 
 
@@ -48,31 +46,8 @@ def _tag(pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None) -> bytes
             + np.ascontiguousarray(betas, dtype=np.float64).tobytes() + t)
 
 
-def _unique_per_frame(ids: list[np.ndarray], num_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The sorted distinct vertex ids of each frame's (non-empty) ``ids``, from one ``np.unique`` over all
-    frames: their counts (F,), padded into one (F, W) array (short rows repeat their first id), and the
-    position of every id in its frame's row (the ids of all frames concatenated)."""
-    counts = np.array([len(x) for x in ids])
-    frame = np.repeat(np.arange(len(ids)), counts)
-    distinct, inverse = np.unique(frame * num_vertices + np.concatenate(ids), return_inverse=True)
-    owner, vertex = np.divmod(distinct, num_vertices)
-    starts = np.searchsorted(owner, np.arange(len(ids) + 1))
-    padded = np.repeat(vertex[starts[:-1], None], int(np.diff(starts).max()), axis=1)
-    padded[owner, np.arange(len(distinct)) - starts[owner]] = vertex
-    return np.diff(starts), padded, inverse.reshape(-1) - starts[frame]
-
-
 #: Keypoints computed outside a prefetch that are remembered (by the exact bytes of their inputs).
 _RECENT = 8
-
-
-@dataclass(frozen=True)
-class _FrameJacobians:
-    points: np.ndarray
-    d_root: np.ndarray
-    d_body_pose: np.ndarray
-    d_trans: np.ndarray
-    d_betas: np.ndarray
 
 
 class BatchedBodyModel:
@@ -81,7 +56,7 @@ class BatchedBodyModel:
     def __init__(self, model: BodyModel, subset_vertex_ids: np.ndarray | None = None):
         self.model = model
         self.subset_vertex_ids = subset_vertex_ids
-        self._keypoint_jacobians: dict[bytes, _FrameJacobians] = {}
+        self._keypoint_jacobians: dict = {}
         self._keypoints: dict[bytes, np.ndarray] = {}
         self._subset_vertices: dict[bytes, np.ndarray] = {}
         self._recent_keypoints: dict[bytes, np.ndarray] = {}
@@ -194,59 +169,21 @@ class BatchedBodyModel:
         return self._batches.get(kind, [])
 
     def _materialise(self, kind: str, group: dict, n: int) -> tuple:
-        """Factor ``n`` of a batched group as the ``(residual, blocks)`` its callback returns."""
-        jac = self._terms_have_jacobians
-        if kind == "stereo_reprojection":
-            if jac and "full" not in group:
-                group["full"] = stereo_blocks(group["d_uv"], group["jac"])
-            return stereo_select(group["uv"], group.get("full"), group["setups"][n], n)
-        if kind == "pose_prior":
-            return group["r"][n], ([group["mixture"].jacobian(group["best"][n])] if jac else None)
-        if kind == "temporal_prior":
-            return group["r"][n], ([blk[n] for blk in group["blocks"]] if jac else None)
-        if kind == "lidar_chamfer":
-            lo, hi = group["offsets"][n], group["offsets"][n + 1]
-            r = group["s"][lo:hi].reshape(-1)
-            if not jac:
-                return r, None
-            rows = group["a"][lo:hi].reshape(3 * (hi - lo), -1)
-            bounds = np.cumsum([0, 3, 3, 69])
-            return r, [np.ascontiguousarray(rows[:, bounds[i]:bounds[i + 1]]) for i in range(3)] + \
-                [np.ascontiguousarray(rows[:, bounds[3]:])]
-        raise KeyError(kind)
+        """Factor ``n`` of a batched group as the ``(residual, blocks)`` its callback returns (its term's
+        ``materialise``)."""
+        term = TERMS.get(kind)
+        if term is None or term.materialise is None:
+            raise KeyError(kind)
+        return term.materialise(group, n, self._terms_have_jacobians)
 
-    def _chamfer_batch(self, chamfer: list, matches: list, vjac, local) -> None:
-        """The chamfer factors of all frames as one group: every point's whitened, per-point robustified
-        residual ``s`` (N, 3) and (with ``vjac``, the padded per-frame vertex Jacobians, and ``local``, each
-        point's matched vertex's position in its frame's row of them) its Jacobian rows ``a`` (N, 3, 75 + B)
-        — one :func:`factors.common.robustify_groups` call for all points."""
-        spec = chamfer[0][1]
-        counts = np.array([len(m[0]) for m in matches])
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        points = np.concatenate([sp.world_points for _, sp in chamfer])
-        verts = np.concatenate([m[1] for m in matches])
-        a = None
-        if vjac is not None:
-            frame_idx = np.repeat(np.arange(len(matches)), counts)
-            a = np.concatenate([vjac.d_root[frame_idx, local], vjac.d_trans[frame_idx, local],
-                                vjac.d_body_pose[frame_idx, local], vjac.d_betas[frame_idx, local]], axis=2)
-        s_flat, blocks = chamfer_whiten(verts - points, None if a is None else [a.reshape(-1, a.shape[2])], spec)
-        if a is not None:
-            a = blocks[0].reshape(a.shape)
-        self._add_batch("lidar_chamfer", {"keys": [fk for fk, _ in chamfer], "offsets": offsets,
-                                          "s": s_flat.reshape(-1, 3), "a": a})
+    def set_factor_terms(self, kind: str, keys: tuple[int, ...], terms: tuple) -> None:
+        """File one factor's ``(residual, blocks)`` at the current prefetch (a term's ``Term.evaluate`` that
+        does not batch these factors)."""
+        self._terms[(kind, keys)] = terms
 
-    def _nearest(self, state: FrameState, spec, subset_vertices: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`nearest_vertices` of one chamfer factor, searched directly in the prefetched posed subset
-        vertices (C, 3) when its candidates are that subset."""
-        cand = spec.candidate_vertex_ids
-        if subset_vertices is None or cand is None or not (
-                cand is self.subset_vertex_ids or np.array_equal(cand, self.subset_vertex_ids)):
-            return nearest_vertices(self, state, spec.world_points, cand)
-        nn = nearest_indices(subset_vertices, spec.world_points)
-        return cand[nn], subset_vertices[nn]
-
-    def _add_batch(self, kind: str, group: dict) -> None:
+    def add_batch(self, kind: str, group: dict) -> None:
+        """File a term's batched results at the current prefetch (from its ``Term.evaluate``): ``group`` holds
+        ``keys`` (the factors' key tuples) and the term's arrays, read back by its ``Term.materialise``."""
         self._batches.setdefault(kind, []).append(group)
         for n, keys in enumerate(group["keys"]):
             self._where[(kind, keys)] = (group, n)
@@ -263,67 +200,10 @@ class BatchedBodyModel:
         self._batches.clear()
         self.chamfer_matches.clear()
         self._terms_have_jacobians = jacobians
-        frame_of = {k.root: i for i, k in enumerate(keys)}
-        stereo = specs.get("stereo_reprojection", {})
-        if stereo:
-            fkeys = [fk for fk in stereo if fk[0] in frame_of]
-            idx = np.array([frame_of[fk[0]] for fk in fkeys], dtype=np.int64)
-            sub = None if jac is None else _FrameJacobians(jac.points[idx], jac.d_root[idx], jac.d_body_pose[idx],
-                                                           jac.d_trans[idx], jac.d_betas[idx])
-            points = keypoints[idx] if jac is None else sub.points
-            setups = [stereo[fk].setup for fk in fkeys]
-            uv, d_uv = stereo_pixels(points, setups, jacobians)
-            self._add_batch("stereo_reprojection", {"keys": fkeys, "uv": uv, "d_uv": d_uv, "jac": sub,
-                                                    "setups": setups})
-        chamfer = [(fk, spec) for fk, spec in specs.get("lidar_chamfer", {}).items() if fk[0] in frame_of]
-        if chamfer:
-            frames = np.array([frame_of[fk[0]] for fk, _ in chamfer], dtype=np.int64)
-            fstates = [states[f] for f in frames]
-            matches = [self._nearest(st, spec, None if subset_vertices is None else subset_vertices[f])
-                       for st, f, (_, spec) in zip(fstates, frames, chamfer)]
-            vjac = distinct = local = None
-            if jacobians:             # the matched vertices' Jacobians of every frame in one batched pass
-                distinct, padded, local = _unique_per_frame([ids for ids, _ in matches], self.model.num_vertices)
-                arrays = self.frame_arrays
-                every = len(frames) == len(states) and np.array_equal(frames, np.arange(len(states)))
-                vjac = self.model.vertex_jacobians_per_frame(
-                    arrays["pose"][frames], arrays["betas"][frames], arrays["trans"][frames], padded,
-                    setup=setup if every else setup.rows(frames))
-            for (fk, _), match in zip(chamfer, matches):
-                self.chamfer_matches[fk] = match[0]
-            kernels = {(spec.sigma_m, spec.robust, spec.robust_scale, spec.robust_per_point) for _, spec in chamfer}
-            if len(kernels) == 1 and chamfer[0][1].robust_per_point:
-                self._chamfer_batch(chamfer, matches, vjac, local)
-            else:                     # mixed noise settings: factor by factor
-                for n, ((fk, spec), st, match) in enumerate(zip(chamfer, fstates, matches)):
-                    vj = None if vjac is None else _FrameJacobians(
-                        *(getattr(vjac, f)[n, :distinct[n]]
-                          for f in ("points", "d_root", "d_body_pose", "d_trans", "d_betas")))
-                    self._terms[("lidar_chamfer", fk)] = chamfer_residual(self, st, spec, jacobians, match, vj)
-        prior = specs.get("pose_prior", {})
-        pose_index = {k.body_pose: i for i, k in enumerate(keys)}
-        for mixture in {id(m): m for m in prior.values()}.values():
-            fkeys = [fk for fk, m in prior.items() if m is mixture and fk[0] in pose_index]
-            res, best = mixture.residual_batch(np.stack([states[pose_index[fk[0]]].body_pose for fk in fkeys]))
-            self._add_batch("pose_prior", {"keys": fkeys, "r": res, "best": best, "mixture": mixture})
-        temporal = specs.get("temporal_prior", {})
-        groups: dict[int, list] = {}
-        for fk, (mixture, gap) in temporal.items():
-            if fk[0] not in frame_of or fk[3] not in frame_of:
-                continue
-            groups.setdefault(id(mixture), []).append((fk, mixture, gap))
-        for items in groups.values():
-            a = [states[frame_of[fk[0]]] for fk, _, _ in items]
-            b = [states[frame_of[fk[3]]] for fk, _, _ in items]
-            gaps = np.array([gap for _, _, gap in items], dtype=np.float64)
-            best: list = []
-            res, blocks = temporal_prior_batch(
-                np.stack([s.world_R_body for s in a]), np.stack([s.trans for s in a]),
-                np.stack([s.body_pose for s in a]), np.stack([s.world_R_body for s in b]),
-                np.stack([s.trans for s in b]), np.stack([s.body_pose for s in b]), items[0][1],
-                gaps, jacobians, components=best)
-            self._add_batch("temporal_prior", {"keys": [fk for fk, _, _ in items], "r": res, "blocks": blocks,
-                                               "mixture": items[0][1], "best": best[0], "gap": gaps})
+        prefetched = Prefetched(keys, states, jac, keypoints, setup, subset_vertices)
+        for kind, term in TERMS.items():
+            if term.evaluate is not None and specs.get(kind):
+                term.evaluate(self, specs[kind], prefetched)
 
     # -- prefetch ------------------------------------------------------------------------------------
     def prefetch(self, values: gtsam.Values, keys: list[FrameKeys], jacobians: bool,
@@ -369,15 +249,15 @@ class BatchedBodyModel:
             self.keypoint_arrays = {name: getattr(jac, name)
                                     for name in ("points", "d_root", "d_trans", "d_body_pose", "d_betas")}
             for i, tag in enumerate(tags):
-                self._keypoint_jacobians[tag] = _FrameJacobians(jac.points[i], jac.d_root[i], jac.d_body_pose[i],
-                                                                jac.d_trans[i], jac.d_betas[i])
+                self._keypoint_jacobians[tag] = jacobian_rows(jac, i)
         else:
             kps = self.model.keypoints(pose, betas, trans)
             self.keypoint_arrays = {"points": kps}
             for i, tag in enumerate(tags):
                 self._keypoints[tag] = kps[i]
         verts = None
-        if vertices and self.subset_vertex_ids is not None and self._specs.get("lidar_chamfer"):
+        if vertices and self.subset_vertex_ids is not None and any(
+                self._specs.get(kind) for kind, term in TERMS.items() if term.subset_vertices):
             verts = self.model.vertices_subset(pose, betas, trans, self.subset_vertex_ids,
                                                kinematics=None if setup is None else setup.kin)
             for i, tag in enumerate(tags):
