@@ -138,8 +138,28 @@ class AssociationConfig:
     """How far a person's per-frame disparity may leave a straight line over the frames two tracklets share
     (depth is smooth, disparity ~ 1/depth is not exactly linear), pixels; added to the disparity's standard
     error in quadrature."""
+    lidar_identity: bool = True
+    """With clouds: each detection gets the range of the LiDAR points under its keypoints
+    (:func:`detection_ranges`), used by the per-camera tracker (``tracklet.range_sigma_m``) and by the stereo
+    pairing (left and right ranges agree, the disparity matches the range): two people overlapping in the
+    image a metre apart in range are told apart.  The range terms weigh in the costs but never gate (capped
+    at ``gate_sigmas``): a detection's range can lie on a neighbour."""
+    lidar_cluster_gap_m: float = 0.3
+    """LiDAR points inside the detections' hulls closer than this in the ground plane are one cluster
+    (:func:`detection_ranges`), metres."""
+    lidar_identity_min_points: int = 3
+    """A cluster is a candidate person of a detection with at least this many points in its hull (a person
+    mostly hidden from the LiDAR by another a metre in front keeps only a few points at 20 m)."""
+    lidar_support_margin: float = 0.2
+    """A detection whose two best clusters' supports (fraction of the cluster inside its hull) differ by less
+    than this gets no LiDAR range."""
+    lidar_range_sigma_m: float = 0.2
+    """Spread of a detection's LiDAR range about the person's (a few keypoints on a neighbour or the
+    background), metres: the left/right agreement term is ``(r_l - r_r) / (sqrt(2) sigma)`` and the
+    disparity term ``(d - f b / r) / sqrt(se^2 + (f b sigma / r^2)^2)``."""
     tracklet: TrackerConfig = field(default_factory=lambda: TrackerConfig(
-        confirm_hits=1, min_track_frames=1, min_mean_score=0.0, max_misses=4, size_sigma=0.25))
+        confirm_hits=1, min_track_frames=1, min_mean_score=0.0, max_misses=4, size_sigma=0.25,
+        range_sigma_m=0.25))
     """The per-camera 2D tracker (constant velocity in the image, keypoints, size; every detection above
     ``birth_min_score`` ends in a tracklet: the people are judged after pairing)."""
     tracklet_switch_cost: float = 1.0
@@ -255,10 +275,13 @@ def implied_height_m(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCal
 
 
 def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
-                config: AssociationConfig, keypoint_set: str | None = None) -> float:
+                config: AssociationConfig, keypoint_set: str | None = None,
+                ranges_m: tuple[float | None, float | None] = (None, None)) -> float:
     """Cost of matching a left and a right detection (rectified (K, 2) pixels, unusable keypoints NaN); a
     value >= 1e9 means gated out (module docstring, step 4).  With ``keypoint_set`` given, the person height
-    the pairing implies (:func:`implied_height_m`) is a fourth term where the nose and an ankle are seen."""
+    the pairing implies (:func:`implied_height_m`) is a fourth term where the nose and an ankle are seen.
+    ``ranges_m``: the detections' LiDAR ranges (:func:`detection_ranges`): where both are known they must
+    agree, and the median disparity must match the range (``lidar_range_sigma_m``)."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     if both.sum() < config.min_shared_keypoints:
         return _GATED
@@ -283,6 +306,17 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
     terms = np.array(terms)
     if np.any(np.abs(terms) > config.gate_sigmas):
         return _GATED
+    # the LiDAR range terms weigh but never gate (a detection's range can lie on a neighbour): capped at the gate
+    known = [r for r in ranges_m if r is not None]
+    if known:
+        lidar_terms = []
+        if len(known) == 2:
+            lidar_terms.append((known[0] - known[1]) / (np.sqrt(2.0) * config.lidar_range_sigma_m))
+        range_m = float(np.mean(known))
+        fb = calib.focal_px * calib.baseline_m
+        se = 1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left))
+        lidar_terms.append((d_med - fb / range_m) / float(np.hypot(se, fb * config.lidar_range_sigma_m / range_m ** 2)))
+        terms = np.concatenate([terms, np.minimum(np.abs(lidar_terms), config.gate_sigmas)])
     return float(np.mean(terms ** 2))
 
 
@@ -338,17 +372,89 @@ def _camera_centre(calib: StereoCalibration, side: str) -> np.ndarray:
     return centre
 
 
+# ---------------------------------------------------------------------------------------------- LiDAR ranges
+
+def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCalibration, side: str,
+                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig) -> dict[int, float]:
+    """Id of a detection -> the range of the LiDAR cluster that is its person, metres (median depth along the
+    pair's rectified optical axis, the same in both images), for one image's ``(detection, rectified uv)``.
+
+    The scene's non-ground points (higher than ``lidar_cut.ground_clearance_m`` above the ground plane, when
+    known) inside any detection's dilated keypoint hull (:func:`~pedx_graph.detections.lidar_cut.hull_polygon`)
+    are grouped into clusters: connected components of their ground-plane positions at
+    ``lidar_cluster_gap_m`` (a person's scan rings stack vertically; two people a metre apart separate).  A
+    cluster is a candidate of a detection when at least ``lidar_identity_min_points`` of its points lie in that
+    detection's hull; its *support* is the fraction of the cluster's points that do.  Where two people
+    overlap, the near one's hull holds all its own cluster and little of the far one (the far person's
+    points the LiDAR sees lie outside the near silhouette), the far one's hull all its own cluster and the
+    overlap of the near one: detections and clusters are matched one to one maximising the summed support
+    (Hungarian); a detection gets no range when its cluster's support is within ``lidar_support_margin`` of
+    its next candidate's or of another detection's support for the same cluster (nothing tells which is its
+    person: e.g. the far person fully hidden, one cluster in two overlapping hulls)."""
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse import coo_matrix
+    from scipy.spatial import cKDTree
+
+    from pedx_graph.detections.lidar_cut import hull_polygon, project_cloud
+    from pedx_graph.data.segment_cut import segment_indices_from_projection
+
+    cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
+    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+    if ground.ground_offset_m is not None and len(cloud):
+        cloud = cloud[ground.height(cloud) >= config.lidar_cut.ground_clearance_m]
+    if not len(cloud) or not items:
+        return {}
+    uv, depth = project_cloud(calib, side, cloud)
+    uv = np.where(np.isfinite(uv), uv, -1e9)
+    depth = np.where(np.isfinite(depth), depth, -1.0)
+    inside = []
+    for _, rect_uv in items:
+        polygon = hull_polygon(rect_uv, config.lidar_cut)
+        inside.append(np.zeros(0, dtype=np.int64) if polygon is None else
+                      segment_indices_from_projection(uv, depth, polygon, config.lidar_cut.min_depth_m))
+    used = np.unique(np.concatenate(inside)) if inside else np.zeros(0, dtype=np.int64)
+    if not len(used):
+        return {}
+    flat = ground.to_level(cloud[used])[:, :2]
+    pairs = cKDTree(flat).query_pairs(config.lidar_cluster_gap_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(used), len(used)))
+    n_clusters, label_of = connected_components(graph, directed=False)
+    label = np.full(len(cloud), -1)
+    label[used] = label_of
+    cluster_size = np.bincount(label_of, minlength=n_clusters)
+    support = np.zeros((len(items), n_clusters))
+    for i, index in enumerate(inside):
+        counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
+        support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
+    rows, cols = linear_sum_assignment(-support)
+    out = {}
+    for i, c in zip(rows, cols):
+        if support[i, c] <= 0:
+            continue
+        others = np.delete(support[i], c)                  # the detection's other clusters
+        rivals = np.delete(support[:, c], i)               # the cluster's other detections
+        if any(len(x) and x.max() > 0 and support[i, c] - x.max() < config.lidar_support_margin
+               for x in (others, rivals)):
+            continue
+        members = used[label_of == c]
+        out[id(items[i][0])] = float(np.median(depth[members]))
+    return out
+
+
 # ---------------------------------------------------------------------------------------------- tracklets
 
-def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]], config: AssociationConfig
-                     ) -> list[list[tuple[int, Detection, np.ndarray]]]:
+def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]], config: AssociationConfig,
+                     ranges: Mapping[int, float] | None = None) -> list[list[tuple[int, Detection, np.ndarray]]]:
     """One camera's detections linked over frames (module docstring, step 3): ``per_frame`` maps a frame to its
     de-duplicated ``(detection, rectified uv)``; returns tracklets, each a list of ``(frame, detection, uv)`` in
-    frame order (a detection in exactly one tracklet, low-score ones alone)."""
+    frame order (a detection in exactly one tracklet, low-score ones alone); ``ranges``: id of a detection ->
+    its LiDAR range (:func:`detection_ranges`), a term of the tracker's cost."""
     tracker = Tracker(config.tracklet)
+    ranges = ranges or {}
     frames = sorted(per_frame)
     for frame in frames:
-        tracker.step(frame, [Observation(frame=frame, uv={"left": uv}, score=float(det.score), payload=(det, uv))
+        tracker.step(frame, [Observation(frame=frame, uv={"left": uv}, score=float(det.score), payload=(det, uv),
+                                         lidar_range_m=ranges.get(id(det)))
                              for det, uv in per_frame[frame]])
     out = [[(o.frame, o.payload[0], o.payload[1]) for o in obs] for obs in tracker.tracks()]
     seen = {id(det) for tracklet in out for _, det, _ in tracklet}
@@ -358,10 +464,11 @@ def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]]
 
 
 def _frame_terms(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
-                 config: AssociationConfig, keypoint_set: str | None = None) -> tuple[float, float, float] | None:
+                 config: AssociationConfig, keypoint_set: str | None = None,
+                 ranges_m: tuple[float | None, float | None] = (None, None)) -> tuple[float, float, float] | None:
     """One frame's stereo evidence of a left and a right detection: ``(cost, disparity px, its standard error
     px)``; None when gated (:func:`stereo_cost`)."""
-    cost = stereo_cost(uv_left, uv_right, calib, config, keypoint_set)
+    cost = stereo_cost(uv_left, uv_right, calib, config, keypoint_set, ranges_m)
     if cost >= _GATED:
         return None
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
@@ -398,8 +505,8 @@ def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray,
     return (disparity - a - b * (frames - f0)) / sigma
 
 
-def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig
-                   ) -> tuple[float, list[int]]:
+def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
+                   ranges: Mapping[int, float] | None = None) -> tuple[float, list[int]]:
     """Evidence that a left and a right tracklet are one person over their shared frames, and the frames where
     they are paired.  Each shared frame whose stereo terms pass the gates and whose disparity lies within
     ``gate_sigmas`` of the tracklets' smooth disparity adds ``gate_sigmas^2 / 2 - cost``; every other shared
@@ -409,7 +516,8 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
     for frame, det, uv_left in left:
         if frame in by_frame:
             kset = det.keypoint_set if det.keypoint_set == by_frame[frame][0].keypoint_set else None
-            items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset)))
+            pair_ranges = (ranges.get(id(det)), ranges.get(id(by_frame[frame][0]))) if ranges else (None, None)
+            items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset, pair_ranges)))
     if not items:
         return -np.inf, []
     c0 = 0.5 * config.gate_sigmas ** 2
@@ -472,16 +580,17 @@ class _Person:
         return any(f in self.sides[side] for f in frames)
 
 
-def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration, config: AssociationConfig
-                   ) -> list[_Person]:
-    """Group one pair's left and right tracklets into people (module docstring, step 4)."""
+def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration, config: AssociationConfig,
+                   ranges: Mapping[int, float] | None = None) -> list[_Person]:
+    """Group one pair's left and right tracklets into people (module docstring, step 4); ``ranges``: id of a
+    detection -> its LiDAR range (:func:`detection_ranges`)."""
     edges = []
     for i, lt in enumerate(left):
         l_frames = {f for f, _, _ in lt}
         for j, rt in enumerate(right):
             if not l_frames & {f for f, _, _ in rt}:
                 continue
-            evidence, paired = _pair_evidence(lt, rt, calib, config)
+            evidence, paired = _pair_evidence(lt, rt, calib, config, ranges)
             if evidence > 0 and paired:
                 edges.append((-evidence, i, j, paired))
     edges.sort(key=lambda e: e[:3])
@@ -561,13 +670,18 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
         uv = _usable(rectified(det, calib), det.confidence, config.min_confidence)
         per_image["left" if det.camera == left_name else "right"][det.frame].append((det, uv))
     tracklets = {}
+    ranges: dict[int, float] = {}
     for side, frames in per_image.items():
         deduplicated = {frame: drop_duplicates(items, config) for frame, items in sorted(frames.items())}
-        tracklets[side] = camera_tracklets(deduplicated, config)
+        if clouds is not None and config.lidar_identity:
+            for frame, items in deduplicated.items():
+                if frame in clouds and items:
+                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
+        tracklets[side] = camera_tracklets(deduplicated, config, ranges)
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     out = []
     projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
-    for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config):
+    for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges):
         frames = sorted(set(person.sides["left"]) | set(person.sides["right"]))
         if len(frames) < config.tracker.min_track_frames:
             continue

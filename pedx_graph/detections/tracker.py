@@ -68,6 +68,11 @@ class TrackerConfig:
     """Expected frame-to-frame spread of ``log(span_observed / span_predicted)`` (vertical spans of the shared
     keypoints of each image side: a person's image size changes slowly, two people at different depths differ);
     0 = no size term."""
+    range_sigma_m: float = 0.0
+    """Expected frame-to-frame spread of a person's LiDAR range (:attr:`Observation.lidar_range_m`, after the
+    predicted walking change), metres: two people overlapping in the image but a metre apart in range are told
+    apart by their LiDAR points; 0 = no range term.  The term is capped at ``gate_sigmas`` (it never gates: a
+    detection's range can lie on a neighbour)."""
     velocity_smoothing: float = 0.5
     """Weight of the newest velocity measurement in the smoothed velocity (1 = no smoothing)."""
     birth_min_score: float = 0.2
@@ -103,6 +108,9 @@ class Observation:
     """Uncertainty of ``world_p`` along the viewing ray, metres."""
     disparity_px: float | None = None
     """Median disparity ``u_left - u_right`` of the keypoints when both images saw the person, pixels."""
+    lidar_range_m: float | None = None
+    """Range (depth along the rectified optical axis) of the LiDAR points under the detection's keypoints,
+    metres, or None (no cloud, too few points)."""
     payload: object = None
     """What the caller attaches (the association keeps the raw detections here)."""
 
@@ -149,6 +157,9 @@ class _Track:
     has_world_velocity: bool = False
     depth_sigma_m: float = np.inf
     disparity_px: float | None = None
+    range_m: float | None = None
+    range_frame: int = 0
+    range_velocity: float = 0.0
     misses: int = 0
     confirmed: bool = False
     alive: bool = True
@@ -208,6 +219,12 @@ class Tracker:
                     if abs(size) > cfg.gate_sigmas:
                         return _GATED
                     terms.append(size ** 2)
+        if cfg.range_sigma_m > 0 and obs.lidar_range_m is not None and track.range_m is not None:
+            df = obs.frame - track.range_frame
+            predicted_range = track.range_m + track.range_velocity * df
+            sigma = float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s))
+            residual = min(abs(obs.lidar_range_m - predicted_range) / sigma, cfg.gate_sigmas)
+            terms.append(residual ** 2)           # weighs, never gates: a range can lie on a neighbour
         has_3d = track.world_p is not None and obs.world_p is not None
         if has_3d:
             dt_frames = obs.frame - track.world_frame
@@ -281,6 +298,13 @@ class Tracker:
             track.sides[side] = _SideState(uv=np.asarray(uv, dtype=float), frame=obs.frame,
                                            velocity=np.zeros(2) if state is None else state.velocity,
                                            height_px=height if height > 0 else (state.height_px if state else 0.0))
+        if obs.lidar_range_m is not None:
+            if track.range_m is not None:
+                df = max(obs.frame - track.range_frame, 1)
+                step = float(np.clip((obs.lidar_range_m - track.range_m) / df,
+                                     -cfg.max_speed_mps * cfg.frame_interval_s, cfg.max_speed_mps * cfg.frame_interval_s))
+                track.range_velocity = alpha * step + (1 - alpha) * track.range_velocity
+            track.range_m, track.range_frame = float(obs.lidar_range_m), obs.frame
         if obs.world_p is not None:
             if track.world_p is not None:
                 df = max(obs.frame - track.world_frame, 1)
