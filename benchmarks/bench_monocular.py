@@ -26,9 +26,10 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests"))                      # tests/factor_testing.py
 
 from _common import hardware, public_args  # noqa: E402
-from factors.testing import make_test_calibration  # noqa: E402
+from factor_testing import make_test_calibration  # noqa: E402
 from pedx_graph.body import BodyModel  # noqa: E402
 from pedx_graph.data.types import View2D  # noqa: E402
 from pedx_graph.graph.monocular import body_size_prior, monocular_depth  # noqa: E402

@@ -33,7 +33,7 @@ from factors import (FrameKeys, FrameState, StereoKeypoints, make_heading_prior_
                      make_stereo_reprojection_factor, make_temporal_prior_factor, make_translation_prior_factor)
 from factors.common import MaxMixture
 from factors.temporal_prior import TEMPORAL_DIM
-from factors.testing import frame_values, make_test_calibration, random_gmm, standing_rotation
+from factor_testing import frame_values, make_test_calibration, random_gmm, standing_rotation
 from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
 from synthetic_model import synthetic_body_model  # noqa: E402
 

@@ -2,7 +2,7 @@
 
 ``synthetic_context`` builds an :class:`EstimatorContext` on the package's synthetic SMPL-format arrays with
 single-Gaussian pose and temporal priors; ``synthetic_track`` renders a pedestrian walking across the view
-of the test stereo pair (``factors.testing.make_test_calibration``: camera 1.5 m high looking along world
+of the test stereo pair (``factor_testing.make_test_calibration``: camera 1.5 m high looking along world
 +x) into 2D keypoints (both images, pixel noise) and LiDAR points (sampled model vertices, range noise).
 Everything is seeded.
 """
@@ -13,7 +13,7 @@ import numpy as np
 
 from factors.common import MaxMixture
 from factors.temporal_prior import TEMPORAL_DIM
-from factors.testing import make_test_calibration, standing_rotation
+from factor_testing import make_test_calibration, standing_rotation
 from synthetic_model import synthetic_body_model
 from pedx_graph.data.types import Track, TrackFrame, View2D
 from pedx_graph.graph.context import EstimatorContext, farthest_point_subset

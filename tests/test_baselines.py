@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from factors.common import MaxMixture
-from factors.testing import make_test_calibration
+from factor_testing import make_test_calibration
 from synthetic_model import synthetic_body_model
 from pedx_graph.baselines.left_disparity import (left_disparity_baseline, left_disparity_keypoints,
                                                  sample_disparity_map)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from factors.testing import make_test_calibration
+from factor_testing import make_test_calibration
 from pedx_graph.data.ground import (GroundConfig, GroundFrame, calibration_up, estimate_ground,
                                     fit_ground_plane, make_ground_frame)
 from pedx_graph.data.types import StereoCalibration

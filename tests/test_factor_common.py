@@ -7,7 +7,7 @@ from factors import (FrameKeys, FrameState, StereoKeypoints, make_heading_prior_
                      make_noise, make_shape_prior_factor, make_stereo_reprojection_factor,
                      make_translation_prior_factor, read_frame_state)
 from factors.common import set_jacobians
-from factors.testing import frame_values, make_test_calibration, standing_rotation
+from factor_testing import frame_values, make_test_calibration, standing_rotation
 from synthetic_model import synthetic_body_model
 from pedx_graph.body.rotation import log_so3
 

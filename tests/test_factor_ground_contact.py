@@ -8,7 +8,7 @@ import pytest
 from factors.common import FrameKeys
 from factors.ground_contact import ANKLES, ankle_height_m, ground_contact_batch, make_ground_contact_factor
 from factors.registry import OWN_FRAME_KINDS, TERMS
-from factors.testing import ToyBodyModel, assert_factor_jacobians, frame_values, random_rot3
+from factor_testing import ToyBodyModel, assert_factor_jacobians, frame_values, random_rot3
 from pedx_graph.graph.build import build_track_graph
 from pedx_graph.solvers.batched import BatchedLinearizer
 from solver_fixtures import synthetic_config, synthetic_context, synthetic_track

@@ -5,7 +5,7 @@ import pytest
 
 from factors.heading_prior import (heading_prior_error, heading_sigma, heading_vector,
                                    make_heading_prior_factor, trajectory_headings)
-from factors.testing import assert_factor_jacobians, random_rot3
+from factor_testing import assert_factor_jacobians, random_rot3
 
 #: The z-up level frame of these tests (world = level); other level frames are tested below.
 LEVEL = np.eye(3)

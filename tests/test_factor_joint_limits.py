@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from factors.joint_limits import DEFAULT_JOINT_LIMITS, JointLimit, joint_limit_error, make_joint_limit_factor
-from factors.testing import assert_factor_jacobians
+from factor_testing import assert_factor_jacobians
 
 
 def test_zero_inside_limits_and_hinge_outside():

@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from factors.lidar_chamfer import (DIRECT_SEARCH_MAX_POINTS, lidar_chamfer_error, make_lidar_chamfer_factor,
                                    nearest_indices, nearest_vertices)
-from factors.testing import ToyBodyModel, assert_factor_jacobians, frame_values, standing_rotation
+from factor_testing import ToyBodyModel, assert_factor_jacobians, frame_values, standing_rotation
 from synthetic_model import synthetic_body_model
 
 KEYS = FrameKeys.for_frame(0)

@@ -6,7 +6,7 @@ from scipy.stats import multivariate_normal
 
 from factors.common import MaxMixture
 from factors.pose_prior import make_pose_prior_factor, pose_prior_error
-from factors.testing import assert_factor_jacobians, random_gmm
+from factor_testing import assert_factor_jacobians, random_gmm
 
 D = 69
 

@@ -32,7 +32,7 @@ def test_shape_prior_bad_inputs():
 # --- the support hinge ------------------------------------------------------------------------------------
 from factors.shape_prior import (consensus_shape, make_shape_support_factor, shape_factors,  # noqa: E402
                                  shape_support_error)
-from factors.testing import assert_factor_jacobians  # noqa: E402
+from factor_testing import assert_factor_jacobians  # noqa: E402
 
 
 def test_shape_support_residual_zero_inside_and_linear_outside():

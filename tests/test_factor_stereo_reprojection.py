@@ -8,7 +8,7 @@ from factors.stereo_reprojection import (DEFAULT_KEYPOINT_WEIGHTS, ImageKeypoint
                                          build_reprojection_setup, build_stereo_setup, make_reprojection_factor,
                                          make_stereo_reprojection_factor, stereo_dense_rows, stereo_pixels,
                                          stereo_reprojection_batch, stereo_reprojection_error)
-from factors.testing import (ToyBodyModel, assert_factor_jacobians, frame_values, make_test_calibration,
+from factor_testing import (ToyBodyModel, assert_factor_jacobians, frame_values, make_test_calibration,
                              standing_rotation)
 from synthetic_model import synthetic_body_model
 from pedx_graph.data.types import View2D

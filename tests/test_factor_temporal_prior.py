@@ -8,7 +8,7 @@ from factors.common import MaxMixture
 from factors.temporal_prior import (TEMPORAL_DIM, make_temporal_prior_factor, sequence_differences,
                                     temporal_difference,
                                     temporal_difference_jacobians, temporal_prior_error)
-from factors.testing import assert_factor_jacobians, random_gmm, random_rot3
+from factor_testing import assert_factor_jacobians, random_gmm, random_rot3
 
 
 def _frame(rng):

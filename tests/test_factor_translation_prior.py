@@ -3,7 +3,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.testing import ToyBodyModel, assert_factor_jacobians
+from factor_testing import ToyBodyModel, assert_factor_jacobians
 from synthetic_model import synthetic_body_model
 from factors.translation_prior import (make_translation_prior_factor, pelvis_shape_basis, sensor_ray_frame,
                                        translation_prior_error)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from factors.testing import make_test_calibration
+from factor_testing import make_test_calibration
 from pedx_graph.body import BodyModel
 from pedx_graph.data.types import StereoCalibration, Track, TrackFrame, View2D
 from pedx_graph.graph.monocular import (body_size_prior, frame_monocular_depth, monocular_depth,

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from factors.testing import make_test_calibration
+from factor_testing import make_test_calibration
 from pedx_graph.data.noise_estimate import (
     QUANTISATION_PX,
     NoiseEstimateConfig,

@@ -13,7 +13,7 @@ import pytest
 
 from factors.stereo_reprojection import StereoKeypoints, build_stereo_setup, stereo_reprojection_batch
 from factors.temporal_prior import temporal_prior_batch, temporal_prior_error
-from factors.testing import make_test_calibration, random_rot3
+from factor_testing import make_test_calibration, random_rot3
 from pedx_graph.graph.build import build_track_graph
 from pedx_graph.solvers.batched import BatchedLinearizer
 from pedx_graph.solvers.chain import ChainLayout, NotAChainError, solve_chain

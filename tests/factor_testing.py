@@ -20,6 +20,7 @@ import numpy as np
 from gtsam.utils.numerical_derivative import numericalDerivative11
 
 from pedx_graph.body.rotation import exp_so3, hat
+from pedx_graph.data.types import StereoCalibration
 
 
 class ToyBodyModel:
@@ -139,14 +140,12 @@ def assert_factor_jacobians(factor: gtsam.NoiseModelFactor, values: gtsam.Values
 
 
 def make_test_calibration(focal_px: float = 1000.0, baseline_m: float = 0.5,
-                          rect_angle: float = 0.02) -> "StereoCalibration":
+                          rect_angle: float = 0.02) -> StereoCalibration:
     """A KITTI-style stereo pair 1.5 m above the world origin looking along world +x (camera x = world -y).
 
     ``rect_angle`` (rad) rotates the rectified frame slightly about the camera y axis (non-identity
     rectification).  Image 1920 x 1200, principal point at the centre.
     """
-    from pedx_graph.data.types import StereoCalibration
-
     k = np.array([[focal_px, 0.0, 960.0], [0.0, focal_px, 600.0], [0.0, 0.0, 1.0]])
     left = np.hstack([k, np.zeros((3, 1))])
     right = left.copy()
