@@ -25,7 +25,10 @@ Steps:
 3. **Each camera over time first** (:func:`camera_tracklets`): a
    :class:`~pedx_graph.detections.tracker.Tracker` per camera (``tracklet`` config) links its detections into
    2D tracklets — Hungarian matching on constant-velocity predicted keypoints and keypoint-span size, gated;
-   identity in one image is decided by motion, before any stereo pairing.
+   identity in one image is decided by motion, before any stereo pairing.  With ``clouds`` (and
+   ``lidar_identity``), each detection first gets the range of its LiDAR cluster (:func:`detection_ranges`),
+   a capped term of the tracker's cost (``tracklet.range_sigma_m``): two people overlapping in one image a
+   metre apart in range are told apart where the LiDAR sees both.
 4. **Tracklets across the pair** (:func:`pair_tracklets`).  Per frame, a left and a right detection of one
    person (:func:`stereo_cost`, over the keypoints present in both with confidence >= ``min_confidence``):
 
@@ -38,6 +41,8 @@ Steps:
      :func:`implied_height_m`) against ``person_height_m``, ``log`` ratio over ``person_height_sigma``
      (a disparity borrowed from someone at another depth implies a giant or a dwarf);
 
+   with LiDAR ranges, the left and right ranges agree and the median disparity matches the range
+   (``lidar_range_sigma_m``; capped at ``gate_sigmas``, never gating);
    gated out when a residual exceeds ``gate_sigmas``, the disparity is not positive or the depth lies outside
    ``[min_depth_m, max_depth_m]``.  A left and a right tracklet are scored over all their shared frames
    (:func:`_pair_evidence`): the per-frame disparities must follow one smooth depth (a line in time whose
