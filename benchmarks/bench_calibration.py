@@ -20,7 +20,8 @@ still; see the findings), ``no_chamfer`` / ``lidar_sigma_x3`` (the chamfer's poi
 nearest-vertex matching on a vertex subset makes correlated errors); ``point_to_point_chamfer`` (same fit,
 covariances with the chamfer factor's fixed-correspondence information instead of the point-to-plane
 information of ``MarginalsConfig``); ``upper_arm_flips`` (the limb depth-flip search without the
-forearms, as before they were added to the default); ``a+b`` combines variants.  Every variant is also reported on the
+forearms, as before they were added to the default); ``no_ground_contact`` (without the stance-foot ground
+contact term, as before it was added); ``a+b`` combines variants.  Every variant is also reported on the
 frames the diagnostics judge consistent (``fit_consistent``, see ``pedx_graph.solvers.diagnostics``).
 Per variant also: the NEES per keypoint group and distance, and the objective at the estimate and at the
 truth per track and after LM started from the truth (``objective_at_truth``: LM from the truth ending
@@ -78,6 +79,8 @@ def _modify(config: FitConfig, name: str, marginals: MarginalsConfig | None = No
         config.terms.temporal_prior = False
     elif name == "no_chamfer":
         config.terms.lidar_chamfer = False
+    elif name == "no_ground_contact":
+        config.noise.ground_contact_sigma_m = 0.0
     elif name == "trained_priors":
         config.prior_covariance_scale = 1.0
     elif name == "lidar_sigma_x3":
