@@ -56,7 +56,8 @@ class BatchedBodyModel:
     def __init__(self, model: BodyModel, subset_vertex_ids: np.ndarray | None = None):
         self.model = model
         self.subset_vertex_ids = subset_vertex_ids
-        self._keypoint_jacobians: dict = {}
+        self._keypoint_jacobians: dict = {}       # frame tag -> its row index in the prefetch, then its rows
+        self._prefetch_jacobians = None
         self._keypoints: dict[bytes, np.ndarray] = {}
         self._subset_vertices: dict[bytes, np.ndarray] = {}
         self._recent_keypoints: dict[bytes, np.ndarray] = {}
@@ -248,8 +249,9 @@ class BatchedBodyModel:
             jac = self.model.point_jacobians(pose, betas, trans, setup=setup)
             self.keypoint_arrays = {name: getattr(jac, name)
                                     for name in ("points", "d_root", "d_trans", "d_body_pose", "d_betas")}
+            self._prefetch_jacobians = jac          # a frame's rows are cut only when a factor asks (GTSAM path)
             for i, tag in enumerate(tags):
-                self._keypoint_jacobians[tag] = jacobian_rows(jac, i)
+                self._keypoint_jacobians[tag] = i
         else:
             kps = self.model.keypoints(pose, betas, trans)
             self.keypoint_arrays = {"points": kps}
@@ -280,10 +282,20 @@ class BatchedBodyModel:
                 return False
         return True
 
+    def _frame_jacobians(self, tag):
+        """The prefetched keypoint Jacobians of the frame ``tag`` (its rows of the prefetch's arrays), or None."""
+        index = self._keypoint_jacobians.get(tag)
+        if index is None:
+            return None
+        if not isinstance(index, int):
+            return index
+        rows = self._keypoint_jacobians[tag] = jacobian_rows(self._prefetch_jacobians, index)
+        return rows
+
     # -- the BodyModel interface used by the factors -----------------------------------------------------
     def point_jacobians(self, pose, betas, trans=None, vertex_ids=None):
         if vertex_ids is None and np.ndim(pose) == 1:
-            hit = self._keypoint_jacobians.get(_tag(pose, betas, trans))
+            hit = self._frame_jacobians(_tag(pose, betas, trans))
             if hit is not None:
                 return hit
         return self.model.point_jacobians(pose, betas, trans, vertex_ids=vertex_ids)
@@ -294,7 +306,7 @@ class BatchedBodyModel:
             hit = self._keypoints.get(tag)
             if hit is not None:
                 return hit
-            jac = self._keypoint_jacobians.get(tag)
+            jac = self._frame_jacobians(tag)
             if jac is not None:
                 return jac.points
             hit = self._recent_keypoints.get(tag)
