@@ -60,7 +60,8 @@ COMMAND_CONFIGS = (
                   "`experiments.json` (key `config`) in the experiment folder"),
     CommandEntry("import", "pedx_graph.detections.importer:ImportConfig",
                   "`pedx-graph import --config FILE`",
-                  "not saved (the written labels carry each keypoint's `sigma_px` and `confidence`)"),
+                  "`import_config.yaml` in the imported dataset (its labels also carry each keypoint's "
+                  "`sigma_px` and `confidence`)"),
     CommandEntry("train-prior", "pedx_graph.priors.train:TrainConfig",
                   "`pedx-graph train-prior --config FILE` (flags given override the file)",
                   "`provenance.json` (key `config`) beside the trained priors"),

@@ -7,9 +7,11 @@ import numpy as np
 
 from pedx_graph.body import BodyModel
 from pedx_graph.cli import main
+from pedx_graph.config import load_config, to_dict
 from pedx_graph.data.calib import read_calibrations, write_stereo_calibration
 from pedx_graph.data.reader import read_dataset, read_smpl_labels
 from pedx_graph.data.types import RawCamera
+from pedx_graph.detections.importer import ImportConfig
 from pedx_graph.detections.undistort import distort
 from scene_fixtures import small_scene
 
@@ -50,6 +52,8 @@ def test_import_openpose_with_file_ids(tmp_path):
     assert main(["import", "openpose", str(files), "--calib", str(root), "--out", str(out), "--use-file-ids"]) == 0
     summary = json.loads((out / "import_summary.json").read_text())
     assert summary["keypoint_sets"] == ["body25"] and (out / "pointclouds").exists()
+    saved = load_config(ImportConfig, out / "import_config.yaml")          # the resolved config beside the output
+    assert saved.use_file_ids and to_dict(saved) == to_dict(dataclasses.replace(ImportConfig(), use_file_ids=True))
     tracks = read_dataset(out)
     assert {t.tracking_id for t in tracks} <= {str(i) for i in range(len(truth))} and tracks
     checked = 0

@@ -10,7 +10,7 @@ confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoise
 ``confidence`` and ``sigma_px`` (:mod:`pedx_graph.data.labels2d`), copy ``calib/`` (and ``timestamps/``),
 link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
 (:func:`pedx_graph.detections.lidar_cut.write_track_segments`) when the source dataset has them.  A summary
-goes to ``<out>/import_summary.json``.
+goes to ``<out>/import_summary.json``, the resolved config to ``<out>/import_config.yaml``.
 """
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pedx_graph.config import save_config
 from pedx_graph.data.calib import read_calibrations
 from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
@@ -157,6 +158,7 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
         if "_" in seq:
             raise ValueError(f"sequence name {seq!r} must not contain '_' (release file names); pass --sequence")
         summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config)
+    save_config(config, out / "import_config.yaml")          # the resolved config beside what it made
     atomic_write_json(out / "import_summary.json", summary)
     return summary
 
