@@ -216,7 +216,7 @@ RULES: dict[str, Range | Choice] = {
     "IsamConfig.finalize_max_updates": NON_NEGATIVE_INT,
     "IsamConfig.finalize_relative_tol": NON_NEGATIVE,
     "IsamConfig.num_betas": COUNT,
-    # pedx_graph.solvers.admm.AdmmConfig
+    # pedx_graph.graph.config.AdmmConfig
     "AdmmConfig.rho": POSITIVE,
     "AdmmConfig.primal_tol": POSITIVE,
     "AdmmConfig.dual_tol": POSITIVE,

@@ -41,6 +41,13 @@ from scipy.optimize import linear_sum_assignment
 _GATED = 1e9
 
 
+def _predicted(state, uv_obs: np.ndarray, df: int) -> tuple[np.ndarray, np.ndarray]:
+    """A side's keypoints predicted ``df`` frames ahead at constant velocity (K, 2) pixels, and the (K,) mask
+    of keypoints finite in both the prediction and ``uv_obs``."""
+    uv_pred = state.uv + state.velocity * df
+    return uv_pred, np.all(np.isfinite(uv_pred), axis=1) & np.all(np.isfinite(uv_obs), axis=1)
+
+
 @dataclass
 class TrackerConfig:
     """Matching, birth and death of the across-frame tracker (pixels, metres, seconds, frames)."""
@@ -197,8 +204,7 @@ class Tracker:
             if state is None:
                 continue
             df = obs.frame - state.frame
-            uv_pred = state.uv + state.velocity * df
-            both = np.all(np.isfinite(uv_pred), axis=1) & np.all(np.isfinite(uv_obs), axis=1)
+            uv_pred, both = _predicted(state, uv_obs, df)
             if both.sum() < 2:
                 continue
             shared_side = True
@@ -266,8 +272,7 @@ class Tracker:
             if state is None or uv_obs is None:
                 continue
             df = obs.frame - state.frame
-            uv_pred = state.uv + state.velocity * df
-            both = np.all(np.isfinite(uv_pred), axis=1) & np.all(np.isfinite(uv_obs), axis=1)
+            uv_pred, both = _predicted(state, uv_obs, df)
             if both.sum() < 2:
                 continue
             left_u, right_u = (uv_obs[both, 0], uv_pred[both, 0]) if side == "left" else (uv_pred[both, 0], uv_obs[both, 0])
