@@ -344,3 +344,75 @@ def test_two_people_walking_together_at_21_m_keep_their_ids_with_lidar():
         tracks, owners = _walkers_together(True, seed)
         assert all(len(_who(tr, owners)) == 1 for tr in tracks), seed
         assert sorted(set.union(*(_who(tr, owners) for tr in tracks))) == ["a", "b"]
+
+
+def test_a_person_seen_in_one_image_of_a_pair_joins_the_other_pairs_track():
+    """A person the first pair sees in both images and the second pair only in its left image (the right one
+    occluded) is one track: the first pair's 3D centres explain the second pair's detections.  Someone else,
+    seen only in that left image 2 m to the side, stays a track of its own."""
+    cfg = SimConfig()
+    cfg.cameras.left.yaw_deg = 40.0
+    cfg.cameras.forward.yaw_deg = 10.0
+    calibs = {pair.name: make_calibration(pair) for pair in cfg.cameras.pairs()}
+    first, second = sorted(calibs)
+    rng = np.random.default_rng(5)
+    dets, owners = [], {}
+    for k in range(12):
+        walker = _person_points((12.0 + 0.09 * k, 6.0 + 0.09 * k), np.pi / 4, 0.5 * k)
+        other = _person_points((10.5 + 0.09 * k, 8.0 - 0.05 * k), np.pi / 4, 0.5 * k)
+        for d in _detections(calibs[first], walker, k, rng) + _detections(calibs[second], walker, k, rng,
+                                                                          side_filter="left"):
+            owners[d.source] = "walker"
+            dets.append(d)
+        for d in _detections(calibs[second], other, k, rng, side_filter="left"):
+            d.source += "/other"
+            owners[d.source] = "other"
+            dets.append(d)
+    tracks = associate(dets, calibs, ground=_ground(calibs))
+    people = [_who(t, owners) for t in tracks]
+    assert all(len(p) == 1 for p in people), people              # nobody mixed
+    walker = [t for t, p in zip(tracks, people) if p == {"walker"}]
+    assert len(walker) == 1 and set(walker[0].pairs) == set(calibs)
+    assert sum(len(fr.detections) for fr in walker[0].frames) == 36
+    assert sum(p == {"other"} for p in people) == 1
+
+
+def test_smoothed_centres_follow_the_majority_not_one_confident_outlier():
+    """A walker's centres along a line (0.5 m uncertain) with one frame's centre 10 m off and claiming 5 cm
+    (a cut on an occluder): the smoothed centres stay on the walker's line, frame by frame."""
+    from pedx_graph.detections.association import DetectedTrackFrame, smooth_centres
+
+    calibs = _rig()
+    ground = _ground(calibs)
+    rng = np.random.default_rng(2)
+    truth = [np.array([20.0 + 0.12 * k, -5.0, GROUND_Z + 0.9]) for k in range(12)]
+    frames = [DetectedTrackFrame(frame=k, detections={}, world_p=p + [0.3 * rng.normal(), 0.3 * rng.normal(), 0.0],
+                                 depth_sigma_m=0.5) for k, p in enumerate(truth)]
+    frames[9].world_p, frames[9].depth_sigma_m = truth[9] + [-10.0, 2.0, 0.0], 0.05
+    smooth_centres(frames, ground, AssociationConfig())
+    gaps = [np.linalg.norm((fr.world_p - p)[:2]) for fr, p in zip(frames, truth)]
+    assert max(gaps) < 0.6, np.round(gaps, 2)
+
+
+def test_a_frame_borrowed_from_someone_else_is_unpaired():
+    """A person's left tracklet paired over 8 frames with its right tracklet, plus one frame with a right
+    detection of someone 15 m nearer (another tracklet, one frame): that right detection leaves the person."""
+    from pedx_graph.detections.association import _Person, drop_disparity_outliers
+
+    calibs = _rig()
+    calib = calibs[sorted(calibs)[0]]
+    rng = np.random.default_rng(4)
+    person = _Person()
+    for k in range(9):
+        far = _person_points((21.0 + 0.1 * k, -1.0), 0.0, 0.5 * k)
+        near = _person_points((6.0, -0.2), 0.0, 0.5 * k)
+        uv_l, uv_r = calib.project(far)
+        person.sides["left"][k] = (0, None, uv_l + rng.normal(size=uv_l.shape))
+        if k < 8:
+            person.sides["right"][k] = (0, None, uv_r + rng.normal(size=uv_r.shape))
+        else:
+            person.sides["right"][k] = (1, None, calib.project(near)[1])
+        person.paired.add(k)
+    drop_disparity_outliers(person, calib, AssociationConfig())
+    assert 8 not in person.sides["right"] and 8 in person.sides["left"] and 8 not in person.paired
+    assert all(k in person.sides["right"] and k in person.paired for k in range(8))

@@ -67,6 +67,15 @@ def test_import_openpose_with_file_ids(tmp_path):
                 assert view.sigma_px is not None and np.all(view.sigma_px > 0)
                 checked += 1
     assert checked >= len(expected) // 2
+    # the LiDAR cut needs no association: with file ids the centres are triangulated, the points cut
+    assert sum(v["segments"]["segments"] for v in summary["sequences"].values()) > 0
+    true_trans = {(str(n), lab.frame): np.asarray(lab.trans, dtype=float)
+                  for n, (_, labels) in enumerate(sorted(truth.items())) for lab in labels}
+    cut = [(track.tracking_id, fr) for track in tracks for fr in track.frames if len(fr.world_lidar_points)]
+    assert cut
+    for tid, fr in cut:
+        offset = np.median(fr.world_lidar_points, axis=0) - true_trans[(tid, fr.frame)]
+        assert np.linalg.norm(offset[:2]) < 0.5, (tid, fr.frame, offset)
 
 
 def test_import_simulated_detector_output_then_fit(tmp_path):

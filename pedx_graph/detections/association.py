@@ -54,21 +54,32 @@ Steps:
    A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time,
    agree best (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of
    their own.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
-   ``clouds``, a LiDAR centre replaces the stereo one where it agrees.  A person with fewer than
+   ``clouds``, a LiDAR centre replaces the stereo one where it agrees.  A paired frame whose disparity
+   leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
+   shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
+   two).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
    flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
    person: over at least ``merge_min_shared_frames`` shared frames (a track's centre between two of its 3D
    frames is interpolated), the median of the horizontal distance
    divided by ``sqrt(sigma_a^2 + sigma_b^2 + merge_distance_m^2)`` (the two centres' depth uncertainties) is
-   at most 1; merged greedily, best agreement first, never two tracks of one pair.
+   at most 1.  A track with fewer than ``merge_min_shared_frames`` 3D centres shared with the other (seen in
+   one image of its pair) is compared in its own images instead (:func:`_image_agreement`): the other
+   track's centres, projected, must lie under its detections within ``merge_distance_m`` (plus the
+   centre's depth uncertainty seen from that camera), and its keypoint span must match the span the
+   centre's depth predicts.  Merged greedily, best agreement first, never two tracks of one pair at one
+   frame (one pair's tracks of one person at different times — lost and found again — do join).
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
    becomes the weighted line fit, in the ground plane, of the track's centres within
    ``smooth_window_frames`` (weights: each centre's depth uncertainty and ``smooth_motion_m`` in
-   quadrature; centres beyond ``gate_sigmas`` left out) — one frame's noisy stereo depth or a cut that caught
-   a passing car no longer sets the gate, and frames seen in one image get a depth too.
+   quadrature), started from the centres the best-supported line explains (:func:`_consensus`: most
+   centres within ``gate_sigmas``, not the weighted least squares a single confident outlier would
+   steer), centres beyond ``gate_sigmas`` left out, the line's speed at most ``tracker.max_speed_mps`` —
+   one frame's noisy stereo depth or a cut that caught a passing car no longer sets the gate, and frames
+   seen in one image get a depth too.
 """
 from __future__ import annotations
 
@@ -658,6 +669,42 @@ def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration
     return people
 
 
+def drop_disparity_outliers(person: _Person, calib: StereoCalibration, config: AssociationConfig) -> None:
+    """Unpair the frames of a person whose disparity leaves the person's smooth disparity line by more than
+    ``gate_sigmas`` (:func:`_smooth_disparity` over all its paired frames), in place.  Tracklet evidence is
+    judged per pair of tracklets: a short tracklet of someone else, paired for a frame or two with one of the
+    person's tracklets, passes on its own and joins the person.  At such a frame the side whose tracklet holds
+    fewer of the person's frames is taken out (the intruder); the frame stays with its other side, unpaired."""
+    paired = sorted(f for f in person.paired if f in person.sides["left"] and f in person.sides["right"])
+    if len(paired) < 3:
+        return
+    items = []
+    for frame in paired:
+        uv_l, uv_r = person.sides["left"][frame][2], person.sides["right"][frame][2]
+        both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
+        if both.sum() < config.min_shared_keypoints:
+            continue
+        sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(uv_l[both, 1]),
+                                                                             np.ptp(uv_r[both, 1]))
+        items.append((frame, float(np.median(uv_l[both, 0] - uv_r[both, 0])),
+                      1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())))
+    if len(items) < 3:
+        return
+    z = _smooth_disparity(np.array([i[0] for i in items], dtype=float), np.array([i[1] for i in items]),
+                          np.array([i[2] for i in items]), calib, config)
+    held = {side: defaultdict(int) for side in ("left", "right")}
+    for side in ("left", "right"):
+        for index, _, _ in person.sides[side].values():
+            held[side][index] += 1
+    for (frame, _, _), zf in zip(items, z):
+        if abs(zf) <= config.gate_sigmas:
+            continue
+        counts = {side: held[side][person.sides[side][frame][0]] for side in ("left", "right")}
+        intruder = "right" if counts["right"] < counts["left"] else "left"
+        del person.sides[intruder][frame]
+        person.paired.discard(frame)
+
+
 # ---------------------------------------------------------------------------------------------- observations
 
 def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: AssociationConfig,
@@ -687,6 +734,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
     out = []
     projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
     for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges):
+        drop_disparity_outliers(person, calib, config)
         frames = sorted(set(person.sides["left"]) | set(person.sides["right"]))
         if len(frames) < config.tracker.min_track_frames:
             continue
@@ -768,36 +816,117 @@ def _centres(track: list[Observation]) -> dict[int, tuple[np.ndarray, float]]:
     return out
 
 
+def _image_agreement(seen: list[Observation], centres: dict, camera_p: np.ndarray, calib_seen: StereoCalibration,
+                     config: AssociationConfig) -> float | None:
+    """How well one track's 3D centres explain another track's detections in its own images: the median over
+    the shared frames of the normalised horizontal pixel offset between the centre projected into each image
+    of ``seen`` and that detection's median keypoint (tolerance: ``merge_distance_m`` at the centre's depth,
+    and the centre's depth uncertainty moved along its viewing ray and seen from this camera), with the
+    keypoint span the centre's depth predicts (from the centre's own track) as a second term (log ratio over
+    twice ``size_sigma``).  ``centres``: frame -> (world centre, its depth sigma along the ray from
+    ``camera_p``, the known track's keypoint span in metres or None).  None when fewer than
+    ``merge_min_shared_frames`` frames are comparable."""
+    from pedx_graph.detections.lidar_cut import project_cloud
+
+    scores = []
+    for obs in seen:
+        if obs.frame not in centres:
+            continue
+        world_p, sigma, span_m = centres[obs.frame]
+        terms = []
+        for side, uv in obs.uv.items():
+            present = uv[np.all(np.isfinite(uv), axis=1)]
+            if len(present) < config.min_shared_keypoints:
+                continue
+            ray = world_p - camera_p
+            points = np.array([world_p])
+            if np.isfinite(sigma):
+                unit = ray / max(float(np.linalg.norm(ray)), 1e-9)
+                points = np.array([world_p, world_p + min(sigma, 5.0) * unit])
+            uv_c, depth = project_cloud(calib_seen, side, points)
+            if not np.all(np.isfinite(uv_c)) or depth[0] <= config.min_depth_m:
+                continue
+            f_px = calib_seen.focal_px
+            spread = abs(uv_c[1, 0] - uv_c[0, 0]) if len(points) == 2 else 0.0
+            tol = float(np.hypot(config.merge_distance_m * f_px / depth[0], spread))
+            offset = abs(float(np.median(present[:, 0])) - uv_c[0, 0]) / tol
+            size = 0.0
+            if span_m is not None and np.ptp(present[:, 1]) > 4:
+                size = abs(np.log(np.ptp(present[:, 1]) * depth[0] / f_px / span_m)) / (2 * config.size_sigma)
+            terms.append(max(offset, size))
+        if terms:
+            scores.append(min(terms))
+    if len(scores) < config.merge_min_shared_frames:
+        return None
+    return float(np.median(scores))
+
+
+def _span_m(track: list[Observation], calib: StereoCalibration) -> float | None:
+    """Median vertical keypoint span of a track's 3D frames in metres (pixels x depth / focal length)."""
+    spans = []
+    for obs in track:
+        if obs.world_p is None:
+            continue
+        for side, uv in obs.uv.items():
+            v = uv[np.all(np.isfinite(uv), axis=1), 1]
+            if len(v) >= 2 and np.ptp(v) > 4:
+                depth = float(calib.world_to_rect(np.asarray(obs.world_p, dtype=float))[2])
+                spans.append(np.ptp(v) * depth / calib.focal_px)
+    return float(np.median(spans)) if spans else None
+
+
 def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: GroundFrame,
-                      config: AssociationConfig) -> list[list[int]]:
+                      config: AssociationConfig,
+                      calibrations: Mapping[str, StereoCalibration] | None = None) -> list[list[int]]:
     """Groups of indices into ``pair_tracks`` (``(pair name, observations)``) that are one person (module
-    docstring, step 5); every index is in exactly one group."""
+    docstring, step 5); every index is in exactly one group.  With ``calibrations``, a track with too few 3D
+    centres of its own (seen in one image of its pair) is compared in its images with the other pair's 3D
+    centres (:func:`_image_agreement`)."""
     centres = [_centres(obs) for _, obs in pair_tracks]
+    spans = [(_span_m(obs, calibrations[pair]) if calibrations else None) for pair, obs in pair_tracks]
     candidates = []
     for a in range(len(pair_tracks)):
         for b in range(a + 1, len(pair_tracks)):
             if pair_tracks[a][0] == pair_tracks[b][0]:
                 continue
             shared = sorted(set(centres[a]) & set(centres[b]))
-            if len(shared) < config.merge_min_shared_frames:
+            if len(shared) >= config.merge_min_shared_frames:
+                pa = ground.to_level(np.array([centres[a][f][0] for f in shared]))[:, :2]
+                pb = ground.to_level(np.array([centres[b][f][0] for f in shared]))[:, :2]
+                sigma = np.sqrt(np.array([centres[a][f][1] ** 2 + centres[b][f][1] ** 2 for f in shared])
+                                + config.merge_distance_m ** 2)
+                score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
+            elif calibrations is not None:
+                # one of them is (mostly) seen in one image: the other's centres must explain its detections
+                options = []
+                for known, seen in ((a, b), (b, a)):
+                    if len(centres[known]) < config.merge_min_shared_frames:
+                        continue
+                    known_centres = {f: (c, s, spans[known]) for f, (c, s) in centres[known].items()}
+                    value = _image_agreement(pair_tracks[seen][1], known_centres,
+                                             _camera_centre(calibrations[pair_tracks[known][0]], "left"),
+                                             calibrations[pair_tracks[seen][0]], config)
+                    if value is not None:
+                        options.append(value)
+                if not options:
+                    continue
+                score = min(options)
+            else:
                 continue
-            pa = ground.to_level(np.array([centres[a][f][0] for f in shared]))[:, :2]
-            pb = ground.to_level(np.array([centres[b][f][0] for f in shared]))[:, :2]
-            sigma = np.sqrt(np.array([centres[a][f][1] ** 2 + centres[b][f][1] ** 2 for f in shared])
-                            + config.merge_distance_m ** 2)
-            score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
             if score <= 1.0:
                 candidates.append((score, a, b))
+    frames_of = [{o.frame for o in obs} for _, obs in pair_tracks]
     group_of = list(range(len(pair_tracks)))
     members = {i: {i} for i in range(len(pair_tracks))}
     for _, a, b in sorted(candidates):
         ga, gb = group_of[a], group_of[b]
         if ga == gb:
             continue
-        pairs_a = {pair_tracks[i][0] for i in members[ga]}
-        pairs_b = {pair_tracks[i][0] for i in members[gb]}
-        if pairs_a & pairs_b:
-            continue                          # never two tracks of one pair in one person
+        # never two tracks of one pair at one frame in one person (one pair's tracks of one person at
+        # different times — the person lost and found again — are one)
+        if any(pair_tracks[i][0] == pair_tracks[j][0] and frames_of[i] & frames_of[j]
+               for i in members[ga] for j in members[gb]):
+            continue
         for i in members[gb]:
             group_of[i] = ga
         members[ga] |= members.pop(gb)
@@ -805,6 +934,34 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
 
 
 # ---------------------------------------------------------------------------------------------- smoothing
+
+def _consensus(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float, max_step: float) -> np.ndarray:
+    """The centres (times ``x`` (n,), ground-plane positions ``y`` (n, 2), uncertainties ``sigma`` (n,)) that
+    the best-supported walking line explains within ``gate`` sigmas: of the lines through each centre
+    (standing) and through each two centres (speed clipped to ``max_step`` per frame), the one with most
+    such centres, ties to the smaller sum of squared normalised residuals.  A single centre with a small
+    uncertainty that lies on someone else (a wrong pairing, a cut on an occluder) no longer outweighs the
+    others, as it would in a weighted least-squares start."""
+    n = len(x)
+    lines = [(y[i], np.zeros(2)) for i in range(n)]
+    for i in range(n):
+        for j in range(i + 1, n):
+            if x[i] == x[j]:
+                continue
+            slope = (y[j] - y[i]) / (x[j] - x[i])
+            speed = float(np.linalg.norm(slope))
+            if speed > max_step:
+                slope = slope * max_step / speed
+            lines.append((y[i] - x[i] * slope, slope))
+    best, best_key = np.ones(n, dtype=bool), None
+    for offset, slope in lines:
+        z = np.linalg.norm(y - (offset + x[:, None] * slope), axis=1) / sigma
+        inside = z <= gate
+        key = (-int(inside.sum()), float(np.sum(z[inside] ** 2)))
+        if best_key is None or key < best_key:
+            best, best_key = inside, key
+    return best if best.any() else np.ones(n, dtype=bool)
+
 
 def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config: AssociationConfig) -> None:
     """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place."""
@@ -817,16 +974,21 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
     sigma = np.hypot(np.array([k[2] for k in known]), config.smooth_motion_m)
     height = float(np.median(level[:, 2]))
     world_R_level = ground.world_R_level
+    max_step = config.tracker.max_speed_mps * config.tracker.frame_interval_s
     for fr in frames:
         near = np.abs(t - fr.frame) <= config.smooth_window_frames
         if not near.any():
             continue
         x, y, w = t[near] - fr.frame, level[near, :2], 1.0 / sigma[near] ** 2
-        keep = np.ones(len(x), dtype=bool)
+        keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
         for _ in range(3):                       # weighted line per axis; outlying centres left out
             if len(np.unique(x[keep])) >= 2:
                 a = np.stack([np.ones(keep.sum()), x[keep]], axis=1) * np.sqrt(w[keep])[:, None]
                 coef = np.linalg.lstsq(a, y[keep] * np.sqrt(w[keep])[:, None], rcond=None)[0]
+                speed = float(np.linalg.norm(coef[1]))
+                if speed > max_step:            # no walker moves faster: the slope clipped, the offset refitted
+                    coef[1] *= max_step / speed
+                    coef[0] = np.average(y[keep] - x[keep, None] * coef[1], axis=0, weights=w[keep])
             else:
                 coef = np.stack([np.average(y[keep], axis=0, weights=w[keep]), np.zeros(2)])
             residual = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) / sigma[near]
@@ -838,6 +1000,42 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
         level_p = np.array([coef[0][0], coef[0][1], height])
         fr.world_p = ground.world_p_sensor + world_R_level @ level_p
         fr.depth_sigma_m = min(float(fr.depth_sigma_m), fit_sigma) if fr.frame in set(t[near][keep]) else fit_sigma
+
+
+def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
+                    calibrations: Mapping[str, StereoCalibration], config: AssociationConfig | None = None,
+                    ground: GroundFrame | None = None) -> list[DetectedTrack]:
+    """:class:`DetectedTrack` s of detections grouped by ids the files carry (``groups``: id -> frame -> camera
+    -> detection), with each frame's centre triangulated from the pair that saw the person in both images
+    (:func:`triangulate_centre`, the smallest depth uncertainty of the pairs) and smoothed over the track
+    (:func:`smooth_centres`) — what the LiDAR cut's depth gate needs when the ids come from the files."""
+    config = config or AssociationConfig()
+    ground = ground or ground_from_calibrations(dict(calibrations))
+    sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
+    out = []
+    for track_id in sorted(groups):
+        frames = []
+        for frame in sorted(groups[track_id]):
+            cams = dict(groups[track_id][frame])
+            entry = DetectedTrackFrame(frame=frame, detections=cams)
+            for name, calib in sorted(calibrations.items()):
+                left, right = name.split("-")
+                if left not in cams or right not in cams:
+                    continue
+                uv_l = _usable(rectified(cams[left], calib), cams[left].confidence, config.min_confidence)
+                uv_r = _usable(rectified(cams[right], calib), cams[right].confidence, config.min_confidence)
+                both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
+                if both.sum() < config.min_shared_keypoints or np.median(uv_l[both, 0] - uv_r[both, 0]) <= 0:
+                    continue
+                world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, sigma_disparity)
+                if sigma < entry.depth_sigma_m:
+                    entry.world_p, entry.depth_sigma_m = world_p, sigma
+            frames.append(entry)
+        smooth_centres(frames, ground, config)
+        pairs = tuple(sorted({name for name, calib in calibrations.items()
+                              if any(cam in name.split("-") for fr in frames for cam in fr.detections)}))
+        out.append(DetectedTrack(track_id=track_id, frames=frames, pairs=pairs))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- entry point
@@ -861,7 +1059,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
     for pair in sorted(by_pair):
         tracks += [(pair, track) for track in pair_tracks(by_pair[pair], calibrations[pair], config, ground, clouds)]
     people = []
-    for group in merge_pair_tracks(tracks, ground, config):
+    for group in merge_pair_tracks(tracks, ground, config, calibrations):
         frames: dict[int, DetectedTrackFrame] = {}
         for index in group:
             pair, track = tracks[index]

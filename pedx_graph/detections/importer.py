@@ -3,7 +3,8 @@
 Steps: read the files (:mod:`.openpose`, :mod:`.coco`; camera and frame from the file / image names,
 :mod:`.naming`) -> group them into people: the file's own ids with ``use_file_ids`` (OpenPose ``person_id``,
 COCO ``track_id``; every detection must have one), else :func:`pedx_graph.detections.association.associate`
-(stereo, over frames, across pairs) -> per person, frame and camera, undistort + rectify the keypoints
+(stereo, over frames, across pairs; with file ids each frame's centre is triangulated,
+:func:`~pedx_graph.detections.association.tracks_from_ids`) -> per person, frame and camera, undistort + rectify the keypoints
 (:func:`pedx_graph.detections.undistort.rectified`), drop those below the confidence threshold and turn the
 confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoiseConfig`) -> write
 ``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` with ``keypoint_set`` and per-keypoint
@@ -165,7 +166,7 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
 
 def _import_sequence(seq: str, detections: list[Detection], calibrations, out: Path, source_root: Path | None,
                      config: ImportConfig) -> dict:
-    from pedx_graph.detections.association import associate
+    from pedx_graph.detections.association import associate, tracks_from_ids
 
     known = [d for d in detections if _calibrated(d.camera, calibrations)]
     uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
@@ -173,16 +174,16 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         log.warning("%s: cameras %s are in no calibrated pair; their detections are skipped", seq, uncalibrated)
     clouds = _Clouds(source_root, seq) if source_root is not None else {}
     people: dict[str, dict[int, dict[str, Detection]]] = {}
-    tracks = None
+    from pedx_graph.data.ground import ground_from_calibrations
+    ground = ground_from_calibrations(dict(calibrations), seq)
     if config.use_file_ids:
         for tid, dets in sorted(_group_by_file_ids(known).items()):
             frames: dict[int, dict[str, Detection]] = defaultdict(dict)
             for det in sorted(dets, key=lambda d: (d.frame, d.camera, -d.score)):
                 frames[det.frame].setdefault(det.camera, det)
             people[tid] = frames
+        tracks = tracks_from_ids(people, calibrations, config.association, ground)     # centres for the cut
     else:
-        from pedx_graph.data.ground import ground_from_calibrations
-        ground = ground_from_calibrations(dict(calibrations), seq)
         tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground)
         for track in tracks:
             people[track.track_id] = {fr.frame: dict(fr.detections) for fr in track.frames}
@@ -198,11 +199,9 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
               "uncalibrated_cameras": uncalibrated}
-    if tracks is not None and len(clouds):
-        from pedx_graph.data.ground import ground_from_calibrations
+    if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
-        result["segments"] = write_track_segments(out, seq, tracks, calibrations,
-                                                  ground_from_calibrations(dict(calibrations), seq),
+        result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,
                                                   lambda frame: clouds[frame], config.lidar_cut)
     return result
 
