@@ -57,7 +57,10 @@ Steps:
    ``clouds``, a LiDAR centre replaces the stereo one where it agrees.  A paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
-   two).  A person with fewer than
+   two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
+   tried (:func:`repair_swaps`): a walker's image column is a straight line in time, so the exchange is
+   made when it straightens the two tracks clearly (a tracker carrying each on with the other while they
+   were missed in turns).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
    flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
@@ -68,7 +71,8 @@ Steps:
    one image of its pair) is compared in its own images instead (:func:`_image_agreement`): the other
    track's centres, projected, must lie under its detections within ``merge_distance_m`` (plus the
    centre's depth uncertainty seen from that camera), and its keypoint span must match the span the
-   centre's depth predicts.  Merged greedily, best agreement first, never two tracks of one pair at one
+   centre's depth predicts.  Merged greedily, best agreement first (the distance with each centre uncertain
+   along its viewing ray, ``centre_lateral_sigma_m`` across it), never two tracks of one pair at one
    frame (one pair's tracks of one person at different times — lost and found again — do join).
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
@@ -136,6 +140,10 @@ class AssociationConfig:
     merge_distance_m: float = 0.5
     """Tracks of two pairs are one person when their centres agree to this, metres, beyond their depth
     uncertainties (step 5)."""
+    centre_lateral_sigma_m: float = 0.1
+    """Uncertainty of a track's centre across its viewing ray (which body point the median of the keypoints or
+    of the LiDAR points lands on), metres: with the depth uncertainty along the ray it orders the merges of
+    tracks of two pairs (the better-agreeing pairing first)."""
     merge_min_shared_frames: int = 3
     """... over at least this many shared frames."""
     min_distance_m: float = 0.0
@@ -181,6 +189,9 @@ class AssociationConfig:
     tracklet_switch_cost: float = 1.0
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
+    swap_motion_m: float = 0.05
+    """How far a walker's position across the line of sight leaves a straight line over a track (sway, gentle
+    curves), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise."""
     smooth_window_frames: int = 5
     """Each frame's centre is the track's centres within this many frames fitted by a line in time
     (step 7), frames."""
@@ -763,7 +774,104 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                     _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views)
                     projections.update({(obs.frame, side): v for side, v in views.items()})
         out.append(track)
-    return out
+    return repair_swaps(out, calib, config)
+
+
+def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
+                 side: str = "left") -> tuple:
+    """A pair track as positions over time in one image (``side``): ``(frames (n,), u (n,) px, sigma (n,)
+    px)``; ``u`` is the median column of the detection's keypoints in that image, or in the other image
+    shifted by the track's median disparity (frames seen only in the other image are left out when the
+    track has no disparity); ``sigma`` the keypoint noise of that median plus how far a walker leaves a
+    straight line (``swap_motion_m`` at the track's depth)."""
+    disparities = [o.disparity_px for o in track if o.disparity_px is not None and o.disparity_px > 0]
+    disparity = float(np.median(disparities)) if disparities else None
+    shift = {"left": 0.0, "right": 0.0}
+    if disparity is not None:
+        shift = {side: 0.0, ("right" if side == "left" else "left"): disparity if side == "left" else -disparity}
+    frames, u, sigma = [], [], []
+    for obs in track:
+        seen = side if side in obs.uv else next(iter(obs.uv))
+        if seen != side and disparity is None:
+            continue
+        present = obs.uv[seen][np.all(np.isfinite(obs.uv[seen]), axis=1)]
+        if len(present) < config.min_shared_keypoints:
+            continue
+        height = float(np.ptp(present[:, 1]))
+        noise = (config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present))
+        px_per_m = disparity / calib.baseline_m if disparity else height / config.person_height_m
+        frames.append(obs.frame)
+        u.append(float(np.median(present[:, 0])) + shift[seen])
+        sigma.append(float(np.hypot(noise, config.swap_motion_m * px_per_m)))
+    return np.array(frames, dtype=float), np.array(u), np.array(sigma)
+
+
+def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float) -> float:
+    """Robust misfit of image positions to one straight walk ``u = a + b f``: the sum of ``min(z^2, gate^2)``
+    of the normalised residuals of the weighted line (iterated with outliers left out); 0 for < 3 frames."""
+    if len(frames) < 3:
+        return 0.0
+    keep = np.ones(len(frames), dtype=bool)
+    z = np.zeros(len(frames))
+    for _ in range(3):
+        if len(np.unique(frames[keep])) < 2:
+            break
+        w = 1.0 / sigma[keep]
+        coef = np.linalg.lstsq(np.stack([w, frames[keep] * w], axis=1), u[keep] * w, rcond=None)[0]
+        z = (u - coef[0] - coef[1] * frames) / sigma
+        new_keep = np.abs(z) <= gate
+        if np.array_equal(new_keep, keep) or new_keep.sum() < 2:
+            break
+        keep = new_keep
+    return float(np.sum(np.minimum(z ** 2, gate ** 2)))
+
+
+def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
+                 config: AssociationConfig) -> list[list[Observation]]:
+    """Undo identity swaps between one pair's tracks where two people pass each other in the image.
+
+    The per-camera tracker decides frame by frame; when the two are missed in turns while they overlap it can
+    carry each track on with the other person.  Over the whole track, a walker's image column is a straight
+    line in time (:func:`_image_track`, :func:`_walk_cost`); a swap shows as kinks or steps.  For two tracks that
+    come within half a person's height of each other in the image at frames at most 2 apart, every split
+    time ``tau`` within their common span is tried: heads kept, tails exchanged.  The exchange with the lowest
+    summed cost is made when it beats the tracks as they are by more than ``gate_sigmas^2``; repeated until no
+    exchange helps.  Returns the tracks (each in frame order)."""
+    gate = config.gate_sigmas
+    tracks = [list(t) for t in tracks]
+    for _ in range(2 * len(tracks)):
+        best = None
+        series = {side: [_image_track(t, calib, config, side) for t in tracks] for side in ("left", "right")}
+        for a in range(len(tracks)):
+            for b in range(a + 1, len(tracks)):
+                # compared in the image where both are seen most
+                side = max(("left", "right"), key=lambda sd: min(len(series[sd][a][0]), len(series[sd][b][0])))
+                fa, ua, _ = series[side][a]
+                fb, ub, _ = series[side][b]
+                if len(fa) < 2 or len(fb) < 2:
+                    continue
+                heights = [o.height_px(side) for o in tracks[a] + tracks[b] for side in o.uv]
+                near = (np.abs(fa[:, None] - fb[None, :]) <= 2) & \
+                    (np.abs(ua[:, None] - ub[None, :]) <= 0.5 * max(np.median(heights), 1.0))
+                if not near.any():
+                    continue
+                lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
+                def cost_of(track):
+                    return _walk_cost(*_image_track(track, calib, config, side), gate)
+
+                now = cost_of(tracks[a]) + cost_of(tracks[b])
+                for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo < o.frame <= hi}):
+                    new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
+                    new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
+                    cost = cost_of(new_a) + cost_of(new_b)
+                    gain = now - cost
+                    if gain > gate ** 2 and (best is None or gain > best[0]):
+                        best = (gain, a, b, new_a, new_b)
+        if best is None:
+            break
+        _, a, b, new_a, new_b = best
+        tracks[a], tracks[b] = new_a, new_b
+    return tracks
 
 
 def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray, ground: GroundFrame,
@@ -875,6 +983,22 @@ def _span_m(track: list[Observation], calib: StereoCalibration) -> float | None:
     return float(np.median(spans)) if spans else None
 
 
+def _ray_distance(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sigmas: list[np.ndarray],
+                  lateral_sigma_m: float) -> float:
+    """Median Mahalanobis distance between two tracks' ground-plane centres ``pa``, ``pb`` (n, 2): each centre
+    uncertain by its depth sigma (``sigmas``, (n,) each) along the ray from its camera (``cameras``, ground-plane
+    positions (2,)) and by ``lateral_sigma_m`` across it.  Two people one behind the other seen by two pairs
+    from different directions are told apart where an isotropic distance is not."""
+    cov = np.zeros((len(pa), 2, 2))
+    for points, camera, sigma in zip((pa, pb), cameras, sigmas):
+        ray = points - camera
+        ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-9)
+        along = np.minimum(sigma, 5.0) ** 2 - lateral_sigma_m ** 2
+        cov += lateral_sigma_m ** 2 * np.eye(2) + np.maximum(along, 0.0)[:, None, None] * ray[:, :, None] * ray[:, None, :]
+    diff = pa - pb
+    return float(np.median(np.sqrt(np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff[..., None])[..., 0]))))
+
+
 def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: GroundFrame,
                       config: AssociationConfig,
                       calibrations: Mapping[str, StereoCalibration] | None = None) -> list[list[int]]:
@@ -896,6 +1020,14 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
                 sigma = np.sqrt(np.array([centres[a][f][1] ** 2 + centres[b][f][1] ** 2 for f in shared])
                                 + config.merge_distance_m ** 2)
                 score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
+                if calibrations is not None and score <= 1.0:
+                    # ordered by the ray-aware distance: a centre is uncertain along its viewing ray only
+                    rays = [ground.to_level(_camera_centre(calibrations[pair_tracks[i][0]], "left"))[:2]
+                            for i in (a, b)]
+                    order = _ray_distance(pa, pb, rays, [np.array([centres[i][f][1] for f in shared]) for i in (a, b)],
+                                          config.centre_lateral_sigma_m)
+                    candidates.append((order, score, a, b))
+                    continue
             elif calibrations is not None:
                 # one of them is (mostly) seen in one image: the other's centres must explain its detections
                 options = []
@@ -914,11 +1046,11 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
             else:
                 continue
             if score <= 1.0:
-                candidates.append((score, a, b))
+                candidates.append((score, score, a, b))
     frames_of = [{o.frame for o in obs} for _, obs in pair_tracks]
     group_of = list(range(len(pair_tracks)))
     members = {i: {i} for i in range(len(pair_tracks))}
-    for _, a, b in sorted(candidates):
+    for _, _, a, b in sorted(candidates):
         ga, gb = group_of[a], group_of[b]
         if ga == gb:
             continue
