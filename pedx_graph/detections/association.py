@@ -65,14 +65,14 @@ Steps:
    flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
    person: over at least ``merge_min_shared_frames`` shared frames (a track's centre between two of its 3D
-   frames is interpolated), the median of the horizontal distance
-   divided by ``sqrt(sigma_a^2 + sigma_b^2 + merge_distance_m^2)`` (the two centres' depth uncertainties) is
-   at most 1.  A track with fewer than ``merge_min_shared_frames`` 3D centres shared with the other (seen in
+   frames is interpolated), the median of the horizontal distance, each centre uncertain by its depth sigma
+   along its viewing ray and by ``centre_lateral_sigma_m`` across it (:func:`_ray_distance`), is within
+   ``gate_sigmas`` (without calibrations: divided by ``sqrt(sigma_a^2 + sigma_b^2 + merge_distance_m^2)``,
+   at most 1).  A track with fewer than ``merge_min_shared_frames`` 3D centres shared with the other (seen in
    one image of its pair) is compared in its own images instead (:func:`_image_agreement`): the other
    track's centres, projected, must lie under its detections within ``merge_distance_m`` (plus the
    centre's depth uncertainty seen from that camera), and its keypoint span must match the span the
-   centre's depth predicts.  Merged greedily, best agreement first (the distance with each centre uncertain
-   along its viewing ray, ``centre_lateral_sigma_m`` across it), never two tracks of one pair at one
+   centre's depth predicts.  Merged greedily, best agreement first, never two tracks of one pair at one
    frame (one pair's tracks of one person at different times — lost and found again — do join).
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
@@ -138,12 +138,14 @@ class AssociationConfig:
     person_height_sigma: float = 0.2
     """... by ``log(implied / person_height_m) / person_height_sigma`` (adults and children, pose)."""
     merge_distance_m: float = 0.5
-    """Tracks of two pairs are one person when their centres agree to this, metres, beyond their depth
-    uncertainties (step 5)."""
-    centre_lateral_sigma_m: float = 0.1
+    """Without calibrations: tracks of two pairs are one person when their centres agree to this, metres,
+    beyond their depth uncertainties (step 5); with them, ``centre_lateral_sigma_m`` is used."""
+    centre_lateral_sigma_m: float = 0.15
     """Uncertainty of a track's centre across its viewing ray (which body point the median of the keypoints or
-    of the LiDAR points lands on), metres: with the depth uncertainty along the ray it orders the merges of
-    tracks of two pairs (the better-agreeing pairing first)."""
+    of the LiDAR points lands on, a walker's sway), metres: with calibrations, two pairs' tracks are one person
+    when the median over shared frames of their centres' distance, each centre uncertain by its depth sigma
+    along its ray and by this across it, is within ``gate_sigmas`` (people walking side by side half a metre
+    apart are told apart; ``merge_distance_m`` is the isotropic test used without calibrations)."""
     merge_min_shared_frames: int = 3
     """... over at least this many shared frames."""
     min_distance_m: float = 0.0
@@ -1020,13 +1022,15 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
                 sigma = np.sqrt(np.array([centres[a][f][1] ** 2 + centres[b][f][1] ** 2 for f in shared])
                                 + config.merge_distance_m ** 2)
                 score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
-                if calibrations is not None and score <= 1.0:
-                    # ordered by the ray-aware distance: a centre is uncertain along its viewing ray only
-                    rays = [ground.to_level(_camera_centre(calibrations[pair_tracks[i][0]], "left"))[:2]
-                            for i in (a, b)]
-                    order = _ray_distance(pa, pb, rays, [np.array([centres[i][f][1] for f in shared]) for i in (a, b)],
-                                          config.centre_lateral_sigma_m)
-                    candidates.append((order, score, a, b))
+                if calibrations is not None:
+                    # a centre is uncertain along its viewing ray, hardly across it: gated and ordered so
+                    cameras = [ground.to_level(_camera_centre(calibrations[pair_tracks[i][0]], "left"))[:2]
+                               for i in (a, b)]
+                    distance = _ray_distance(pa, pb, cameras,
+                                             [np.array([centres[i][f][1] for f in shared]) for i in (a, b)],
+                                             config.centre_lateral_sigma_m)
+                    if distance <= config.gate_sigmas:
+                        candidates.append((distance / config.gate_sigmas, a, b))
                     continue
             elif calibrations is not None:
                 # one of them is (mostly) seen in one image: the other's centres must explain its detections
@@ -1046,11 +1050,11 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
             else:
                 continue
             if score <= 1.0:
-                candidates.append((score, score, a, b))
+                candidates.append((score, a, b))
     frames_of = [{o.frame for o in obs} for _, obs in pair_tracks]
     group_of = list(range(len(pair_tracks)))
     members = {i: {i} for i in range(len(pair_tracks))}
-    for _, _, a, b in sorted(candidates):
+    for _, a, b in sorted(candidates):
         ga, gb = group_of[a], group_of[b]
         if ga == gb:
             continue
