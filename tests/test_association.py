@@ -491,3 +491,18 @@ def test_two_pairs_pair_up_people_walking_side_by_side_by_their_rays():
     groups = merge_pair_tracks(tracks, ground, AssociationConfig(), calibs)
     merged = [g for g in groups if len(g) == 2]
     assert len(merged) == 2 and all(owner[g[0]] == owner[g[1]] for g in merged), [[owner[i] for i in g] for g in groups]
+
+
+def test_the_far_walker_keeps_its_own_depth_behind_the_near_one():
+    """The two walkers one behind the other (21 and 22 m): the far one's LiDAR cut also holds the near one's
+    points in front of it.  Its centre comes from its own LiDAR cluster or from stereo, never from the near
+    one: over the track the far person's centres lie about a metre beyond the near person's."""
+    for seed in range(3):
+        tracks, owners = _walkers_together(True, seed)
+        ranges = {}
+        for track in tracks:
+            who = _who(track, owners)
+            assert len(who) == 1, seed
+            ranges[who.pop()] = np.median([np.linalg.norm(fr.world_p) for fr in track.frames
+                                           if fr.world_p is not None])
+        assert 0.5 < ranges["b"] - ranges["a"] < 1.5, (seed, ranges)

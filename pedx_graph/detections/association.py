@@ -773,7 +773,10 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             for obs in track:
                 if obs.world_p is not None and obs.frame in clouds:
                     views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
-                    _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views)
+                    claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
+                                      if id(d) in ranges] for side in ("left", "right")}
+                    _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views,
+                                  ranges if config.lidar_identity else None, claimed)
                     projections.update({(obs.frame, side): v for side, v in views.items()})
         out.append(track)
     return repair_swaps(out, calib, config)
@@ -877,12 +880,21 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
 
 
 def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray, ground: GroundFrame,
-                  config: AssociationConfig, projections: dict) -> None:
+                  config: AssociationConfig, projections: dict, ranges: Mapping[int, float] | None = None,
+                  claimed: Mapping[str, list[float]] | None = None) -> None:
     """Replace the observation's centre by the median of its LiDAR cut when the cut is large enough
-    (``projections``: side -> the cloud projected into that image, filled on first use)."""
+    (``projections``: side -> the cloud projected into that image, filled on first use).  With ``ranges``
+    (:func:`detection_ranges`: each image's clusters given one to one to its detections), the cut must lie
+    at the range of the detection's own cluster (within ``lidar_range_sigma_m``) when it has one; a detection
+    without one keeps its stereo centre when the cut lies at a range another detection of that image holds
+    (``claimed``: side -> those ranges): a far person's cut that caught the near person in front is not taken
+    for the far person's centre."""
     from pedx_graph.detections.lidar_cut import cut_person, project_cloud
 
     side = "left" if "left" in obs.uv else "right"
+    own_range = None
+    if ranges is not None and isinstance(obs.payload, dict):
+        own_range = ranges.get(id(obs.payload[side]))
     depth = None
     if obs.world_p is not None:
         depth = float(calib.world_to_rect(obs.world_p)[2])
@@ -894,6 +906,12 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     if len(points) < config.lidar_min_points:
         return
     centre = ground.median_point(points)
+    centre_range = float(calib.world_to_rect(centre)[2])
+    if own_range is not None and abs(centre_range - own_range) > config.lidar_range_sigma_m:
+        return
+    if own_range is None and claimed and any(abs(centre_range - r) <= config.lidar_range_sigma_m
+                                             for r in claimed.get(side, [])):
+        return
     # accepted only where it agrees with the stereo centre (a cut that caught an occluder does not)
     offset = np.linalg.norm(ground.to_level(centre)[:2] - ground.to_level(obs.world_p)[:2])
     if offset <= config.gate_sigmas * obs.depth_sigma_m + config.lidar_agreement_m:
