@@ -1,4 +1,4 @@
-"""E_J (PedX): reprojection of the body model's 18 keypoints into every rectified image that labels them.
+"""E_J (PedX): reprojection of the body model's N keypoint rows into every rectified image that labels them.
 
 The factor kind is still called ``stereo_reprojection`` (E_J,l + E_J,r of the paper), but one factor holds
 all K >= 1 labelled images of the pedestrian at that frame: the left and right images of the frame's
@@ -14,18 +14,23 @@ Measurement model, for each labelled keypoint k of image c = 1..K (pixels of the
 ``P_rect_c`` is the pair's ``left_P_rect`` or ``right_P_rect`` (both act on points of the pair's rectified
 left frame ``rect``), ``rect_T_world`` the pair's world -> rectified-left transform (world = LiDAR frame,
 metres).  ``world_p_k`` comes from ``BodyModel.point_jacobians``.  Rows: image by image in the order given,
-each image's labelled keypoints (u, v) in PEDX_KEYPOINTS order.  The depth ``w`` is clamped to
+each image's labelled keypoints (u, v) in row order.  The depth ``w`` is clamped to
 ``min_depth`` metres (its derivative is then dropped) so points behind a camera stay finite.
 
+Keypoint rows: N = 18 for PedX labels (PEDX_KEYPOINTS order); a track labelled in a detector's keypoint set
+is fitted through a *fit layout* of N = 18 + E rows (``pedx_graph.detections.fit_layout``: the 18 PedX rows,
+then the set's E keypoints without a PedX row), the body model's keypoints in the same rows.  The term takes
+N from the labels (every image of a factor has the same N); the per-keypoint arrays below have N entries.
+
 Noise: per-row sigma ``sigma_px`` for keypoints flagged visible and ``sigma_occluded_px`` for labelled but
-not visible ones — each a scalar or an (18,) array of pixels per keypoint (e.g. click noise estimated per
+not visible ones — each a scalar or an (N,) array of pixels per keypoint (e.g. click noise estimated per
 keypoint from the labels) — divided by ``sqrt(weight_k)`` (``keypoint_weights``: relative weight of each
-keypoint's squared error; 0 drops it; by default the hips get 0.25 because the annotators click the hip
-surface while the model's hip joints sit inside the pelvis).  A label's own per-keypoint sigma
-(``ImageKeypoints.sigma_px``: imported detections, from their confidences) replaces ``sigma_px`` /
-``sigma_occluded_px`` for that row and image (the keypoint weight still applies).  Optionally robust per row
-(``factors.common.make_noise``; Geman-McClure by default, scale in whitened units).  Jacobians:
-``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w`` with ``M = image_P_world[:, :3]``, chained with the
+keypoint's squared error, (N,); 0 drops it; by default the hips get 0.25 because the annotators click the
+hip surface while the model's hip joints sit inside the pelvis, and rows past the 18th get 1).  A label's
+own per-keypoint sigma (``ImageKeypoints.sigma_px``: imported detections, from their confidences)
+replaces ``sigma_px`` / ``sigma_occluded_px`` for that row and image (the keypoint weight still applies).
+Optionally robust per row (``factors.common.make_noise``; Geman-McClure by default, scale in whitened
+units).  Jacobians: ``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w`` with ``M = image_P_world[:, :3]``, chained with the
 body-model point Jacobians.
 
 Batched paths (the track's term cache, the batch linearizer, the stream's frame systems) evaluate T frames
@@ -70,14 +75,20 @@ class View2D(Protocol):
     """What the term reads of one image's labels (``pedx_graph.data.types.View2D``)."""
 
     keypoints: np.ndarray
-    """(18, 2) pixels, NaN where not labelled."""
+    """(N, 2) pixels, NaN where not labelled (N = 18: PedX's; 18 + E: a fit layout)."""
     visible: np.ndarray
-    """(18,) bool."""
+    """(N,) bool."""
 
+#: The PedX keypoint rows (the first rows of every layout; K of plain PedX labels).
 NUM_KEYPOINTS = len(PEDX_KEYPOINTS)
 
 #: Relative weights of the 18 keypoints' squared errors (PEDX_KEYPOINTS order): hips 0.25, others 1.
 DEFAULT_KEYPOINT_WEIGHTS = np.array([0.25 if name in ("lhip", "rhip") else 1.0 for name in PEDX_KEYPOINTS])
+
+
+def default_keypoint_weights(count: int = NUM_KEYPOINTS) -> np.ndarray:
+    """(count,) default weights: :data:`DEFAULT_KEYPOINT_WEIGHTS` on the 18 PedX rows, 1 on the rows after."""
+    return np.concatenate([DEFAULT_KEYPOINT_WEIGHTS, np.ones(max(int(count) - NUM_KEYPOINTS, 0))])[:int(count)]
 
 #: Projection of a padding image in the batched paths: every point maps to pixel (0, 0) at depth 1.
 _PAD_PROJECTION = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
@@ -99,15 +110,15 @@ class ImageKeypoints:
     """2D keypoint labels of one pedestrian in one rectified image, with that image's projection."""
 
     uv: np.ndarray
-    """(18, 2) pixels, NaN where not labelled."""
+    """(N, 2) pixels, NaN where not labelled (N: the keypoint rows, see the module docstring)."""
     visible: np.ndarray
-    """(18,) bool, the annotator's visible flag."""
+    """(N,) bool, the annotator's visible flag."""
     image_P_world: np.ndarray
     """(3, 4) projection of world (LiDAR) points in metres to homogeneous pixels (:func:`image_projection`)."""
     name: str = ""
     """Which image, e.g. ``"ylw79D0-red707B/left"`` (for messages only)."""
     sigma_px: np.ndarray | None = None
-    """(18,) the labels' own pixel sigma per keypoint (imported detections: from their confidences), NaN where
+    """(N,) the labels' own pixel sigma per keypoint (imported detections: from their confidences), NaN where
     the label file gives none; where finite it replaces the configured sigma of that row (the keypoint weight
     still divides it).  None: the configured sigmas for every row."""
 
@@ -143,9 +154,11 @@ class StereoKeypoints:
     @staticmethod
     def from_views(left: View2D | None, right: View2D | None) -> "StereoKeypoints":
         """From the ``TrackFrame.left`` / ``.right`` labels (either may be None: nothing labelled there)."""
+        count = next((len(v.keypoints) for v in (left, right) if v is not None), NUM_KEYPOINTS)
+
         def parts(view):
             if view is None:
-                return np.full((NUM_KEYPOINTS, 2), np.nan), np.zeros(NUM_KEYPOINTS, bool)
+                return np.full((count, 2), np.nan), np.zeros(count, bool)
             return as_f64(view.keypoints), np.asarray(view.visible, dtype=bool)
         luv, lvis = parts(left)
         ruv, rvis = parts(right)
@@ -180,6 +193,8 @@ class StereoSetup:
     min_depth: float
     projections: np.ndarray = field(default=None, repr=False)
     """(K, 3, 4) the images' ``image_P_world`` stacked (filled on construction)."""
+    num_keypoints: int = NUM_KEYPOINTS
+    """The keypoint rows of every image (18, or 18 + E in a fit layout): the model's keypoints it projects."""
 
     def __post_init__(self) -> None:
         if self.projections is None:
@@ -207,11 +222,11 @@ class StereoTerm:
     robust_scale: float
 
 
-def _per_keypoint(value, what: str) -> np.ndarray:
-    """A scalar or an (18,) array of pixels as an (18,) array; every entry finite and > 0."""
-    arr = np.broadcast_to(as_f64(value), (NUM_KEYPOINTS,)) if np.ndim(value) == 0 else as_f64(value)
-    if arr.shape != (NUM_KEYPOINTS,) or not np.all(np.isfinite(arr) & (arr > 0)):
-        raise ValueError(f"reprojection: {what} must be a positive scalar or ({NUM_KEYPOINTS},) array of "
+def _per_keypoint(value, what: str, count: int) -> np.ndarray:
+    """A scalar or a (count,) array of pixels as a (count,) array; every entry finite and > 0."""
+    arr = np.broadcast_to(as_f64(value), (count,)) if np.ndim(value) == 0 else as_f64(value)
+    if arr.shape != (count,) or not np.all(np.isfinite(arr) & (arr > 0)):
+        raise ValueError(f"reprojection: {what} must be a positive scalar or ({count},) array of "
                          f"positive pixels, got {value!r}")
     return arr
 
@@ -219,22 +234,24 @@ def _per_keypoint(value, what: str) -> np.ndarray:
 def build_reprojection_setup(images: Sequence[ImageKeypoints], sigma_px=2.0, sigma_occluded_px=6.0,
                              keypoint_weights: np.ndarray | None = None, min_depth: float = 0.1) -> StereoSetup:
     """Select each image's rows (labelled, finite, weight > 0) and their sigmas; images without any row are
-    left out.  ``sigma_px`` / ``sigma_occluded_px``: pixels, scalar or (18,) per keypoint."""
-    sigma_vis = _per_keypoint(sigma_px, "sigma_px")
-    sigma_occ = _per_keypoint(sigma_occluded_px, "sigma_occluded_px")
+    left out.  ``sigma_px`` / ``sigma_occluded_px``: pixels, scalar or (N,) per keypoint, N the images'
+    keypoint rows (every image the same; 18 when there is no image)."""
+    count = len(images[0].uv) if len(images) else NUM_KEYPOINTS
+    sigma_vis = _per_keypoint(sigma_px, "sigma_px", count)
+    sigma_occ = _per_keypoint(sigma_occluded_px, "sigma_occluded_px", count)
     if not min_depth > 0:
         raise ValueError(f"reprojection: min_depth must be > 0, got {min_depth}")
-    weights = DEFAULT_KEYPOINT_WEIGHTS if keypoint_weights is None else as_f64(keypoint_weights)
-    if weights.shape != (NUM_KEYPOINTS,) or np.any(weights < 0):
-        raise ValueError(f"keypoint_weights must be ({NUM_KEYPOINTS},) and >= 0, got {weights}")
+    weights = default_keypoint_weights(count) if keypoint_weights is None else as_f64(keypoint_weights)
+    if weights.shape != (count,) or np.any(weights < 0):
+        raise ValueError(f"keypoint_weights must be ({count},) and >= 0, got {weights}")
     rows, sigmas = [], []
     for image in images:
         uv = as_f64(image.uv)
         vis = np.asarray(image.visible, dtype=bool)
         proj = as_f64(image.image_P_world)
-        if uv.shape != (NUM_KEYPOINTS, 2) or vis.shape != (NUM_KEYPOINTS,) or proj.shape != (3, 4):
-            raise ValueError(f"image {image.name or len(rows)}: keypoints must be ({NUM_KEYPOINTS}, 2) with "
-                             f"({NUM_KEYPOINTS},) visible flags and a (3, 4) projection, got {uv.shape}, "
+        if uv.shape != (count, 2) or vis.shape != (count,) or proj.shape != (3, 4):
+            raise ValueError(f"image {image.name or len(rows)}: keypoints must be ({count}, 2) with "
+                             f"({count},) visible flags and a (3, 4) projection, got {uv.shape}, "
                              f"{vis.shape} and {proj.shape}")
         idx = np.flatnonzero(np.all(np.isfinite(uv), axis=1) & (weights > 0))
         if idx.size == 0:
@@ -247,7 +264,7 @@ def build_reprojection_setup(images: Sequence[ImageKeypoints], sigma_px=2.0, sig
         sigmas.append(np.repeat(sig, 2))
         rows.append(_ImageRows(index=idx, uv=uv[idx], image_P_world=proj))
     return StereoSetup(images=tuple(rows), sigmas=np.concatenate(sigmas) if sigmas else np.zeros(0),
-                       min_depth=float(min_depth))
+                       min_depth=float(min_depth), num_keypoints=int(count))
 
 
 def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px=2.0,
@@ -259,7 +276,7 @@ def build_stereo_setup(measurement: StereoKeypoints, calibration: StereoCalibrat
 
 
 def _keypoints(model: BodyModelLike, state: FrameState) -> np.ndarray:
-    """(18, 3) world keypoints; ``model.keypoints`` (cheap: few vertices) when the model has it."""
+    """(K, 3) world keypoints; ``model.keypoints`` (cheap: few vertices) when the model has it."""
     if hasattr(model, "keypoints") and callable(model.keypoints):
         return model.keypoints(state.full_pose, state.betas, state.trans)
     return model.forward(state.full_pose, state.betas, state.trans).keypoints
@@ -282,28 +299,29 @@ def _stacked_projections(setups: Sequence[StereoSetup], num_images: int) -> np.n
 
 def stereo_pixels(points: np.ndarray, setups: Sequence[StereoSetup], derivatives: bool = False
                   ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Pixels of all 18 keypoints of T frames (T, 18, 3) in each frame's images, ``uv`` (T, K, 18, 2) with
+    """Pixels of all N keypoints of T frames (T, N, 3) in each frame's images, ``uv`` (T, K, N, 2) with
     K = :func:`batch_images` (frames with fewer images padded: pixels 0), and (when ``derivatives``)
-    ``d uv / d point`` (T, K, 18, 2, 3) (0 on padding images)."""
+    ``d uv / d point`` (T, K, N, 2, 3) (0 on padding images).  N: the keypoint rows (18, or 18 + E in a fit
+    layout)."""
     points = as_f64(points)
     proj = _stacked_projections(setups, batch_images(setups))                         # (T, K, 3, 4)
     proj_m, proj_c = proj[..., :3], proj[..., 3]
     min_depth = np.array([su.min_depth for su in setups])[:, None, None]
-    hom = points[:, None] @ np.swapaxes(proj_m, 2, 3) + proj_c[:, :, None]          # (T, K, 18, 3)
+    hom = points[:, None] @ np.swapaxes(proj_m, 2, 3) + proj_c[:, :, None]          # (T, K, N, 3)
     depth = hom[..., 2]
     clamped = depth < min_depth
     w = np.where(clamped, min_depth, depth)
-    uv = hom[..., :2] / w[..., None]                                                 # (T, K, 18, 2)
+    uv = hom[..., :2] / w[..., None]                                                 # (T, K, N, 2)
     if not derivatives:
         return uv, None
     keep = np.where(clamped, 0.0, 1.0)[..., None, None]
     d_uv = (proj_m[:, :, None, :2, :] - keep * uv[..., :, None] * proj_m[:, :, None, 2:3, :]) \
-        / w[..., None, None]                                                         # (T, K, 18, 2, 3)
+        / w[..., None, None]                                                         # (T, K, N, 2, 3)
     return uv, d_uv
 
 
 def stereo_blocks(d_uv: np.ndarray, jac) -> list[np.ndarray]:
-    """``[d uv / d root, trans, body_pose, betas]``, each (T, K, 18, 2, k), from :func:`stereo_pixels`'
+    """``[d uv / d root, trans, body_pose, betas]``, each (T, K, N, 2, k), from :func:`stereo_pixels`'
     ``d_uv`` and the keypoints' ``PointJacobians`` with leading dimension T."""
     return [d_uv @ np.asarray(getattr(jac, name), dtype=np.float64)[:, None]
             for name in ("d_root", "d_trans", "d_body_pose", "d_betas")]
@@ -311,9 +329,9 @@ def stereo_blocks(d_uv: np.ndarray, jac) -> list[np.ndarray]:
 
 def stereo_project(points: np.ndarray, setups: Sequence[StereoSetup], jac=None
                    ) -> tuple[np.ndarray, list[np.ndarray] | None]:
-    """Pixels of all 18 keypoints of T frames in their images, ``uv`` (T, K, 18, 2), and (when ``jac``, the
+    """Pixels of all N keypoints of T frames in their images, ``uv`` (T, K, N, 2), and (when ``jac``, the
     keypoints' ``PointJacobians`` with leading dimension T, is given) ``[d uv / d root, trans, body_pose,
-    betas]``, each (T, K, 18, 2, k) — every frame with its own setup's projections, in batched products."""
+    betas]``, each (T, K, N, 2, k) — every frame with its own setup's projections, in batched products."""
     uv, d_uv = stereo_pixels(points, setups, jac is not None)
     return uv, None if jac is None else stereo_blocks(d_uv, jac)
 
@@ -335,9 +353,10 @@ def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup],
                               ) -> list[tuple[np.ndarray, list[np.ndarray] | None]]:
     """Unwhitened residuals and (when ``jac`` is given) Jacobian blocks of T frames at once.
 
-    ``points`` (T, 18, 3) world keypoints; ``setups`` one :class:`StereoSetup` per frame; ``jac`` the
-    keypoints' ``PointJacobians`` with leading dimension T (or None).  Returns per frame ``(r (m,),
-    [J_root, J_trans, J_body_pose, J_betas] or None)``: :func:`stereo_project` then :func:`stereo_select`.
+    ``points`` (T, N, 3) world keypoints (N: the setups' keypoint rows); ``setups`` one :class:`StereoSetup`
+    per frame; ``jac`` the keypoints' ``PointJacobians`` with leading dimension T (or None).  Returns per
+    frame ``(r (m,), [J_root, J_trans, J_body_pose, J_betas] or None)``: :func:`stereo_project` then
+    :func:`stereo_select`.
     """
     uv, full = stereo_project(points, setups, jac)
     return [stereo_select(uv, full, su, f) for f, su in enumerate(setups)]
@@ -345,11 +364,11 @@ def stereo_reprojection_batch(points: np.ndarray, setups: Sequence[StereoSetup],
 
 def stereo_dense_rows(setup: StereoSetup, num_images: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The setup's measurements and inverse sigmas laid out like one frame of :func:`stereo_pixels`' ``uv``:
-    (K, 18, 2) each (K = ``num_images``, default the setup's own), with inverse sigma 0 (and measurement 0)
-    on the rows the factor does not use and on padding images."""
+    (K, N, 2) each (K = ``num_images``, default the setup's own; N = ``setup.num_keypoints``), with inverse
+    sigma 0 (and measurement 0) on the rows the factor does not use and on padding images."""
     k = setup.num_images if num_images is None else int(num_images)
-    meas = np.zeros((k, NUM_KEYPOINTS, 2))
-    inv_sigma = np.zeros((k, NUM_KEYPOINTS, 2))
+    meas = np.zeros((k, setup.num_keypoints, 2))
+    inv_sigma = np.zeros((k, setup.num_keypoints, 2))
     start = 0
     for c, img in enumerate(setup.images):
         n = len(img.index)
@@ -360,14 +379,15 @@ def stereo_dense_rows(setup: StereoSetup, num_images: int | None = None) -> tupl
 
 
 def reprojection_rows(setups: Sequence[StereoSetup], num_images: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`stereo_dense_rows` of G factors stacked: measurements and inverse sigmas (G, K, 18, 2)."""
+    """:func:`stereo_dense_rows` of G factors stacked: measurements and inverse sigmas (G, K, N, 2) (every
+    factor of a batch has the same N: one track, one body model)."""
     dense = [stereo_dense_rows(su, num_images) for su in setups]
     return np.stack([m for m, _ in dense]), np.stack([i for _, i in dense])
 
 
 def reprojection_whiten(uv: np.ndarray, meas: np.ndarray, inv_sigma: np.ndarray,
                         kernels: Sequence[tuple[str, float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """G factors' whitened rows ``e`` (G, R) (R = K * 36), per-row losses ``rho(e)`` (0 on unused rows) and
+    """G factors' whitened rows ``e`` (G, R) (R = K * N * 2), per-row losses ``rho(e)`` (0 on unused rows) and
     IRLS weights (:func:`factors.common.row_loss_and_weight`), and inverse sigmas (G, R), from the batched
     pixels ``uv`` and :func:`reprojection_rows`; ``kernels``: each factor's ``(robust, robust_scale)``."""
     num = len(kernels)
@@ -384,16 +404,16 @@ def reprojection_normal_equations(d_uv: np.ndarray, jac, white: np.ndarray, weig
     ``[root (3), trans (3), body_pose (69), betas (B)]`` (D = 75 + B).
 
     Formed through the keypoints: the rows of keypoint k in all images are ``D_k J_k`` (D_k: the whitened,
-    weighted pixel derivatives (2K, 3) from ``d_uv`` (G, K, 18, 2, 3), J_k: the keypoint's Jacobian
+    weighted pixel derivatives (2K, 3) from ``d_uv`` (G, K, N, 2, 3), J_k: the keypoint's Jacobian
     (3, D) from ``jac``, ``PointJacobians`` with leading dimension G), so ``A^T A = sum_k J_k^T (D_k^T D_k)
-    J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` — 54 keypoint rows per frame whatever K.  ``white``,
+    J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` — 3 N keypoint rows per frame whatever K.  ``white``,
     ``weight``, ``inv`` from :func:`reprojection_whiten` (unused and padding rows: ``inv`` 0)."""
     num = white.shape[0]
-    row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                  # (G, K, 18, 2); unused rows: 0
-    info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)         # D_k^T D_k, (G, 18, 3, 3)
-    pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)   # (G, 18, 3)
+    row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                  # (G, K, N, 2); unused rows: 0
+    info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)         # D_k^T D_k, (G, N, 3, 3)
+    pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)   # (G, N, 3)
     jk = np.concatenate([jac.d_root, np.broadcast_to(jac.d_trans, jac.d_root.shape), jac.d_body_pose,
-                         jac.d_betas], axis=3)                            # (G, 18, 3, D)
+                         jac.d_betas], axis=3)                            # (G, N, 3, D)
     rows = jk.reshape(num, -1, jk.shape[3])
     rows_t = np.swapaxes(rows, 1, 2)
     return (rows_t @ (info @ jk).reshape(rows.shape), (rows_t @ pull.reshape(num, -1, 1))[:, :, 0],
@@ -429,7 +449,7 @@ def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLi
     (kind ``stereo_reprojection``).
 
     Returns ``None`` when no keypoint is labelled (with weight > 0) in any image.  ``sigma_px`` /
-    ``sigma_occluded_px`` in pixels (scalar or (18,) per keypoint); ``robust_scale`` in whitened units.
+    ``sigma_occluded_px`` in pixels (scalar or (N,) per keypoint row); ``robust_scale`` in whitened units.
     """
     setup = build_reprojection_setup(images, sigma_px, sigma_occluded_px, keypoint_weights, min_depth)
     if setup.rows == 0:

@@ -87,7 +87,7 @@ def test_layout_track_moves_views_into_pedx_rows(scene):
     laid = layout_track(coco_track)
     assert laid.keypoint_set == "pedx18"
     view = laid.frames[0].left or laid.frames[0].right
-    assert view.keypoints.shape == (18, 2)
+    assert view.keypoints.shape == (18 + 2, 2)                   # the PedX rows, then COCO's two ears
     assert not view.labelled[PEDX_KEYPOINTS.index("head")] and view.labelled[PEDX_KEYPOINTS.index("lsho")]
     assert np.nanmax(view.sigma_px) == NOISE_PX
     laid = layout_track(coco_track, model_sigma_px=1.5)

@@ -191,6 +191,17 @@ class BodyModel:
         """Name of the keypoint set :meth:`keypoints` returns (``"pedx18"`` unless :meth:`for_keypoint_set`)."""
         return getattr(self, "_keypoint_set", "pedx18")
 
+    @property
+    def report_model(self) -> "BodyModel":
+        """The model whose keypoints results report (PedX's 18): this model, or for a detector track's fit
+        layout (``pedx_graph.detections.fit_layout.layout_model``, 18 + E keypoints) the model it was made
+        from."""
+        return getattr(self, "_report_model", self)
+
+    @report_model.setter
+    def report_model(self, model: "BodyModel") -> None:
+        self._report_model = model
+
     def keypoint_set_map(self, set_name: str) -> KeypointMap:
         """The :class:`KeypointMap` of keypoint set ``set_name`` on this model (:func:`keypoint_set_map`)."""
         return keypoint_set_map(self.data, set_name)

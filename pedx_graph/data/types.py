@@ -19,6 +19,7 @@ the LiDAR frame (the file's ``R``/``T`` or ``Tr``).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -124,7 +125,9 @@ class View2D:
     keypoint_set: str = "pedx18"
     """Which keypoints :attr:`keypoints` holds, in that set's order (``pedx18``: the 18 PedX keypoints;
     ``coco17``, ``body25``, ...: a detector's, see ``pedx_graph/body/data/keypoint_sets``).  With another
-    set, ``keypoints``, ``visible`` and :attr:`sigma_px` have that set's length instead of 18."""
+    set, ``keypoints``, ``visible`` and :attr:`sigma_px` have that set's length instead of 18.  A detector
+    track laid out for the fit (``pedx_graph.detections.fit_layout``) has ``pedx18`` views of 18 + E rows:
+    the 18 PedX rows, then the set's keypoints without a PedX row (:meth:`pedx_rows`: the first 18)."""
     sigma_px: np.ndarray | None = None
     """(K,) per-keypoint pixel noise (per axis) from the label file (a detector's confidence turned into
     noise by ``pedx-graph import``), NaN where the file gives none; None: the config's noise for all."""
@@ -135,6 +138,18 @@ class View2D:
     def labelled(self) -> np.ndarray:
         """(18,) bool (K in another keypoint set): the joint has a 2D position."""
         return np.all(np.isfinite(self.keypoints), axis=-1)
+
+    def pedx_rows(self) -> "View2D":
+        """This view's 18 PedX rows (a fit layout's first 18, :attr:`keypoint_set`); itself when it has 18
+        rows (or is in another set)."""
+        count = len(PEDX_KEYPOINTS)
+        if self.keypoint_set != "pedx18" or len(self.keypoints) == count:
+            return self
+
+        def cut(arr):
+            return None if arr is None else arr[:count]
+        return dataclasses.replace(self, keypoints=self.keypoints[:count], visible=self.visible[:count],
+                                   sigma_px=cut(self.sigma_px), confidence=cut(self.confidence))
 
 
 @dataclass
@@ -163,6 +178,19 @@ class TrackFrame:
     """Labels of the same instance at this frame in other stereo pairs: pair name (a key into
     :attr:`Track.calibrations`, never :attr:`pair`) -> (left, right) views, either None when not labelled
     there.  Empty when only the primary pair saw it."""
+
+    def pedx_rows(self) -> "TrackFrame":
+        """This frame with every view cut to its 18 PedX rows (:meth:`View2D.pedx_rows`): the steps that look
+        keypoints up by PedX name or row (initialisation, triangulation, body-size depth); itself when every
+        view has 18 rows."""
+
+        def cut(view):
+            return None if view is None else view.pedx_rows()
+        views = [self.left, self.right] + [v for pair in self.other_views.values() for v in pair]
+        if all(v is None or v.pedx_rows() is v for v in views):
+            return self
+        return dataclasses.replace(self, left=cut(self.left), right=cut(self.right),
+                                   other_views={p: (cut(a), cut(b)) for p, (a, b) in self.other_views.items()})
 
     @property
     def pairs(self) -> list[str]:

@@ -192,8 +192,9 @@ class BatchedBodyModel:
     def _evaluate_terms(self, keys: list[FrameKeys], states: list[FrameState], jac, keypoints,
                         kinds=None, setup=None, subset_vertices=None) -> None:
         """Every registered term (of ``kinds``; all when None) at the prefetched states; ``jac`` (keypoint
-        Jacobians of all frames) or ``keypoints`` (T, 18, 3), the model's Jacobian ``setup`` of all frames
-        (with ``jac``) and the posed ``subset_vertices`` (T, C, 3) (or None) from :meth:`prefetch`."""
+        Jacobians of all frames) or ``keypoints`` (T, N, 3) (N: the model's keypoints, 18 or a fit layout's
+        18 + E), the model's Jacobian ``setup`` of all frames (with ``jac``) and the posed ``subset_vertices``
+        (T, C, 3) (or None) from :meth:`prefetch`."""
         specs = self._specs if kinds is None else {k: v for k, v in self._specs.items() if k in kinds}
         jacobians = jac is not None
         self._terms.clear()

@@ -112,14 +112,24 @@ class TrackEstimate:
     pose: np.ndarray          # (T, 72)
     betas: np.ndarray         # (B,)
     trans: np.ndarray         # (T, 3)
-    world_keypoints: np.ndarray   # (T, 18, 3)
+    world_keypoints: np.ndarray   # (T, 18, 3) PedX keypoints of the reported model
 
 
-def _hip_weights(config: FitConfig) -> np.ndarray:
-    weights = np.ones(len(PEDX_KEYPOINTS))
+def _hip_weights(config: FitConfig, rows: int = len(PEDX_KEYPOINTS)) -> np.ndarray:
+    """(rows,) keypoint weights of the reprojection term: the hips' from ``hip_sigma_factor``, 1 elsewhere
+    (``rows`` > 18: a detector track's fit layout, its extra keypoints after the PedX rows)."""
+    weights = np.ones(rows)
     for name in ("lhip", "rhip"):
         weights[PEDX_KEYPOINTS.index(name)] = 1.0 / config.noise.hip_sigma_factor ** 2
     return weights
+
+
+def _row_sigmas_px(noise, rows: int = len(PEDX_KEYPOINTS)) -> np.ndarray:
+    """(rows,) configured sigma of visible keypoint labels: the PedX rows' (``keypoint_row_sigmas_px``), then
+    ``keypoint_sigma_px`` (the whole-figure sigma) for a fit layout's extra rows, whose labels normally carry
+    their own ``sigma_px`` (``factors.stereo_reprojection.ImageKeypoints.sigma_px``)."""
+    pedx = keypoint_row_sigmas_px(noise)
+    return np.concatenate([pedx, np.full(rows - len(pedx), float(noise.keypoint_sigma_px))])
 
 
 def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -204,10 +214,11 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
     views = [v for v in fr.labelled_views(terms.all_views and not isinstance(calibration, StereoCalibration))
              if sides[v[1]]]
     if views:
+        rows = len(views[0][2].keypoints)          # 18, or 18 + E in a detector track's fit layout
         add(make_reprojection_factor(
             k, model, images_from_views(views, calibrations),
-            sigma_px=keypoint_row_sigmas_px(noise), sigma_occluded_px=noise.occluded_keypoint_sigma_px,
-            keypoint_weights=_hip_weights(config), robust=_robust(noise.reprojection_loss),
+            sigma_px=_row_sigmas_px(noise, rows), sigma_occluded_px=noise.occluded_keypoint_sigma_px,
+            keypoint_weights=_hip_weights(config, rows), robust=_robust(noise.reprojection_loss),
             robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
     points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
     if terms.lidar_chamfer and len(points):
@@ -313,10 +324,13 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
 
 
 def extract_estimate(problem: TrackProblem, values: gtsam.Values, ctx: EstimatorContext) -> TrackEstimate:
-    """Read the per-frame SMPL parameters and world keypoints out of ``values``."""
+    """Read the per-frame SMPL parameters and world keypoints out of ``values``; the keypoints are the reported
+    ones, PedX's 18 of ``ctx.model.report_model`` (the original model when ``ctx.model`` is a detector track's
+    fit-layout model with 18 + E keypoints, ``pedx_graph.detections.fit_layout``)."""
     betas = np.asarray(values.atVector(problem.keys[0].betas), dtype=float)
     pose = np.stack([np.concatenate([gtsam.Rot3.Logmap(values.atRot3(k.root)), values.atVector(k.body_pose)])
                      for k in problem.keys])
     trans = np.stack([np.asarray(values.atVector(k.trans), dtype=float) for k in problem.keys])
-    kps = ctx.model.keypoints(pose, np.broadcast_to(betas, (len(pose), len(betas))), trans)
+    reported = getattr(ctx.model, "report_model", ctx.model)
+    kps = reported.keypoints(pose, np.broadcast_to(betas, (len(pose), len(betas))), trans)
     return TrackEstimate(pose=pose, betas=betas, trans=trans, world_keypoints=np.asarray(kps))

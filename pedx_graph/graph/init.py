@@ -245,7 +245,9 @@ def measure_frame(calibrations, frame: TrackFrame, ground: GroundFrame, surface_
     :class:`~pedx_graph.graph.monocular.BodySizePrior` for frames that neither LiDAR nor two cameras place
     (None: such frames stay unplaced); ``all_views``: triangulate over every labelled camera (else the
     primary pair's only); ``sigma_px`` / ``occluded_sigma_px``: click noise for the body-size depth.
+    Measures the 18 PedX rows only (a detector track's fit layout has more: :meth:`TrackFrame.pedx_rows`).
     """
+    frame = frame.pedx_rows()
     calib = calibrations[frame.pair]
     centroid = _lidar_centroid(frame, ground)
     lidar_depth = float(calib.world_to_rect(centroid)[2] + surface_offset_m) if np.all(np.isfinite(centroid)) \

@@ -202,7 +202,7 @@ def fit_track_admm(track, config: FitConfig | None = None, context=None, admm: A
     ctx = context or estimator_context(config)
     t0 = time.perf_counter()
     report_ctx = ctx                          # results: PedX keypoints of the original model, whatever the labels
-    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points in the 18-row layout
+    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points, 18 + E rows
     stage_iterations = 0
     initial = None
     if config.terms.lidar_chamfer:

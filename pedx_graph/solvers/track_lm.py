@@ -20,7 +20,7 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
     ctx = context or estimator_context(config)
     t0 = time.perf_counter()
     report_ctx = ctx                          # results: PedX keypoints of the original model, whatever the labels
-    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points in the 18-row layout
+    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points, 18 + E rows
     if len(track.frames) == 1:
         problem, values, report = single_frame_search(track, ctx, config)
     else:

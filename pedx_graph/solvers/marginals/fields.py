@@ -5,6 +5,9 @@ d_body_pose, d_betas]`` (3, 75 + B) of keypoint k from ``BodyModel.point_jacobia
 the root, as the ``Rot3`` retraction).  A frame whose information needed the diffuse regulariser is
 reported with ``covariance_status = "under_constrained"``; its covariances are written as null when any
 standard deviation exceeds the limits of :class:`~pedx_graph.graph.config.MarginalsConfig`.
+
+The keypoints are the reported ones, PedX's 18 of the model's ``report_model`` (a detector track's fit-layout
+model has 18 + E keypoints of the set's own definitions: ``pedx_graph.detections.fit_layout``).
 """
 from __future__ import annotations
 
@@ -15,10 +18,16 @@ from pedx_graph.graph.config import MarginalsConfig
 from pedx_graph.solvers.marginals.chain import POSE_SLICE, ROOT_SLICE, TRANS_SLICE, TrackMarginals
 
 
+def _reported(model):
+    """The model whose keypoints the results report (``BodyModel.report_model``; ``model`` itself without one)."""
+    return getattr(model, "report_model", model)
+
+
 def keypoint_covariances(model, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray,
                          frame_cov: np.ndarray) -> np.ndarray:
-    """(18, 3, 3) covariances (m^2, world) of the keypoints of one frame from its joint marginal (75+B)^2."""
-    jac = model.point_jacobians(np.asarray(pose, float), np.asarray(betas, float), np.asarray(trans, float))
+    """(18, 3, 3) covariances (m^2, world) of the reported keypoints of one frame from its joint marginal
+    (75+B)^2."""
+    jac = _reported(model).point_jacobians(np.asarray(pose, float), np.asarray(betas, float), np.asarray(trans, float))
     full = np.concatenate([np.asarray(jac.d_root), np.asarray(jac.d_trans), np.asarray(jac.d_body_pose),
                            np.asarray(jac.d_betas)], axis=-1)                 # (18, 3, 75 + B)
     return np.matmul(np.matmul(full, frame_cov), np.swapaxes(full, 1, 2))
@@ -30,7 +39,7 @@ def keypoint_covariances_batch(model, pose: np.ndarray, betas: np.ndarray, trans
     joint marginals (T, 75 + B, 75 + B)."""
     pose = np.asarray(pose, float)
     betas_t = np.broadcast_to(np.asarray(betas, float), (len(pose), len(betas)))
-    jac = model.point_jacobians(pose, betas_t, np.asarray(trans, float))
+    jac = _reported(model).point_jacobians(pose, betas_t, np.asarray(trans, float))
     full = np.concatenate([np.asarray(jac.d_root), np.asarray(jac.d_trans), np.asarray(jac.d_body_pose),
                            np.asarray(jac.d_betas)], axis=-1)                 # (T, 18, 3, 75 + B)
     return np.matmul(np.matmul(full, frame_covs[:, None]), np.swapaxes(full, -1, -2))

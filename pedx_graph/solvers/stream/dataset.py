@@ -40,7 +40,7 @@ def stream_track(track: Track, ctx, config: FitConfig, stream_config: StreamConf
     of every frame whose update succeeded, and ``{"frame" or "stage", "error"}`` of each failed update and
     of each piece refused as implausible."""
     report_model = ctx.model                  # results: PedX keypoints of the original model, whatever the labels
-    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points in the 18-row layout
+    track, ctx, config = fit_layout(track, ctx, config)   # detector sets: their own points, 18 + E rows
     estimator = StreamingEstimator(ctx, config, copy.deepcopy(stream_config), sequence=track.sequence,
                                    ground=track.ground)
     results, causal, failed = [], [], []

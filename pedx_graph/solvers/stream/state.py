@@ -25,7 +25,8 @@ class FrameEstimate:
     trans: np.ndarray
     """(3,) metres."""
     world_keypoints: np.ndarray
-    """(18, 3) metres, world frame."""
+    """(N, 3) metres, world frame: the fitted model's keypoints (PedX's 18; a detector track's fit layout
+    has 18 + E, and ``stream_track`` reports PedX's 18 of the original model instead)."""
     update_seconds: float
     """Wall time of this frame's update (causal initialisation, factors, initial values, presolve, iSAM2
     update, reading the estimate and its keypoints, plus an equal share of the sample's batched body-model
