@@ -506,3 +506,36 @@ def test_the_far_walker_keeps_its_own_depth_behind_the_near_one():
             ranges[who.pop()] = np.median([np.linalg.norm(fr.world_p) for fr in track.frames
                                            if fr.world_p is not None])
         assert 0.5 < ranges["b"] - ranges["a"] < 1.5, (seed, ranges)
+
+
+def test_a_centre_comes_from_the_detections_own_lidar_cluster():
+    """A far person (21 m) whose stereo centre came out a metre short, on the near person (20 m) standing
+    in front: the cut around that depth holds the near person's points, not the cluster the detection was
+    given (its range, 21 m).  The centre is not taken from the near person: it slides along its viewing
+    ray to the detection's own range."""
+    from pedx_graph.detections.association import _lidar_centre
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    ground = _ground(calibs)
+    far, near = np.array([21.0, 0.0]), np.array([20.0, 0.25])
+    rings = []
+    for centre in (far, near):
+        for h in np.arange(0.2, 1.7, 0.3):
+            angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)       # the side facing the sensor
+            rings.append(np.c_[centre[0] + 0.2 * np.cos(angles), centre[1] + 0.2 * np.sin(angles),
+                               np.full(9, GROUND_Z + h)])
+    cloud = np.concatenate(rings)
+    uv_left, uv_right = calib.project(ahead)
+    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv_left,
+                    confidence=np.full(len(uv_left), 0.9), score=0.9, source="test")
+    truth_centre = np.array([far[0], far[1], GROUND_Z + 0.9])
+    short = truth_centre - [1.0, 0.0, 0.0]
+    obs = Observation(frame=0, uv={"left": uv_left}, score=0.9, world_p=short, depth_sigma_m=0.8,
+                      payload={"left": det})
+    own_range = float(calib.world_to_rect(truth_centre)[2])
+    _lidar_centre(obs, calib, cloud, ground, AssociationConfig(), {}, {id(det): own_range},
+                  {"left": [own_range, float(calib.world_to_rect(np.r_[near, GROUND_Z + 0.9])[2])]})
+    assert abs(float(calib.world_to_rect(obs.world_p)[2]) - own_range) < 0.25
+    assert np.linalg.norm(obs.world_p[:2] - far) < 0.3

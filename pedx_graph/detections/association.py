@@ -888,7 +888,8 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     at the range of the detection's own cluster (within ``lidar_range_sigma_m``) when it has one; a detection
     without one keeps its stereo centre when the cut lies at a range another detection of that image holds
     (``claimed``: side -> those ranges): a far person's cut that caught the near person in front is not taken
-    for the far person's centre."""
+    for the far person's centre.  A detection whose cut misses its own cluster gets its stereo centre slid
+    along the viewing ray to that cluster's range (uncertain by ``lidar_range_sigma_m``)."""
     from pedx_graph.detections.lidar_cut import cut_person, project_cloud
 
     side = "left" if "left" in obs.uv else "right"
@@ -903,21 +904,28 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
         projections[side] = project_cloud(calib, side, cloud)
     points = cut_person(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                         projection=projections[side])
-    if len(points) < config.lidar_min_points:
-        return
-    centre = ground.median_point(points)
-    centre_range = float(calib.world_to_rect(centre)[2])
-    if own_range is not None and abs(centre_range - own_range) > config.lidar_range_sigma_m:
-        return
-    if own_range is None and claimed and any(abs(centre_range - r) <= config.lidar_range_sigma_m
-                                             for r in claimed.get(side, [])):
+    centre, sigma = None, config.lidar_sigma_m
+    if len(points) >= config.lidar_min_points:
+        centre = ground.median_point(points)
+        centre_range = float(calib.world_to_rect(centre)[2])
+        if own_range is not None and abs(centre_range - own_range) > config.lidar_range_sigma_m:
+            centre = None
+        elif own_range is None and claimed and any(abs(centre_range - r) <= config.lidar_range_sigma_m
+                                                   for r in claimed.get(side, [])):
+            centre = None
+    if centre is None and own_range is not None and depth is not None and depth > 0:
+        # the cut missed the detection's own cluster: the stereo centre slid along its ray to that range
+        camera = _camera_centre(calib, "left")           # the rectified frame's origin
+        centre = camera + (own_range / depth) * (np.asarray(obs.world_p, dtype=float) - camera)
+        sigma = config.lidar_range_sigma_m
+    if centre is None:
         return
     # accepted only where it agrees with the stereo centre (a cut that caught an occluder does not)
     offset = np.linalg.norm(ground.to_level(centre)[:2] - ground.to_level(obs.world_p)[:2])
     if offset <= config.gate_sigmas * obs.depth_sigma_m + config.lidar_agreement_m:
         obs.world_p = centre
         obs.world_p_camera = _camera_centre(calib, side)
-        obs.depth_sigma_m = config.lidar_sigma_m
+        obs.depth_sigma_m = sigma
 
 
 # ---------------------------------------------------------------------------------------------- across pairs
