@@ -5,7 +5,10 @@
 LM and iSAM2 on the subset ADMM runs on.  :func:`realrig_section` reads ``bench_realrig.json``: each variant
 of the real-rig scenes, overall and per distance bin (bins without frames left out).  :func:`benchmark_block`
 joins them between the markers ``<!-- benchmarks -->`` / ``<!-- /benchmarks -->``; a test checks that the
-committed docs/results.md holds exactly this block for the committed JSON.
+committed docs/results.md holds exactly this block for the committed JSON.  :func:`detections_block` renders,
+the same way, docs/detections.md's table of ``bench_detections.json`` (seed 0) and ``seed*/bench_detections.json``
+between ``<!-- detections -->`` / ``<!-- /detections -->``.  ``python tools/gen_benchmark_docs.py`` rewrites
+both blocks.
 """
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ import os
 from pathlib import Path
 
 BEGIN, END = "<!-- benchmarks -->", "<!-- /benchmarks -->"
+DETECTIONS_BEGIN, DETECTIONS_END = "<!-- detections -->", "<!-- /detections -->"
 
 
 def _f(value, digits: int = 1) -> str:
@@ -86,10 +90,53 @@ def benchmark_block(results_dir: str | os.PathLike) -> str:
     return "\n".join(parts) + "\n"
 
 
-def replace_block(text: str, block: str) -> str:
-    """``text`` with its benchmark block replaced by ``block`` (inserted before the notes, else appended)."""
-    if BEGIN in text and END in text:
-        return text[:text.index(BEGIN)] + block.rstrip("\n") + text[text.index(END) + len(END):]
+def detection_runs(results_dir: str | os.PathLike) -> list[dict]:
+    """The bench_detections results of ``results_dir`` (seed 0) and of its ``seed*/`` folders, by seed."""
+    results_dir = Path(results_dir)
+    paths = [results_dir / "bench_detections.json"] + sorted(results_dir.glob("seed*/bench_detections.json"))
+    runs = [json.loads(p.read_text()) for p in paths if p.is_file()]
+    return sorted(runs, key=lambda r: r["seed"])
+
+
+def detections_section(runs: list[dict]) -> str:
+    """Markdown: per seed and detector format, the issue's goals (MPJPE at 5-25 m against the manual labels,
+    identity switches among crossing people, false tracks) with root-relative error, people recovered and the
+    keypoint NEES."""
+    lines = ["| seed | input | manual MPJPE 5-25 m, global / root-rel. (mm) | detector MPJPE 5-25 m (mm) | "
+             "ratio (goal <= 1.5) | id switches, crossing people (goal 0) | false tracks (goal 0) | "
+             "recovered / labelled people | keypoint NEES / dof |", "|---|---|---|---|---:|---:|---:|---|---:|"]
+    for run in runs:
+        manual = run["accuracy"]["manual"]["5-25"]
+        for fmt, goal in run["goals"].items():
+            acc = run["accuracy"][fmt]["5-25"]
+            recovered = sum(sc["association"][fmt]["recovered"] for sc in run["scenes"].values())
+            labelled = sum(sc["association"][fmt]["labelled_people"] for sc in run["scenes"].values())
+            lines.append(f"| {run['seed']} | {fmt} | {_f(manual.get('mpjpe_mm'))} / {_f(manual.get('rel_mpjpe_mm'))} | "
+                         f"{_f(acc.get('mpjpe_mm'))} / {_f(acc.get('rel_mpjpe_mm'))} | "
+                         f"{_f(goal['mpjpe_ratio_5_25'], 2)} | {goal['crossing_id_switches']} | "
+                         f"{goal['false_tracks']} | {recovered} / {labelled} | "
+                         f"{_f(acc.get('keypoint_nees_over_dof'), 2)} |")
+    met = [(run["seed"], fmt) for run in runs for fmt, g in run["goals"].items()
+           if g["within_1.5x"] and g["crossing_id_switches"] == 0 and g["false_tracks"] == 0]
+    within = sum(g["within_1.5x"] for run in runs for g in run["goals"].values())
+    total = sum(len(run["goals"]) for run in runs)
+    lines += ["", f"Within 1.5x of the manual labels: {within} of {total} seed-format runs; all three goals met: "
+              f"{len(met)} of {total}.  Commands: " + "; ".join(f"`{run['command']}`" + (
+                  f" (written to `benchmarks/results/seed{run['seed']}`)" if run["seed"] else "")
+                  for run in runs) + "."]
+    return "\n".join(lines)
+
+
+def detections_block(results_dir: str | os.PathLike) -> str:
+    """The generated bench_detections block of docs/detections.md (markers included)."""
+    return "\n".join([DETECTIONS_BEGIN, detections_section(detection_runs(results_dir)), DETECTIONS_END]) + "\n"
+
+
+def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
+    """``text`` with its block between ``begin`` / ``end`` replaced by ``block`` (the benchmark block: inserted
+    before the notes, else appended)."""
+    if begin in text and end in text:
+        return text[:text.index(begin)] + block.rstrip("\n") + text[text.index(end) + len(end):]
     marker = "<!-- notes -->"
     if marker in text:
         return text[:text.index(marker)] + block + "\n" + text[text.index(marker):]

@@ -1,0 +1,31 @@
+"""Rewrite the generated benchmark blocks of docs/results.md and docs/detections.md from benchmarks/results/*.json.
+
+    python tools/gen_benchmark_docs.py
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pedx_graph.eval.benchmark_tables import (DETECTIONS_BEGIN, DETECTIONS_END, benchmark_block,  # noqa: E402
+                                              detections_block, replace_block)
+from pedx_graph.utils import atomic_write_text  # noqa: E402
+
+
+def main() -> int:
+    results = ROOT / "benchmarks" / "results"
+    path = ROOT / "docs" / "results.md"
+    atomic_write_text(path, replace_block(path.read_text(), benchmark_block(results)))
+    path = ROOT / "docs" / "detections.md"
+    text = path.read_text()
+    if DETECTIONS_BEGIN not in text:
+        raise SystemExit(f"{path}: no {DETECTIONS_BEGIN} marker")
+    atomic_write_text(path, replace_block(text, detections_block(results), DETECTIONS_BEGIN, DETECTIONS_END))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
