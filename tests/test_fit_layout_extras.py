@@ -116,16 +116,21 @@ def _move_pixel(track, frame: int, row: int, shift_px: float):
     return dataclasses.replace(track, frames=frames)
 
 
+def _body25_problem(scene, model, index: int, seed: int):
+    """``(graph, laid-out track, its context, config)`` of the scene's track ``index`` relabelled as BODY_25
+    detections, in the fit layout."""
+    tracks, truth = scene
+    base = tracks[index]
+    track = relabel(base, truth[(base.sequence, base.tracking_id)], model, "body25", seed=seed)
+    config = FitConfig()
+    laid, laid_ctx, _ = fit_layout(track, estimator_context(config), config)
+    return build_track_graph(laid, laid_ctx, config), laid, laid_ctx, config
+
+
 def test_extra_keypoints_enter_the_reprojection_term(scene, model):
     """Moving only an extra keypoint's pixel (a toe, a heel, an ear) changes the graph's reprojection
     residual; the factor has rows for every labelled keypoint of the set (PedX rows and extras)."""
-    tracks, truth = scene
-    base = tracks[0]
-    track = relabel(base, truth[(base.sequence, base.tracking_id)], model, "body25", seed=5)
-    config = FitConfig()
-    ctx = estimator_context(config)
-    laid, laid_ctx, _ = fit_layout(track, ctx, config)
-    problem = build_track_graph(laid, laid_ctx, config)
+    problem, laid, laid_ctx, config = _body25_problem(scene, model, 0, seed=5)
     values = problem.initial
     factor = _reprojection(problem, 0)
     images = len(laid.frames[0].labelled_views())
@@ -180,13 +185,7 @@ def test_reprojection_jacobians_with_extra_rows(model):
 def test_batched_paths_equal_the_factors_own_rows_with_extra_rows(scene, model):
     """The batched linearizer (the term's assembler through the keypoints) gives the error and chain system
     of GTSAM's linearisation of a BODY_25 track's graph whose factors compute their own rows."""
-    tracks, truth = scene
-    base = tracks[1]
-    track = relabel(base, truth[(base.sequence, base.tracking_id)], model, "body25", seed=6)
-    config = FitConfig()
-    ctx = estimator_context(config)
-    laid, laid_ctx, _ = fit_layout(track, ctx, config)
-    problem = build_track_graph(laid, laid_ctx, config)
+    problem, laid, laid_ctx, config = _body25_problem(scene, model, 1, seed=6)
     rng = np.random.default_rng(2)
     values = gtsam.Values(problem.initial)
     for k in problem.keys:
