@@ -539,3 +539,25 @@ def test_a_centre_comes_from_the_detections_own_lidar_cluster():
                   {"left": [own_range, float(calib.world_to_rect(np.r_[near, GROUND_Z + 0.9])[2])]})
     assert abs(float(calib.world_to_rect(obs.world_p)[2]) - own_range) < 0.25
     assert np.linalg.norm(obs.world_p[:2] - far) < 0.3
+
+
+def test_a_person_seen_in_one_image_gets_its_centre_from_its_lidar_cluster():
+    """Seen in the left image only (no disparity), a detection whose LiDAR cluster is its own gets a centre
+    on its viewing ray at that cluster's range: within a few decimetres of the person, in both images' rays."""
+    from pedx_graph.detections.association import _range_centre
+
+    calibs = _rig()
+    for side in ("left", "right"):
+        for xy in ((21.0, 0.0), (12.0, -2.5)):
+            points = _person_points(xy, 0.0, 0.0)
+            calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(points))[:, 0] > 0))
+            uv = calib.project(points)[0 if side == "left" else 1]
+            det = Detection(camera=calib.name.split("-")[0 if side == "left" else 1], frame=0, keypoint_set="coco17",
+                            image_uv=uv, confidence=np.full(len(uv), 0.9), score=0.9, source="test")
+            obs = Observation(frame=0, uv={side: uv}, score=0.9, payload={side: det})
+            centre = np.array([xy[0], xy[1], GROUND_Z + 0.9])
+            _range_centre(obs, calib, {id(det): float(calib.world_to_rect(centre)[2])})
+            assert obs.world_p is not None and np.linalg.norm(obs.world_p - centre) < 0.4, (side, xy, obs.world_p)
+            other = Observation(frame=0, uv={side: uv}, score=0.9, payload={side: det})
+            _range_centre(other, calib, {})                       # no cluster of its own: no centre
+            assert other.world_p is None

@@ -54,7 +54,8 @@ Steps:
    A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time,
    agree best (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of
    their own.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
-   ``clouds``, a LiDAR centre replaces the stereo one where it agrees.  A paired frame whose disparity
+   ``clouds``, a LiDAR centre replaces the stereo one where it agrees; a track never seen in both images
+   gets its centres from its detections' own LiDAR clusters (:func:`_range_centre`).  A paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
    two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
@@ -770,7 +771,12 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
         if float(np.mean([o.score for o in track])) < config.tracker.min_mean_score:
             continue
         if clouds is not None:
+            monocular = all(obs.world_p is None for obs in track)
             for obs in track:
+                if monocular and config.lidar_identity:
+                    # no stereo centre anywhere in the track (in a track with some, a one-image frame's
+                    # cluster can be a neighbour's or the background: the smoothed line fills it instead)
+                    _range_centre(obs, calib, ranges)
                 if obs.world_p is not None and obs.frame in clouds:
                     views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
                     claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
@@ -877,6 +883,28 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         _, a, b, new_a, new_b = best
         tracks[a], tracks[b] = new_a, new_b
     return tracks
+
+
+def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float]) -> None:
+    """Give an observation seen in one image only a centre where its detection has its own LiDAR cluster
+    (:func:`detection_ranges`), in place: the median keypoint pixel's viewing ray at that cluster's range,
+    with a loose 1 m uncertainty (a median pixel is not the body's centre); :func:`_lidar_centre` then
+    replaces it by the cut's median, or slides it to the range, as for a stereo centre."""
+    side = next(iter(obs.uv))
+    if not isinstance(obs.payload, dict) or id(obs.payload.get(side)) not in ranges:
+        return
+    present = obs.uv[side][np.all(np.isfinite(obs.uv[side]), axis=1)]
+    if len(present) == 0:
+        return
+    depth = ranges[id(obs.payload[side])]
+    P = calib.left_P_rect if side == "left" else calib.right_P_rect
+    u, v = np.median(present, axis=0)
+    rect_p = np.array([((u - P[0, 2]) * depth - P[0, 3]) / P[0, 0], ((v - P[1, 2]) * depth - P[1, 3]) / P[1, 1], depth])
+    world_T_rect = np.asarray(calib.world_T_cam, dtype=float).copy()
+    world_T_rect[:3, :3] = world_T_rect[:3, :3] @ np.asarray(calib.rect_R_cam).T
+    obs.world_p = world_T_rect[:3, :3] @ rect_p + world_T_rect[:3, 3]
+    obs.world_p_camera = _camera_centre(calib, side)
+    obs.depth_sigma_m = 1.0
 
 
 def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray, ground: GroundFrame,
