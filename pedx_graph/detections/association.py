@@ -1043,8 +1043,8 @@ def _ray_distance(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sig
                   lateral_sigma_m: float) -> float:
     """Median Mahalanobis distance between two tracks' ground-plane centres ``pa``, ``pb`` (n, 2): each centre
     uncertain by its depth sigma (``sigmas``, (n,) each) along the ray from its camera (``cameras``, ground-plane
-    positions (2,)) and by ``lateral_sigma_m`` across it.  Two people one behind the other seen by two pairs
-    from different directions are told apart where an isotropic distance is not."""
+    positions (2,)) and by ``lateral_sigma_m`` across it.  Two people walking side by side half a metre apart,
+    whose centres are a metre uncertain in depth, are told apart where an isotropic distance is not."""
     cov = np.zeros((len(pa), 2, 2))
     for points, camera, sigma in zip((pa, pb), cameras, sigmas):
         ray = points - camera
