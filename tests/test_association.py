@@ -561,3 +561,22 @@ def test_a_person_seen_in_one_image_gets_its_centre_from_its_lidar_cluster():
             other = Observation(frame=0, uv={side: uv}, score=0.9, payload={side: det})
             _range_centre(other, calib, {})                       # no cluster of its own: no centre
             assert other.world_p is None
+
+
+def test_a_one_image_range_centre_must_agree_with_the_tracks_stereo_depth():
+    """In a track with stereo frames, a one-image frame's centre from its detection's LiDAR cluster is kept
+    only at a depth the nearest stereo centre allows (its uncertainty plus a walker's reach): a cluster 6 m
+    behind (a neighbour, the background) is refused, one 0.3 m off three frames later is kept."""
+    from pedx_graph.detections.association import _agrees_with_stereo
+
+    calibs = _rig()
+    ahead = _person_points((18.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    stereo = [Observation(frame=k, uv={}, score=0.9, world_p=np.array([18.0 + 0.1 * k, 0.0, GROUND_Z + 0.9]),
+                          depth_sigma_m=0.3) for k in range(5)]
+    far = Observation(frame=7, uv={}, score=0.9, world_p=np.array([24.5, 0.0, GROUND_Z + 0.9]))
+    near = Observation(frame=7, uv={}, score=0.9, world_p=np.array([18.8, 0.0, GROUND_Z + 0.9]))
+    config = AssociationConfig()
+    assert not _agrees_with_stereo(far, stereo, calib, config)
+    assert _agrees_with_stereo(near, stereo, calib, config)
+    assert _agrees_with_stereo(far, [], calib, config)          # a track with no stereo frame: nothing to check

@@ -54,8 +54,9 @@ Steps:
    A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time,
    agree best (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of
    their own.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
-   ``clouds``, a LiDAR centre replaces the stereo one where it agrees; a track never seen in both images
-   gets its centres from its detections' own LiDAR clusters (:func:`_range_centre`).  A paired frame whose disparity
+   ``clouds``, a LiDAR centre replaces the stereo one where it agrees; a frame seen in one image gets one
+   from its detection's own LiDAR cluster (:func:`_range_centre`) where the track's nearest stereo centre
+   in time allows that depth (:func:`_agrees_with_stereo`).  A paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
    two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
@@ -771,12 +772,12 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
         if float(np.mean([o.score for o in track])) < config.tracker.min_mean_score:
             continue
         if clouds is not None:
-            monocular = all(obs.world_p is None for obs in track)
-            for obs in track:
-                if monocular and config.lidar_identity:
-                    # no stereo centre anywhere in the track (in a track with some, a one-image frame's
-                    # cluster can be a neighbour's or the background: the smoothed line fills it instead)
+            stereo = [obs for obs in track if obs.world_p is not None]
+            for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
+                if obs.world_p is None and config.lidar_identity:
                     _range_centre(obs, calib, ranges)
+                    if obs.world_p is not None and not _agrees_with_stereo(obs, stereo, calib, config):
+                        obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
                 if obs.world_p is not None and obs.frame in clouds:
                     views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
                     claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
@@ -883,6 +884,21 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         _, a, b, new_a, new_b = best
         tracks[a], tracks[b] = new_a, new_b
     return tracks
+
+
+def _agrees_with_stereo(obs: Observation, stereo: list[Observation], calib: StereoCalibration,
+                        config: AssociationConfig) -> bool:
+    """Whether a one-image frame's range centre (:func:`_range_centre`) lies at the depth the track's nearest
+    stereo (or LiDAR) centre in time allows: within ``gate_sigmas`` of that centre's depth uncertainty plus
+    how far a walker gets in the frames between (``tracker.max_speed_mps``); true when the track has none (a
+    detection's cluster can be a neighbour's or the background behind it)."""
+    if not stereo:
+        return True
+    nearest = min(stereo, key=lambda o: (abs(o.frame - obs.frame), o.frame))
+    reach = config.tracker.max_speed_mps * config.tracker.frame_interval_s * abs(nearest.frame - obs.frame)
+    depth = float(calib.world_to_rect(np.asarray(obs.world_p, dtype=float))[2])
+    known = float(calib.world_to_rect(np.asarray(nearest.world_p, dtype=float))[2])
+    return abs(depth - known) <= config.gate_sigmas * min(float(nearest.depth_sigma_m), 5.0) + reach
 
 
 def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float]) -> None:
