@@ -916,9 +916,8 @@ def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[in
     P = calib.left_P_rect if side == "left" else calib.right_P_rect
     u, v = np.median(present, axis=0)
     rect_p = np.array([((u - P[0, 2]) * depth - P[0, 3]) / P[0, 0], ((v - P[1, 2]) * depth - P[1, 3]) / P[1, 1], depth])
-    world_T_rect = np.asarray(calib.world_T_cam, dtype=float).copy()
-    world_T_rect[:3, :3] = world_T_rect[:3, :3] @ np.asarray(calib.rect_R_cam).T
-    obs.world_p = world_T_rect[:3, :3] @ rect_p + world_T_rect[:3, 3]
+    rect_T_world = calib.rect_T_world                   # rigid: its inverse is the transpose
+    obs.world_p = rect_T_world[:3, :3].T @ (rect_p - rect_T_world[:3, 3])
     obs.world_p_camera = _camera_centre(calib, side)
     obs.depth_sigma_m = 1.0
 
