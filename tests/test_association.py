@@ -418,6 +418,39 @@ def test_a_frame_borrowed_from_someone_else_is_unpaired():
     assert all(k in person.sides["right"] and k in person.paired for k in range(8))
 
 
+def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():
+    """The right image's tracker swapped two people 8 m apart in depth at frame 8 (each right tracklet holds
+    one person for frames 0-7 and the other for 8-19); the left image's tracklets are clean.  Each left
+    tracklet agrees in stereo with each right one over part of their overlap only: both parts are paired,
+    so each person is one track paired at every frame, with its own right detections."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(11)
+    views = {}
+    for name, start, step in (("near", (21.0, -1.5), (0.0, 0.15)), ("far", (29.0, 1.2), (0.0, -0.12))):
+        for k in range(20):
+            points = _person_points((start[0] + step[0] * k, start[1] + step[1] * k), 0.0, 0.5 * k)
+            for side, uv in zip(("left", "right"), calib.project(points)):
+                uv = uv + rng.normal(size=uv.shape)
+                det = Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                                confidence=np.full(len(uv), 0.8), score=0.8, source=f"{name}/{side}/{k}")
+                views[name, side, k] = (k, det, uv)
+    left = [[views["near", "left", k] for k in range(20)], [views["far", "left", k] for k in range(20)]]
+    right = [[views["near" if k < 8 else "far", "right", k] for k in range(20)],
+             [views["far" if k < 8 else "near", "right", k] for k in range(20)]]
+    people = pair_tracklets(left, right, calib, AssociationConfig())
+    found = {}
+    for person in people:
+        names = {d.source.split("/")[0] for side in ("left", "right") for _, d, _ in person.sides[side].values()}
+        assert len(names) == 1, names
+        found[names.pop()] = person
+    assert sorted(found) == ["far", "near"]
+    for person in found.values():
+        assert sorted(person.paired) == list(range(20))
+
+
 def _walker_observations(calib, start_xy, step_xy, frames, rng):
     """Pair-track observations (both images, rectified) of a stick walker, one per frame."""
     out = []

@@ -47,7 +47,9 @@ Steps:
    ``[min_depth_m, max_depth_m]``.  A left and a right tracklet are scored over all their shared frames
    (:func:`_pair_evidence`): the per-frame disparities must follow one smooth depth (a line in time whose
    slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each shared frame passing
-   every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``.
+   every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``,
+   summed over the runs of consecutive shared frames that support the pairing most (a tracklet the
+   per-camera tracker carried on with someone else midway is paired over the part before the change).
    Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
@@ -190,6 +192,9 @@ class AssociationConfig:
         range_sigma_m=0.25))
     """The per-camera 2D tracker (constant velocity in the image, keypoints, size; every detection above
     ``birth_min_score`` ends in a tracklet: the people are judged after pairing)."""
+    pair_min_run_frames: int = 3
+    """Two tracklets agreeing in stereo over only part of their shared frames (one of them carried on with
+    someone else midway) are paired over that part when it holds at least this many paired frames."""
     tracklet_switch_cost: float = 1.0
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
@@ -537,11 +542,16 @@ def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray,
 
 
 def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
-                   ranges: Mapping[int, float] | None = None) -> tuple[float, list[int]]:
-    """Evidence that a left and a right tracklet are one person over their shared frames, and the frames where
-    they are paired.  Each shared frame whose stereo terms pass the gates and whose disparity lies within
-    ``gate_sigmas`` of the tracklets' smooth disparity adds ``gate_sigmas^2 / 2 - cost``; every other shared
-    frame subtracts ``gate_sigmas^2 / 2`` (the pairing evidence changes there: those frames stay unpaired)."""
+                   ranges: Mapping[int, float] | None = None) -> list[tuple[float, list[int]]]:
+    """Evidence that a left and a right tracklet are one person, as ``(evidence, paired frames)`` per stretch of
+    their shared frames.  Each shared frame whose stereo terms pass the gates and whose disparity lies within
+    ``gate_sigmas`` of the tracklets' smooth disparity adds ``gate_sigmas^2 / 2`` minus its cost; every other
+    shared frame subtracts ``gate_sigmas^2 / 2`` (the pairing evidence changes there: those frames stay
+    unpaired).  The stretches are the runs of consecutive shared frames with the largest summed evidence,
+    found in turn (:func:`_supported_runs`): a per-camera tracker that carried one of the two tracklets on
+    with someone else midway leaves the part before the switch paired, where a sum over the whole overlap
+    would reject both parts.  A run shorter than the whole overlap counts only with at least
+    ``pair_min_run_frames`` paired frames."""
     by_frame = {frame: (det, uv) for frame, det, uv in right}
     items = []
     for frame, det, uv_left in left:
@@ -550,23 +560,44 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
             pair_ranges = (ranges.get(id(det)), ranges.get(id(by_frame[frame][0]))) if ranges else (None, None)
             items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset, pair_ranges)))
     if not items:
-        return -np.inf, []
+        return []
+    items.sort(key=lambda item: item[0])
     c0 = 0.5 * config.gate_sigmas ** 2
-    good = [(frame, terms) for frame, terms in items if terms is not None]
-    evidence = -c0 * (len(items) - len(good))
-    if not good:
-        return evidence, []
-    frames = np.array([f for f, _ in good], dtype=float)
-    z = _smooth_disparity(frames, np.array([t[1] for _, t in good]), np.array([t[2] for _, t in good]), calib,
-                          config)
-    paired = []
-    for (frame, (cost, _, _)), zf in zip(good, z):
-        if abs(zf) > config.gate_sigmas:
-            evidence -= c0
-            continue
-        evidence += c0 - 0.5 * (cost + zf ** 2)       # the stereo terms and the disparity residual
-        paired.append(frame)
-    return evidence, paired
+    gain = np.full(len(items), -c0)
+    good = [k for k, (_, terms) in enumerate(items) if terms is not None]
+    if good:
+        frames = np.array([items[k][0] for k in good], dtype=float)
+        z = _smooth_disparity(frames, np.array([items[k][1][1] for k in good]),
+                              np.array([items[k][1][2] for k in good]), calib, config)
+        for k, zf in zip(good, z):
+            if abs(zf) <= config.gate_sigmas:
+                gain[k] = c0 - 0.5 * (items[k][1][0] + zf ** 2)   # the stereo terms and the disparity residual
+    out = []
+    for lo, hi in _supported_runs(gain):
+        paired = [items[k][0] for k in range(lo, hi) if gain[k] > -c0]
+        whole = lo == 0 and hi == len(items)
+        if paired and (whole or len(paired) >= config.pair_min_run_frames):
+            out.append((float(gain[lo:hi].sum()), paired))
+    return out
+
+
+def _supported_runs(gain: np.ndarray) -> list[tuple[int, int]]:
+    """Disjoint index ranges ``[lo, hi)`` of ``gain`` with a positive sum: the maximum-sum run, then the same
+    on what lies left and right of it (Kadane's scan, recursively)."""
+    if len(gain) == 0:
+        return []
+    best, best_lo, best_hi = -np.inf, 0, 0
+    total, start = 0.0, 0
+    for k, value in enumerate(gain):
+        if total <= 0.0:
+            total, start = 0.0, k
+        total += float(value)
+        if total > best:
+            best, best_lo, best_hi = total, start, k + 1
+    if best <= 0.0:
+        return []
+    return _supported_runs(gain[:best_lo]) + [(best_lo, best_hi)] + \
+        [(best_hi + lo, best_hi + hi) for lo, hi in _supported_runs(gain[best_hi:])]
 
 
 def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: AssociationConfig) -> float | None:
@@ -621,8 +652,7 @@ def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration
         for j, rt in enumerate(right):
             if not l_frames & {f for f, _, _ in rt}:
                 continue
-            evidence, paired = _pair_evidence(lt, rt, calib, config, ranges)
-            if evidence > 0 and paired:
+            for evidence, paired in _pair_evidence(lt, rt, calib, config, ranges):
                 edges.append((-evidence, i, j, paired))
     edges.sort(key=lambda e: e[:3])
     people: list[_Person] = []
