@@ -150,6 +150,8 @@ RULES: dict[str, Range | Choice] = {
     "SolverConfig.lambda_max": POSITIVE,
     "SolverConfig.coarse_max_iterations": NON_NEGATIVE_INT,
     "SolverConfig.coarse_relative_error_tol": NON_NEGATIVE,
+    "SolverConfig.view_outlier_sigmas": Range(0.0, lo_open=True, allow_inf=True),
+    "SolverConfig.view_outlier_ratio": POSITIVE,
     "SolverConfig.coarse_reprojection_loss": LOSSES,
     "SolverConfig.flip_segments": Choice(module="pedx_graph.solvers.flips", attribute="SEGMENTS"),
     "SolverConfig.flip_max_iterations": NON_NEGATIVE_INT,

@@ -48,6 +48,9 @@ class SolveReport:
     flips: dict = field(default_factory=dict)
     """The limb depth-flip search's record (:mod:`pedx_graph.solvers.flips`): segments tried, accepted,
     errors; empty when it did not run."""
+    dropped_views: list = field(default_factory=list)
+    """Images taken out of their frames' labels after the first stage (:func:`pedx_graph.solvers.staging.
+    drop_outlier_views`): ``{"frame", "pair", "side", "median_sigmas"}`` each; empty when none was."""
 
 
 def _tangent_dims(values: gtsam.Values) -> dict[int, int]:

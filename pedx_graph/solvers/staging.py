@@ -1,8 +1,10 @@
-"""The staged LM solve of one track: coarse stage without the LiDAR chamfer, full stage, limb depth-flip
-search when the track needs it; a single frame from several headings."""
+"""The staged LM solve of one track: coarse stage without the LiDAR chamfer, a screen for images of someone
+else between the stages, full stage, limb depth-flip search when the track needs it; a single frame from
+several headings."""
 from __future__ import annotations
 
 import dataclasses
+from collections import defaultdict
 
 import numpy as np
 
@@ -27,12 +29,14 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     """Solve in two stages, as the paper's staged fitting: first without the LiDAR chamfer term (its
     nearest-vertex correspondences only pull the right way once the body is roughly in place) and with the
     stereo reprojection's ``solver.coarse_reprojection_loss`` (graduated non-convexity), then with every
-    term from that estimate.  Then, for tracks at range walking towards or away from the camera, the limb
+    term from that estimate; between the two, images of someone else (:func:`outlier_views`, confirmed by
+    running the first stage again without them) are taken out of the track, recorded in
+    ``report.dropped_views``.  Then, for tracks at range walking towards or away from the camera, the limb
     depth-flip search (:mod:`pedx_graph.solvers.flips`, ``solver.flip_*``), which only ever lowers the
     error; tracks labelled in one camera per frame always get the search.  Returns (problem, values, report) of the final stage; the report's iterations and seconds
     cover every stage and the search, its initial error is the full graph's at the first stage's
     estimate, ``report.flips`` records the search (empty when it did not run)."""
-    problem, values, report = _two_stages(track, ctx, config, yaw_override)
+    track, problem, values, report = _two_stages(track, ctx, config, yaw_override)
     # one camera per frame: a limb mirrored across the viewing ray projects the same at any range and
     # heading, so such tracks always get the search; with stereo only far tracks walking along the ray do
     one_camera = all(len(fr.labelled_views(config.terms.all_views)) <= 1 for fr in track.frames)
@@ -70,11 +74,12 @@ def heading_ray_angle_deg(track: Track, init) -> float:
 
 
 def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
-    """The staged fit itself: (problem, values, report) as :func:`solve_staged` before the flip search."""
+    """The staged fit itself: (track, problem, values, report) as :func:`solve_staged` before the flip search;
+    ``track`` without the images the screen dropped."""
     if not config.terms.lidar_chamfer:
         problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
         values, report = solve(problem.graph, problem.initial, config.solver, *solver_parts(problem, config))
-        return problem, values, report
+        return track, problem, values, report
     coarse_config = coarse_stage_config(config)
     coarse_solver = dataclasses.replace(config.solver, max_iterations=config.solver.coarse_max_iterations,
                                         relative_error_tol=config.solver.coarse_relative_error_tol)
@@ -86,6 +91,40 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
         coarse = build_track_graph(track, ctx, coarse_config, yaw_override=yaw_override)
     coarse_values, coarse_report = solve(coarse.graph, coarse.initial, coarse_solver,
                                          *solver_parts(coarse, config))
+    # an image of someone else attached to the track: taken out where the first stage, run again without it,
+    # confirms it (the image still lies beyond the limit once it no longer pulls)
+    suspects = outlier_views(track, view_residuals(track, ctx, coarse, coarse_values, config), config)
+    dropped = []
+    if suspects:
+        trial = without_views(track, suspects)
+        if one_graph:
+            trial_problem = build_track_graph(trial, ctx, config, initial=coarse_values, init=problem.init)
+            trial_coarse = trial_problem.without({"lidar_chamfer"})
+        else:
+            trial_coarse = build_track_graph(trial, ctx, coarse_config, initial=coarse_values, init=coarse.init)
+        trial_values, again = solve(trial_coarse.graph, trial_coarse.initial, coarse_solver,
+                                    *solver_parts(trial_coarse, config))
+        coarse_report.iterations += again.iterations
+        coarse_report.seconds += again.seconds
+        after = view_residuals(track, ctx, trial_coarse, trial_values, config)
+        confirmed = {(index, pair, side): z for (index, pair, side), z in suspects.items()
+                     if any(p == pair and sd == side and z_after > config.solver.view_outlier_sigmas
+                            for p, sd, z_after in after[index])}
+        if confirmed:
+            dropped = [{"frame": int(track.frames[index].frame), "pair": pair, "side": side,
+                        "median_sigmas": round(float(z), 2)} for (index, pair, side), z in sorted(confirmed.items())]
+            if len(confirmed) == len(suspects):
+                track, coarse, coarse_values = trial, trial_coarse, trial_values
+                if one_graph:
+                    problem = trial_problem
+            else:
+                track = without_views(track, confirmed)
+                if one_graph:
+                    problem = build_track_graph(track, ctx, config, initial=trial_values, init=problem.init)
+                    coarse = problem.without({"lidar_chamfer"})
+                else:
+                    coarse = build_track_graph(track, ctx, coarse_config, initial=trial_values, init=coarse.init)
+                coarse_values = trial_values
     if one_graph:
         problem.initial = coarse_values
     else:
@@ -93,7 +132,75 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
     values, report = solve(problem.graph, problem.initial, config.solver, *solver_parts(problem, config))
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
-    return problem, values, report
+    report.dropped_views = dropped
+    return track, problem, values, report
+
+
+def view_residuals(track: Track, ctx, problem, values, config: FitConfig) -> list[list[tuple[str, str, float]]]:
+    """Per frame, ``(pair, side, median whitened residual)`` of every labelled image at ``values``: the norm of
+    each labelled keypoint's pixel error over its sigma (the label's own ``sigma_px``, else the config's
+    ``noise.keypoint_sigma_px``), median over the image's keypoints."""
+    import gtsam
+
+    pose = np.stack([np.concatenate([gtsam.Rot3.Logmap(values.atRot3(k.root)), values.atVector(k.body_pose)])
+                     for k in problem.keys])
+    betas = np.asarray(values.atVector(problem.keys[0].betas), dtype=float)
+    trans = np.stack([np.asarray(values.atVector(k.trans), dtype=float) for k in problem.keys])
+    world_p = np.asarray(ctx.model.keypoints(pose, np.broadcast_to(betas, (len(pose), len(betas))), trans))
+    default_sigma = float(config.noise.keypoint_sigma_px)
+    out = []
+    for i, frame in enumerate(track.frames):
+        rows = []
+        for pair, side, view in frame.labelled_views():
+            calib = track.calibrations[pair]
+            image_P_rect = calib.left_P_rect if side == "left" else calib.right_P_rect
+            rect_p = world_p[i] @ calib.rect_T_world[:3, :3].T + calib.rect_T_world[:3, 3]
+            hom = rect_p @ image_P_rect[:, :3].T + image_P_rect[:, 3]
+            labelled = view.labelled & (hom[:, 2] > 0)
+            if not labelled.any():
+                continue
+            sigma = np.full(len(view.keypoints), default_sigma)
+            if view.sigma_px is not None:
+                sigma = np.where(np.isfinite(view.sigma_px), view.sigma_px, default_sigma)
+            error = np.linalg.norm(hom[labelled, :2] / hom[labelled, 2:3] - view.keypoints[labelled], axis=1)
+            rows.append((pair, side, float(np.median(error / sigma[labelled]))))
+        out.append(rows)
+    return out
+
+
+def outlier_views(track: Track, residuals: list[list[tuple[str, str, float]]], config: FitConfig
+                  ) -> dict[tuple[int, str, str], float]:
+    """``(frame index, pair, side) -> median whitened residual`` of the images that look like someone else's
+    (:func:`view_residuals` per frame as ``residuals``): above ``solver.view_outlier_sigmas`` and above
+    ``solver.view_outlier_ratio`` times the median of the frame's images within that limit; only in frames
+    that have such images."""
+    limit = float(config.solver.view_outlier_sigmas)
+    out = {}
+    if not np.isfinite(limit):
+        return out
+    for index, rows in enumerate(residuals):
+        fits = [z for _, _, z in rows if z <= limit]
+        for pair, side, z in rows:
+            if fits and z > limit and z > config.solver.view_outlier_ratio * float(np.median(fits)):
+                out[index, pair, side] = z
+    return out
+
+
+def without_views(track: Track, views) -> Track:
+    """The track without the given images (``(frame index, pair, side)``); a frame whose primary pair loses
+    both images gets another of its pairs as primary (every frame keeps an image: callers never drop all)."""
+    by_frame = defaultdict(set)
+    for index, pair, side in views:
+        by_frame[index].add((pair, side))
+    frames = list(track.frames)
+    for index, gone in by_frame.items():
+        frame = frames[index]
+        kept = {(pair, side): view for pair, side, view in frame.labelled_views() if (pair, side) not in gone}
+        pairs = sorted({pair for pair, _ in kept}, key=lambda name: (name != frame.pair, name))
+        other = {pair: (kept.get((pair, "left")), kept.get((pair, "right"))) for pair in pairs[1:]}
+        frames[index] = dataclasses.replace(frame, pair=pairs[0], left=kept.get((pairs[0], "left")),
+                                            right=kept.get((pairs[0], "right")), other_views=other)
+    return dataclasses.replace(track, frames=frames)
 
 
 def solver_parts(problem, config: FitConfig) -> tuple:
