@@ -333,6 +333,7 @@ RULES: dict[str, Range | Choice] = {
     "LidarCutConfig.min_keypoints": Range(3.0, integer=True),
     "LidarCutConfig.gate_front_m": POSITIVE,
     "LidarCutConfig.gate_back_m": POSITIVE,
+    "LidarCutConfig.depth_gate_sigmas": NON_NEGATIVE,
     "LidarCutConfig.cluster_gap_m": POSITIVE,
     "LidarCutConfig.min_cluster_points": COUNT,
     "LidarCutConfig.ground_clearance_m": ANY,

@@ -61,6 +61,26 @@ def test_cut_keeps_the_person_only():
     assert (kept == "ground").sum() > 0 and (with_depth == "ground").sum() == 0
 
 
+def test_an_uncertain_depth_widens_the_gate():
+    """A stereo centre 1.6 m in front of the person (a far person's disparity is a few pixels of noise away),
+    uncertain by 0.7 m: the fixed gates hold none of the person's points; widened to ``depth_gate_sigmas``
+    of that uncertainty they hold the person and nothing else (the wall 3 m behind stays out).  A precise
+    depth keeps the fixed gates."""
+    calib = make_calibration(SimConfig().cameras.forward)
+    cloud, labels = _scene(np.random.default_rng(2))
+    uv, _ = _detection(calib)
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    config = LidarCutConfig()
+    depth = float(calib.world_to_rect(np.array([12.0, 0.0, GROUND_Z + 1.0]))[2])
+    assert len(cut_indices(uv, calib, "left", cloud, ground, config, depth_m=depth - 1.6)) == 0
+    widened = labels[cut_indices(uv, calib, "left", cloud, ground, config, depth_m=depth - 1.6,
+                                 depth_sigma_m=0.7)]
+    assert (widened == "person").mean() > 0.97 and (widened == "person").sum() > 250
+    precise = cut_indices(uv, calib, "left", cloud, ground, config, depth_m=depth - 0.3, depth_sigma_m=0.05)
+    np.testing.assert_array_equal(precise, cut_indices(uv, calib, "left", cloud, ground, config,
+                                                       depth_m=depth - 0.3))
+
+
 def test_hull_grows_with_the_person():
     config = LidarCutConfig(dilate_frac=0.1, dilate_px=0.0)
     uv = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 100.0], [0.0, 100.0], [np.nan, np.nan]])

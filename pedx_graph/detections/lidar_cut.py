@@ -9,7 +9,8 @@ polygon is the detection's *hull*:
   ``dilate_frac`` of the person's image height plus ``dilate_px`` (keypoints are joints and surface points;
   the silhouette reaches past them: head top, feet, arms' width);
 * **depth gate**: with a depth ``Z`` for the person (stereo, along the rectified optical axis) only points with
-  ``Z - gate_front_m <= z <= Z + gate_back_m`` are kept, and of those the depth cluster (depths sorted, split
+  ``Z - gate_front_m <= z <= Z + gate_back_m`` are kept (each gate at least ``depth_gate_sigmas`` times the
+  depth's uncertainty when that is known and large: a stereo centre at range), and of those the depth cluster (depths sorted, split
   at gaps over ``cluster_gap_m``) whose median is nearest ``Z`` (an occluder just in front, a wall just
   behind are clusters of their own); without a depth, the nearest cluster with ``min_cluster_points``;
 * **ground**: points less than ``ground_clearance_m`` above the ground plane of the sequence's
@@ -54,6 +55,9 @@ class LidarCutConfig:
     gate_back_m: float = 0.8
     """Points farther than the person's depth by more than this are dropped, metres (background seen past
     the silhouette)."""
+    depth_gate_sigmas: float = 3.0
+    """Where the person's depth is uncertain (a stereo centre at range, sigma ``s``), each gate is at least this
+    many ``s`` wide: a centre 2 m off no longer gates out every one of the person's points."""
     cluster_gap_m: float = 0.35
     """A gap this large between consecutive point depths separates two clusters, metres (a person's points
     span ~0.3 m in depth)."""
@@ -166,8 +170,10 @@ def project_cloud(calib: StereoCalibration, side: str, world_points: np.ndarray)
 
 def cut_indices(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_points: np.ndarray,
                 ground: GroundFrame, config: LidarCutConfig, depth_m: float | None = None,
-                projection: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Sorted row indices into ``world_points`` of :func:`cut_person`'s points."""
+                projection: tuple[np.ndarray, np.ndarray] | None = None,
+                depth_sigma_m: float | None = None) -> np.ndarray:
+    """Sorted row indices into ``world_points`` of :func:`cut_person`'s points (``depth_sigma_m``: the
+    uncertainty of ``depth_m``, widening the gates to ``depth_gate_sigmas`` of it)."""
     polygon = hull_polygon(np.asarray(rect_uv, dtype=float), config)
     if polygon is None or len(world_points) == 0:
         return np.zeros(0, dtype=np.int64)
@@ -183,7 +189,10 @@ def cut_indices(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_
         return index
     z = depth[index]
     if depth_m is not None and np.isfinite(depth_m):
-        index = index[(z >= depth_m - config.gate_front_m) & (z <= depth_m + config.gate_back_m)]
+        spread = config.depth_gate_sigmas * float(depth_sigma_m) if depth_sigma_m is not None and \
+            np.isfinite(depth_sigma_m) else 0.0
+        front, back = max(config.gate_front_m, spread), max(config.gate_back_m, spread)
+        index = index[(z >= depth_m - front) & (z <= depth_m + back)]
         index = index[_cluster_nearest_depth(depth[index], depth_m, config)]
     else:
         index = index[_nearest_cluster(z, config)]
@@ -211,7 +220,8 @@ def track_frame_points(frame, calibrations: Mapping[str, StereoCalibration], wor
         depth = None
         if frame.world_p is not None:
             depth = float(calib.world_to_rect(np.asarray(frame.world_p, dtype=float))[2])
-        index.append(cut_indices(uv, calib, side, world_points, ground, config, depth))
+        index.append(cut_indices(uv, calib, side, world_points, ground, config, depth,
+                                 depth_sigma_m=getattr(frame, "depth_sigma_m", None)))
     if not index:
         return np.zeros((0, 3))
     return world_points[np.unique(np.concatenate(index))]
