@@ -185,7 +185,7 @@ class SolverConfig:
     """Give up increasing the damping past this."""
     coarse_max_iterations: int = 8
     """Iterations of the first stage (without the LiDAR chamfer term), a warm start for the full graph."""
-    view_outlier_sigmas: float = 6.0
+    view_outlier_sigmas: float = 4.0
     """An image whose keypoints' median whitened reprojection residual exceeds this after the first stage (and
     ``view_outlier_ratio`` times that of the frame's images within it) is a suspect: a detection of someone
     else attached to the track, towards which the first stage's Gaussian loss bends the body by a few
