@@ -196,8 +196,9 @@ class SolverConfig:
     keeps every image."""
     view_outlier_ratio: float = 2.0
     """... times the median of the frame's images within ``view_outlier_sigmas`` (the first stage stops after
-    ``coarse_max_iterations``: every image of a frame can still sit a few sigma off; only frames with an
-    image within the limit are screened)."""
+    ``coarse_max_iterations``: every image of a frame can still sit a few sigma off; only frames with two
+    images within the limit are screened: with one, which of two images is someone else's is not told
+    apart)."""
     coarse_relative_error_tol: float = 1e-2
     """Relative-decrease tolerance of the first stage."""
     coarse_reprojection_loss: str = "none"

@@ -173,7 +173,7 @@ def outlier_views(track: Track, residuals: list[list[tuple[str, str, float]]], c
     """``(frame index, pair, side) -> median whitened residual`` of the images that look like someone else's
     (:func:`view_residuals` per frame as ``residuals``): above ``solver.view_outlier_sigmas`` and above
     ``solver.view_outlier_ratio`` times the median of the frame's images within that limit; only in frames
-    that have such images."""
+    with at least two such images (with one, which of two images is someone else's is not told apart)."""
     limit = float(config.solver.view_outlier_sigmas)
     out = {}
     if not np.isfinite(limit):
@@ -181,7 +181,7 @@ def outlier_views(track: Track, residuals: list[list[tuple[str, str, float]]], c
     for index, rows in enumerate(residuals):
         fits = [z for _, _, z in rows if z <= limit]
         for pair, side, z in rows:
-            if fits and z > limit and z > config.solver.view_outlier_ratio * float(np.median(fits)):
+            if len(fits) >= 2 and z > limit and z > config.solver.view_outlier_ratio * float(np.median(fits)):
                 out[index, pair, side] = z
     return out
 
