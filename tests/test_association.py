@@ -574,6 +574,30 @@ def test_a_centre_comes_from_the_detections_own_lidar_cluster():
     assert np.linalg.norm(obs.world_p[:2] - far) < 0.3
 
 
+def test_a_cluster_that_would_lift_the_person_off_the_ground_is_not_its_range():
+    """A person at 22 m whose own points the LiDAR does not see, and a box 1.2 m high at 15 m inside its
+    silhouette (a car's flank): at 15 m the person's feet would float ~0.6 m above the ground, so the box's
+    cluster is not its range.  With the person's own points present, they are."""
+    from pedx_graph.detections.association import detection_ranges
+
+    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    ground = _ground(calibs)
+    uv = calib.project(ahead)[0]
+    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv,
+                    confidence=np.full(len(uv), 0.9), score=0.9, source="test")
+    grid = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 7), np.linspace(0.3, 1.2, 6)), -1).reshape(-1, 2)
+    box = np.c_[np.full(len(grid), 15.0), grid[:, 0], GROUND_Z + grid[:, 1]]
+    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
+    person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
+                             for h in np.arange(0.2, 1.7, 0.3)])
+    config = AssociationConfig()
+    assert detection_ranges([(det, uv)], calib, "left", box, ground, config) == {}
+    ranges = detection_ranges([(det, uv)], calib, "left", np.concatenate([box, person]), ground, config)
+    assert abs(ranges[id(det)] - float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])) < 0.3
+
+
 def test_a_person_seen_in_one_image_gets_its_centre_from_its_lidar_cluster():
     """Seen in the left image only (no disparity), a detection whose LiDAR cluster is its own gets a centre
     on its viewing ray at that cluster's range: within a few decimetres of the person, in both images' rays."""

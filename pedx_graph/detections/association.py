@@ -28,7 +28,8 @@ Steps:
    identity in one image is decided by motion, before any stereo pairing.  With ``clouds`` (and
    ``lidar_identity``), each detection first gets the range of its LiDAR cluster (:func:`detection_ranges`),
    a capped term of the tracker's cost (``tracklet.range_sigma_m``): two people overlapping in one image a
-   metre apart in range are told apart where the LiDAR sees both.
+   metre apart in range are told apart where the LiDAR sees both (a cluster at a range where the person's
+   feet would leave the ground, ``lidar_feet_tolerance_m``, is not its person: a car in front of it).
 4. **Tracklets across the pair** (:func:`pair_tracklets`).  Per frame, a left and a right detection of one
    person (:func:`stereo_cost`, over the keypoints present in both with confidence >= ``min_confidence``):
 
@@ -183,6 +184,11 @@ class AssociationConfig:
     lidar_support_margin: float = 0.2
     """A detection whose two best clusters' supports (fraction of the cluster inside its hull) differ by less
     than this gets no LiDAR range."""
+    lidar_feet_tolerance_m: float = 0.4
+    """A LiDAR cluster is a detection's person only at a range where the detection's lowest foot keypoint
+    (ankles, heels, toes) lies within this of a standing foot's height above the ground plane, metres (a car
+    15 m away inside the silhouette of someone at 22 m puts that person's feet 0.6 m up in the air; slopes,
+    kerbs and a running stride stay within it).  Not tested when no foot is seen or the ground is unknown."""
     lidar_range_sigma_m: float = 0.2
     """Spread of a detection's LiDAR range about the person's (a few keypoints on a neighbour or the
     background), metres: the left/right agreement term is ``(r_l - r_r) / (sqrt(2) sigma)`` and the
@@ -462,6 +468,13 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     for i, index in enumerate(inside):
         counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
         support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
+    for i, (det, rect_uv) in enumerate(items):
+        for c in np.flatnonzero(support[i] > 0):
+            # a cluster at a range where the person would float above the ground or sink into it is not its
+            # person (a car or a pole between the camera and someone farther, inside the silhouette)
+            if not _feet_on_ground(det, rect_uv, calib, side, float(np.median(depth[used[label_of == c]])),
+                                   ground, config):
+                support[i, c] = 0.0
     rows, cols = linear_sum_assignment(-support)
     out = {}
     for i, c in zip(rows, cols):
@@ -931,6 +944,44 @@ def _agrees_with_stereo(obs: Observation, stereo: list[Observation], calib: Ster
     return abs(depth - known) <= config.gate_sigmas * min(float(nearest.depth_sigma_m), 5.0) + reach
 
 
+def pixel_at_depth(calib: StereoCalibration, side: str, uv: np.ndarray, depth_m: float) -> np.ndarray:
+    """(3,) world point of the rectified pixel ``uv`` of the pair's ``side`` image at ``depth_m`` along the
+    rectified optical axis."""
+    P = calib.left_P_rect if side == "left" else calib.right_P_rect
+    u, v = float(uv[0]), float(uv[1])
+    rect_p = np.array([((u - P[0, 2]) * depth_m - P[0, 3]) / P[0, 0], ((v - P[1, 2]) * depth_m - P[1, 3]) / P[1, 1],
+                       depth_m])
+    rect_T_world = np.asarray(calib.rect_T_world, dtype=float)      # rigid: its inverse is the transpose
+    return rect_T_world[:3, :3].T @ (rect_p - rect_T_world[:3, 3])
+
+
+def _feet_on_ground(det: Detection, rect_uv: np.ndarray, calib: StereoCalibration, side: str, depth_m: float,
+                    ground: GroundFrame, config: AssociationConfig) -> bool:
+    """Whether the detected person, put at ``depth_m``, stands on the ground: its lowest foot keypoint in the
+    image (ankles, heels, toes) lies within ``lidar_feet_tolerance_m`` of a foot's height above the ground
+    plane.  True when the ground height is unknown or no foot is seen (nothing to test)."""
+    if ground.ground_offset_m is None:
+        return True
+    feet = _foot_rows(det.keypoint_set)
+    present = [k for k in feet if k < len(rect_uv) and np.all(np.isfinite(rect_uv[k]))]
+    if not present:
+        return True
+    lowest = max(present, key=lambda k: rect_uv[k, 1])
+    height = float(ground.height(pixel_at_depth(calib, side, rect_uv[lowest], depth_m)[None])[0])
+    return abs(height - _FOOT_HEIGHT_M) <= config.lidar_feet_tolerance_m
+
+
+#: Height of a foot keypoint above the ground when standing (ankle ~0.08 m, heel and toe lower), metres.
+_FOOT_HEIGHT_M = 0.06
+
+
+@functools.lru_cache(maxsize=None)
+def _foot_rows(keypoint_set: str) -> tuple[int, ...]:
+    """Rows of a keypoint set's ankles, heels and toes."""
+    names = load_keypoint_set(keypoint_set).keypoints
+    return tuple(i for i, name in enumerate(names) if any(part in name.lower() for part in ("ankl", "heel", "toe")))
+
+
 def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float]) -> None:
     """Give an observation seen in one image only a centre where its detection has its own LiDAR cluster
     (:func:`detection_ranges`), in place: the median keypoint pixel's viewing ray at that cluster's range,
@@ -942,12 +993,7 @@ def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[in
     present = obs.uv[side][np.all(np.isfinite(obs.uv[side]), axis=1)]
     if len(present) == 0:
         return
-    depth = ranges[id(obs.payload[side])]
-    P = calib.left_P_rect if side == "left" else calib.right_P_rect
-    u, v = np.median(present, axis=0)
-    rect_p = np.array([((u - P[0, 2]) * depth - P[0, 3]) / P[0, 0], ((v - P[1, 2]) * depth - P[1, 3]) / P[1, 1], depth])
-    rect_T_world = calib.rect_T_world                   # rigid: its inverse is the transpose
-    obs.world_p = rect_T_world[:3, :3].T @ (rect_p - rect_T_world[:3, 3])
+    obs.world_p = pixel_at_depth(calib, side, np.median(present, axis=0), ranges[id(obs.payload[side])])
     obs.world_p_camera = _camera_centre(calib, side)
     obs.depth_sigma_m = 1.0
 
