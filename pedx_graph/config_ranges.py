@@ -286,7 +286,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.min_shared_keypoints": Range(2.0, integer=True),
     "AssociationConfig.duplicate_frac": NON_NEGATIVE,
     "AssociationConfig.pair_min_run_frames": COUNT,
-    "AssociationConfig.lidar_feet_tolerance_m": POSITIVE,
+    "AssociationConfig.feet_tolerance_m": POSITIVE,
     "AssociationConfig.keypoint_sigma_px": POSITIVE,
     "AssociationConfig.keypoint_sigma_frac": NON_NEGATIVE,
     "AssociationConfig.size_sigma": POSITIVE,

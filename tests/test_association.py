@@ -598,6 +598,24 @@ def test_a_cluster_that_would_lift_the_person_off_the_ground_is_not_its_range():
     assert abs(ranges[id(det)] - float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])) < 0.3
 
 
+def test_a_pairing_whose_depth_lifts_the_person_off_the_ground_is_gated():
+    """A left detection of someone at 22 m and a right detection of someone else 0.35 m to the side: their
+    disparity puts the person at ~13 m, where its feet would float ~0.8 m above the ground.  With the ground
+    known the pairing is gated out; the true pairing passes."""
+    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    ground = _ground(calibs)
+    config = AssociationConfig()
+    left, right = calib.project(ahead)
+    beside = calib.project(_person_points((22.0, 0.0), 0.0, 0.0) + [0.0, 0.35, 0.0])[1]
+    depth = calib.focal_px * calib.baseline_m / float(np.median(left[:, 0] - beside[:, 0]))
+    assert 12.0 < depth < 14.0
+    assert stereo_cost(left, right, calib, config, "coco17", ground=ground) < 1e9
+    assert stereo_cost(left, beside, calib, config, "coco17") < 1e9           # every other term passes
+    assert stereo_cost(left, beside, calib, config, "coco17", ground=ground) >= 1e9
+
+
 def test_a_person_seen_in_one_image_gets_its_centre_from_its_lidar_cluster():
     """Seen in the left image only (no disparity), a detection whose LiDAR cluster is its own gets a centre
     on its viewing ray at that cluster's range: within a few decimetres of the person, in both images' rays."""

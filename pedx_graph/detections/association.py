@@ -29,7 +29,7 @@ Steps:
    ``lidar_identity``), each detection first gets the range of its LiDAR cluster (:func:`detection_ranges`),
    a capped term of the tracker's cost (``tracklet.range_sigma_m``): two people overlapping in one image a
    metre apart in range are told apart where the LiDAR sees both (a cluster at a range where the person's
-   feet would leave the ground, ``lidar_feet_tolerance_m``, is not its person: a car in front of it).
+   feet would leave the ground, ``feet_tolerance_m``, is not its person: a car in front of it).
 4. **Tracklets across the pair** (:func:`pair_tracklets`).  Per frame, a left and a right detection of one
    person (:func:`stereo_cost`, over the keypoints present in both with confidence >= ``min_confidence``):
 
@@ -184,11 +184,14 @@ class AssociationConfig:
     lidar_support_margin: float = 0.2
     """A detection whose two best clusters' supports (fraction of the cluster inside its hull) differ by less
     than this gets no LiDAR range."""
-    lidar_feet_tolerance_m: float = 0.4
-    """A LiDAR cluster is a detection's person only at a range where the detection's lowest foot keypoint
-    (ankles, heels, toes) lies within this of a standing foot's height above the ground plane, metres (a car
-    15 m away inside the silhouette of someone at 22 m puts that person's feet 0.6 m up in the air; slopes,
-    kerbs and a running stride stay within it).  Not tested when no foot is seen or the ground is unknown."""
+    feet_tolerance_m: float = 0.4
+    """People stand on the ground: a LiDAR cluster is a detection's person, and a left and a right detection
+    are one person, only at a depth (the cluster's range; the pairing's median disparity) where the
+    detection's feet (the median pixel of its ankles, heels and toes) lie within this of a standing foot's height above
+    the ground plane, metres (plus ``gate_sigmas`` times the height error of the disparity's standard error).
+    A car 15 m away inside the silhouette of someone at 22 m puts that person's feet 0.6 m up in the air, a
+    left detection paired with someone else's right one at 13 m instead of 22 m 0.8 m; slopes, kerbs and a
+    running stride stay within it.  Not tested when no foot is seen or the ground is unknown."""
     lidar_range_sigma_m: float = 0.2
     """Spread of a detection's LiDAR range about the person's (a few keypoints on a neighbour or the
     background), metres: the left/right agreement term is ``(r_l - r_r) / (sqrt(2) sigma)`` and the
@@ -318,12 +321,14 @@ def implied_height_m(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCal
 
 def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
                 config: AssociationConfig, keypoint_set: str | None = None,
-                ranges_m: tuple[float | None, float | None] = (None, None)) -> float:
+                ranges_m: tuple[float | None, float | None] = (None, None),
+                ground: GroundFrame | None = None) -> float:
     """Cost of matching a left and a right detection (rectified (K, 2) pixels, unusable keypoints NaN); a
     value >= 1e9 means gated out (module docstring, step 4).  With ``keypoint_set`` given, the person height
     the pairing implies (:func:`implied_height_m`) is a fourth term where the nose and an ankle are seen.
     ``ranges_m``: the detections' LiDAR ranges (:func:`detection_ranges`): where both are known they must
-    agree, and the median disparity must match the range (``lidar_range_sigma_m``)."""
+    agree, and the median disparity must match the range (``lidar_range_sigma_m``).  With ``ground`` (and
+    ``keypoint_set``), the person at the pairing's depth must stand on the ground (``feet_tolerance_m``)."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     if both.sum() < config.min_shared_keypoints:
         return _GATED
@@ -338,6 +343,14 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
     depth = calib.focal_px * calib.baseline_m / d_med
     if not config.min_depth_m <= depth <= config.max_depth_m:
         return _GATED
+    if ground is not None and keypoint_set is not None:
+        # the depth's standard error, seen as a foot height: the ray to the foot descends to the ground
+        se_depth = depth / d_med * 1.2533 * np.sqrt(2.0) * (config.keypoint_sigma_px + config.keypoint_sigma_frac
+                                                               * max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))) \
+            / np.sqrt(len(left))
+        slack = config.gate_sigmas * se_depth * 2.0 / depth        # a camera ~2 m above the ground
+        if not _feet_on_ground(keypoint_set, uv_left, calib, "left", depth, ground, config, slack):
+            return _GATED
     spread = 1.4826 * float(np.median(np.abs(disparity - d_med))) / (np.sqrt(2.0) * sigma)
     span_l, span_r = np.ptp(left[:, 1]), np.ptp(right[:, 1])
     size = float(np.log(max(span_l, 1.0) / max(span_r, 1.0))) / config.size_sigma if min(span_l, span_r) > 4 else 0.0
@@ -472,7 +485,7 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
         for c in np.flatnonzero(support[i] > 0):
             # a cluster at a range where the person would float above the ground or sink into it is not its
             # person (a car or a pole between the camera and someone farther, inside the silhouette)
-            if not _feet_on_ground(det, rect_uv, calib, side, float(np.median(depth[used[label_of == c]])),
+            if not _feet_on_ground(det.keypoint_set, rect_uv, calib, side, float(np.median(depth[used[label_of == c]])),
                                    ground, config):
                 support[i, c] = 0.0
     rows, cols = linear_sum_assignment(-support)
@@ -514,10 +527,11 @@ def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]]
 
 def _frame_terms(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
                  config: AssociationConfig, keypoint_set: str | None = None,
-                 ranges_m: tuple[float | None, float | None] = (None, None)) -> tuple[float, float, float] | None:
+                 ranges_m: tuple[float | None, float | None] = (None, None),
+                 ground: GroundFrame | None = None) -> tuple[float, float, float] | None:
     """One frame's stereo evidence of a left and a right detection: ``(cost, disparity px, its standard error
     px)``; None when gated (:func:`stereo_cost`)."""
-    cost = stereo_cost(uv_left, uv_right, calib, config, keypoint_set, ranges_m)
+    cost = stereo_cost(uv_left, uv_right, calib, config, keypoint_set, ranges_m, ground)
     if cost >= _GATED:
         return None
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
@@ -555,7 +569,8 @@ def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray,
 
 
 def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
-                   ranges: Mapping[int, float] | None = None) -> list[tuple[float, list[int]]]:
+                   ranges: Mapping[int, float] | None = None,
+                   ground: GroundFrame | None = None) -> list[tuple[float, list[int]]]:
     """Evidence that a left and a right tracklet are one person, as ``(evidence, paired frames)`` per stretch of
     their shared frames.  Each shared frame whose stereo terms pass the gates and whose disparity lies within
     ``gate_sigmas`` of the tracklets' smooth disparity adds ``gate_sigmas^2 / 2`` minus its cost; every other
@@ -571,7 +586,8 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
         if frame in by_frame:
             kset = det.keypoint_set if det.keypoint_set == by_frame[frame][0].keypoint_set else None
             pair_ranges = (ranges.get(id(det)), ranges.get(id(by_frame[frame][0]))) if ranges else (None, None)
-            items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset, pair_ranges)))
+            items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset, pair_ranges,
+                                              ground)))
     if not items:
         return []
     items.sort(key=lambda item: item[0])
@@ -656,16 +672,17 @@ class _Person:
 
 
 def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration, config: AssociationConfig,
-                   ranges: Mapping[int, float] | None = None) -> list[_Person]:
+                   ranges: Mapping[int, float] | None = None, ground: GroundFrame | None = None) -> list[_Person]:
     """Group one pair's left and right tracklets into people (module docstring, step 4); ``ranges``: id of a
-    detection -> its LiDAR range (:func:`detection_ranges`)."""
+    detection -> its LiDAR range (:func:`detection_ranges`); ``ground``: people stand on it
+    (``feet_tolerance_m``)."""
     edges = []
     for i, lt in enumerate(left):
         l_frames = {f for f, _, _ in lt}
         for j, rt in enumerate(right):
             if not l_frames & {f for f, _, _ in rt}:
                 continue
-            for evidence, paired in _pair_evidence(lt, rt, calib, config, ranges):
+            for evidence, paired in _pair_evidence(lt, rt, calib, config, ranges, ground):
                 edges.append((-evidence, i, j, paired))
     edges.sort(key=lambda e: e[:3])
     people: list[_Person] = []
@@ -791,7 +808,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     out = []
     projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
-    for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges):
+    for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges, ground):
         drop_disparity_outliers(person, calib, config)
         frames = sorted(set(person.sides["left"]) | set(person.sides["right"]))
         if len(frames) < config.tracker.min_track_frames:
@@ -955,20 +972,21 @@ def pixel_at_depth(calib: StereoCalibration, side: str, uv: np.ndarray, depth_m:
     return rect_T_world[:3, :3].T @ (rect_p - rect_T_world[:3, 3])
 
 
-def _feet_on_ground(det: Detection, rect_uv: np.ndarray, calib: StereoCalibration, side: str, depth_m: float,
-                    ground: GroundFrame, config: AssociationConfig) -> bool:
-    """Whether the detected person, put at ``depth_m``, stands on the ground: its lowest foot keypoint in the
-    image (ankles, heels, toes) lies within ``lidar_feet_tolerance_m`` of a foot's height above the ground
-    plane.  True when the ground height is unknown or no foot is seen (nothing to test)."""
+def _feet_on_ground(keypoint_set: str, rect_uv: np.ndarray, calib: StereoCalibration, side: str, depth_m: float,
+                    ground: GroundFrame, config: AssociationConfig, slack_m: float = 0.0) -> bool:
+    """Whether the detected person (``keypoint_set``, rectified ``rect_uv`` in the pair's ``side`` image), put
+    at ``depth_m``, stands on the ground: the median pixel of its foot keypoints (ankles, heels, toes) lies
+    within ``feet_tolerance_m`` plus ``slack_m`` of a foot's height above the ground plane.  True when the
+    ground height is unknown or no foot is seen (nothing to test)."""
     if ground.ground_offset_m is None:
         return True
-    feet = _foot_rows(det.keypoint_set)
+    feet = _foot_rows(keypoint_set)
     present = [k for k in feet if k < len(rect_uv) and np.all(np.isfinite(rect_uv[k]))]
     if not present:
         return True
-    lowest = max(present, key=lambda k: rect_uv[k, 1])
-    height = float(ground.height(pixel_at_depth(calib, side, rect_uv[lowest], depth_m)[None])[0])
-    return abs(height - _FOOT_HEIGHT_M) <= config.lidar_feet_tolerance_m
+    foot_uv = np.median(rect_uv[present], axis=0)         # one stray toe does not lift the person
+    height = float(ground.height(pixel_at_depth(calib, side, foot_uv, depth_m)[None])[0])
+    return abs(height - _FOOT_HEIGHT_M) <= config.feet_tolerance_m + slack_m
 
 
 #: Height of a foot keypoint above the ground when standing (ankle ~0.08 m, heel and toe lower), metres.
