@@ -34,8 +34,8 @@ def _track(ctx, seed, wrong_frame=None):
     return track, pelvis
 
 
-def _fit(track, ctx, limit=None):
-    config = synthetic_config()
+def _fit(track, ctx, limit=None, **terms):
+    config = synthetic_config(**terms)
     config.solver.flip_segments = ()
     if limit is not None:
         config.solver.view_outlier_sigmas = limit
@@ -69,3 +69,11 @@ def test_a_clean_track_keeps_every_image(ctx):
         track, _ = _track(ctx, seed)
         result, _ = _fit(track, ctx)
         assert "dropped_views" not in result.extra_track
+
+
+def test_only_the_images_the_graph_fits_are_screened(ctx):
+    """With ``terms.all_views`` off the second pair's images are not in the graph: its wrong image is neither
+    judged nor reported."""
+    track, _ = _track(ctx, SEEDS[0], wrong_frame=2)
+    result, _ = _fit(track, ctx, all_views=False)
+    assert "dropped_views" not in result.extra_track

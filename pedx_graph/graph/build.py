@@ -185,6 +185,14 @@ def select_template_poses(track: Track, ctx: EstimatorContext, world_R_body: np.
     return out
 
 
+def fitted_views(fr: TrackFrame, terms, all_pairs: bool = True) -> list:
+    """``(pair, side, view)`` of the images a frame's reprojection factor holds: every labelled image
+    (``terms.all_views``; only the primary pair's otherwise, or when ``all_pairs`` is False) of the sides
+    ``terms.left_reprojection`` / ``terms.right_reprojection`` switch on."""
+    sides = {"left": terms.left_reprojection, "right": terms.right_reprojection}
+    return [v for v in fr.labelled_views(terms.all_views and all_pairs) if sides[v[1]]]
+
+
 def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration | Mapping[str, StereoCalibration],
                   previous: tuple[FrameKeys, float] | None, heading_yaw: float, speed_mps: float,
                   model, ctx: EstimatorContext, config: FitConfig,
@@ -210,9 +218,7 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
             out.append((factor, kind))
 
     calibrations = {fr.pair: calibration} if isinstance(calibration, StereoCalibration) else calibration
-    sides = {"left": terms.left_reprojection, "right": terms.right_reprojection}
-    views = [v for v in fr.labelled_views(terms.all_views and not isinstance(calibration, StereoCalibration))
-             if sides[v[1]]]
+    views = fitted_views(fr, terms, all_pairs=not isinstance(calibration, StereoCalibration))
     if views:
         rows = len(views[0][2].keypoints)          # 18, or 18 + E in a detector track's fit layout
         add(make_reprojection_factor(

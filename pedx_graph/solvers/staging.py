@@ -9,7 +9,7 @@ from collections import defaultdict
 import numpy as np
 
 from pedx_graph.data.types import Track
-from pedx_graph.graph.build import build_track_graph
+from pedx_graph.graph.build import build_track_graph, fitted_views
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import yaw_of
 from pedx_graph.solvers.batched import BatchedLinearizer
@@ -137,7 +137,8 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
 
 
 def view_residuals(track: Track, ctx, problem, values, config: FitConfig) -> list[list[tuple[str, str, float]]]:
-    """Per frame, ``(pair, side, median whitened residual)`` of every labelled image at ``values``: the norm of
+    """Per frame, ``(pair, side, median whitened residual)`` of every image the graph fits at ``values``
+    (:func:`~pedx_graph.graph.build.fitted_views`): the norm of
     each labelled keypoint's pixel error over its sigma (the label's own ``sigma_px``, else the config's
     ``noise.keypoint_sigma_px``), median over the image's keypoints."""
     import gtsam
@@ -151,7 +152,7 @@ def view_residuals(track: Track, ctx, problem, values, config: FitConfig) -> lis
     out = []
     for i, frame in enumerate(track.frames):
         rows = []
-        for pair, side, view in frame.labelled_views():
+        for pair, side, view in fitted_views(frame, config.terms):
             calib = track.calibrations[pair]
             image_P_rect = calib.left_P_rect if side == "left" else calib.right_P_rect
             rect_p = world_p[i] @ calib.rect_T_world[:3, :3].T + calib.rect_T_world[:3, 3]
