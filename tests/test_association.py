@@ -616,6 +616,33 @@ def test_a_pairing_whose_depth_lifts_the_person_off_the_ground_is_gated():
     assert stereo_cost(left, beside, calib, config, "coco17", ground=ground) >= 1e9
 
 
+def test_a_hidden_persons_cut_on_the_neighbour_in_front_is_not_its_centre():
+    """A far person (21 m) hidden from the LiDAR by a near one (20.5 m) just in front, neither detection given
+    a cluster of its own (one cluster in both hulls): the far person's cut holds the near one's points,
+    inside the near one's hull, so its stereo centre stays (uncertain) rather than moving onto the near
+    person with a LiDAR sigma.  Without the other detection to compare with, it moved."""
+    from pedx_graph.detections.association import _lidar_centre
+
+    far_points, near_points = _person_points((21.0, 0.0), 0.0, 0.0), _person_points((20.5, 0.1), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(far_points))[:, 0] > 0))
+    ground = _ground(calibs)
+    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
+    cloud = np.concatenate([np.c_[20.5 + 0.2 * np.cos(angles), 0.1 + 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
+                            for h in np.arange(0.2, 1.7, 0.3)])
+    uv_far, uv_near = calib.project(far_points)[0], calib.project(near_points)[0]
+    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv_far,
+                    confidence=np.full(len(uv_far), 0.9), score=0.9, source="test")
+    stereo = np.array([21.0, 0.0, GROUND_Z + 0.9])
+    moved = []
+    for others in ({"left": [uv_near]}, None):
+        obs = Observation(frame=0, uv={"left": uv_far}, score=0.9, world_p=stereo.copy(), depth_sigma_m=0.8,
+                          payload={"left": det})
+        _lidar_centre(obs, calib, cloud, ground, AssociationConfig(), {}, {}, {"left": []}, others)
+        moved.append(float(np.linalg.norm(obs.world_p[:2] - stereo[:2])))
+    assert moved[0] == 0.0 and moved[1] > 0.4
+
+
 def test_a_person_seen_in_one_image_gets_its_centre_from_its_lidar_cluster():
     """Seen in the left image only (no disparity), a detection whose LiDAR cluster is its own gets a centre
     on its viewing ray at that cluster's range: within a few decimetres of the person, in both images' rays."""

@@ -842,8 +842,10 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                     views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
                     claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
                                       if id(d) in ranges] for side in ("left", "right")}
+                    others = {side: [uv for d, uv in per_image[side].get(obs.frame, [])
+                                     if d is not obs.payload.get(side)] for side in ("left", "right")}
                     _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views,
-                                  ranges if config.lidar_identity else None, claimed)
+                                  ranges if config.lidar_identity else None, claimed, others)
                     projections.update({(obs.frame, side): v for side, v in views.items()})
         out.append(track)
     return repair_swaps(out, calib, config)
@@ -1018,7 +1020,8 @@ def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[in
 
 def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray, ground: GroundFrame,
                   config: AssociationConfig, projections: dict, ranges: Mapping[int, float] | None = None,
-                  claimed: Mapping[str, list[float]] | None = None) -> None:
+                  claimed: Mapping[str, list[float]] | None = None,
+                  others: Mapping[str, list[np.ndarray]] | None = None) -> None:
     """Replace the observation's centre by the median of its LiDAR cut when the cut is large enough
     (``projections``: side -> the cloud projected into that image, filled on first use).  With ``ranges``
     (:func:`detection_ranges`: each image's clusters given one to one to its detections), the cut must lie
@@ -1026,8 +1029,12 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     without one keeps its stereo centre when the cut lies at a range another detection of that image holds
     (``claimed``: side -> those ranges): a far person's cut that caught the near person in front is not taken
     for the far person's centre.  A detection whose cut misses its own cluster gets its stereo centre slid
-    along the viewing ray to that cluster's range (uncertain by ``lidar_range_sigma_m``)."""
-    from pedx_graph.detections.lidar_cut import cut_person, project_cloud
+    along the viewing ray to that cluster's range (uncertain by ``lidar_range_sigma_m``).  A detection without
+    its own cluster keeps its stereo centre too when most of its cut lies inside another detection's hull
+    of that image (``others``: side -> those detections' rectified keypoints): a cut of someone hidden
+    behind a neighbour holds the neighbour."""
+    from pedx_graph.data.segment_cut import segment_indices_from_projection
+    from pedx_graph.detections.lidar_cut import cut_indices, hull_polygon, project_cloud
 
     side = "left" if "left" in obs.uv else "right"
     own_range = None
@@ -1039,9 +1046,22 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
     if projections.get(side) is None:
         projections[side] = project_cloud(calib, side, cloud)
-    points = cut_person(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
+    index = cut_indices(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                         projection=projections[side])
+    points = cloud[index]
     centre, sigma = None, config.lidar_sigma_m
+    if own_range is None and others and len(index):
+        shared = np.zeros(len(cloud), dtype=bool)
+        for other_uv in others.get(side, []):
+            polygon = hull_polygon(np.asarray(other_uv, dtype=float), config.lidar_cut)
+            if polygon is not None:
+                shared[segment_indices_from_projection(np.where(np.isfinite(projections[side][0]),
+                                                                projections[side][0], -1e9),
+                                                       np.where(np.isfinite(projections[side][1]),
+                                                                projections[side][1], -1.0),
+                                                       polygon, config.lidar_cut.min_depth_m)] = True
+        if shared[index].mean() >= 0.5:
+            points = points[:0]
     if len(points) >= config.lidar_min_points:
         centre = ground.median_point(points)
         centre_range = float(calib.world_to_rect(centre)[2])
