@@ -96,12 +96,15 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
     suspects = outlier_views(track, view_residuals(track, ctx, coarse, coarse_values, config), config)
     dropped = []
     if suspects:
+        def rebuilt(without, initial):
+            """(full graph or None, first-stage graph) of the track without some images, from ``initial``."""
+            if one_graph:
+                full = build_track_graph(without, ctx, config, initial=initial, init=problem.init)
+                return full, full.without({"lidar_chamfer"})
+            return None, build_track_graph(without, ctx, coarse_config, initial=initial, init=coarse.init)
+
         trial = without_views(track, suspects)
-        if one_graph:
-            trial_problem = build_track_graph(trial, ctx, config, initial=coarse_values, init=problem.init)
-            trial_coarse = trial_problem.without({"lidar_chamfer"})
-        else:
-            trial_coarse = build_track_graph(trial, ctx, coarse_config, initial=coarse_values, init=coarse.init)
+        trial_problem, trial_coarse = rebuilt(trial, coarse_values)
         trial_values, again = solve(trial_coarse.graph, trial_coarse.initial, coarse_solver,
                                     *solver_parts(trial_coarse, config))
         coarse_report.iterations += again.iterations
@@ -114,17 +117,13 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
             dropped = [{"frame": int(track.frames[index].frame), "pair": pair, "side": side,
                         "median_sigmas": round(float(z), 2)} for (index, pair, side), z in sorted(confirmed.items())]
             if len(confirmed) == len(suspects):
-                track, coarse, coarse_values = trial, trial_coarse, trial_values
-                if one_graph:
-                    problem = trial_problem
+                track, full, coarse = trial, trial_problem, trial_coarse
             else:
                 track = without_views(track, confirmed)
-                if one_graph:
-                    problem = build_track_graph(track, ctx, config, initial=trial_values, init=problem.init)
-                    coarse = problem.without({"lidar_chamfer"})
-                else:
-                    coarse = build_track_graph(track, ctx, coarse_config, initial=trial_values, init=coarse.init)
-                coarse_values = trial_values
+                full, coarse = rebuilt(track, trial_values)
+            coarse_values = trial_values
+            if one_graph:
+                problem = full
     if one_graph:
         problem.initial = coarse_values
     else:
