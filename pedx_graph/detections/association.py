@@ -187,8 +187,9 @@ class AssociationConfig:
     feet_tolerance_m: float = 0.4
     """People stand on the ground: a LiDAR cluster is a detection's person, and a left and a right detection
     are one person, only at a depth (the cluster's range; the pairing's median disparity) where the
-    detection's feet (the median pixel of its ankles, heels and toes) lie within this of a standing foot's height above
-    the ground plane, metres (plus ``gate_sigmas`` times the height error of the disparity's standard error).
+    detection's feet (the median pixel of its ankles, heels and toes) lie within this of a standing foot's
+    height above the ground plane, metres (plus ``gate_sigmas`` times the foot height error of the
+    disparity's standard error: the camera's own height above the plane over the depth).
     A car 15 m away inside the silhouette of someone at 22 m puts that person's feet 0.6 m up in the air, a
     left detection paired with someone else's right one at 13 m instead of 22 m 0.8 m; slopes, kerbs and a
     running stride stay within it.  Not tested when no foot is seen or the ground is unknown."""
@@ -348,7 +349,8 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
         se_depth = depth / d_med * 1.2533 * np.sqrt(2.0) * (config.keypoint_sigma_px + config.keypoint_sigma_frac
                                                                * max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))) \
             / np.sqrt(len(left))
-        slack = config.gate_sigmas * se_depth * 2.0 / depth        # a camera ~2 m above the ground
+        camera_height = float(ground.height(_camera_centre(calib, "left")[None])[0])
+        slack = config.gate_sigmas * se_depth * abs(camera_height - _FOOT_HEIGHT_M) / depth
         if not _feet_on_ground(keypoint_set, uv_left, calib, "left", depth, ground, config, slack):
             return _GATED
     spread = 1.4826 * float(np.median(np.abs(disparity - d_med))) / (np.sqrt(2.0) * sigma)
@@ -974,6 +976,10 @@ def pixel_at_depth(calib: StereoCalibration, side: str, uv: np.ndarray, depth_m:
     return rect_T_world[:3, :3].T @ (rect_p - rect_T_world[:3, 3])
 
 
+#: Height of a foot keypoint above the ground when standing (ankle ~0.08 m, heel and toe lower), metres.
+_FOOT_HEIGHT_M = 0.06
+
+
 def _feet_on_ground(keypoint_set: str, rect_uv: np.ndarray, calib: StereoCalibration, side: str, depth_m: float,
                     ground: GroundFrame, config: AssociationConfig, slack_m: float = 0.0) -> bool:
     """Whether the detected person (``keypoint_set``, rectified ``rect_uv`` in the pair's ``side`` image), put
@@ -989,10 +995,6 @@ def _feet_on_ground(keypoint_set: str, rect_uv: np.ndarray, calib: StereoCalibra
     foot_uv = np.median(rect_uv[present], axis=0)         # one stray toe does not lift the person
     height = float(ground.height(pixel_at_depth(calib, side, foot_uv, depth_m)[None])[0])
     return abs(height - _FOOT_HEIGHT_M) <= config.feet_tolerance_m + slack_m
-
-
-#: Height of a foot keypoint above the ground when standing (ankle ~0.08 m, heel and toe lower), metres.
-_FOOT_HEIGHT_M = 0.06
 
 
 @functools.lru_cache(maxsize=None)
@@ -1052,14 +1054,13 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     centre, sigma = None, config.lidar_sigma_m
     if own_range is None and others and len(index):
         shared = np.zeros(len(cloud), dtype=bool)
+        cloud_uv = np.where(np.isfinite(projections[side][0]), projections[side][0], -1e9)
+        cloud_depth = np.where(np.isfinite(projections[side][1]), projections[side][1], -1.0)
         for other_uv in others.get(side, []):
             polygon = hull_polygon(np.asarray(other_uv, dtype=float), config.lidar_cut)
             if polygon is not None:
-                shared[segment_indices_from_projection(np.where(np.isfinite(projections[side][0]),
-                                                                projections[side][0], -1e9),
-                                                       np.where(np.isfinite(projections[side][1]),
-                                                                projections[side][1], -1.0),
-                                                       polygon, config.lidar_cut.min_depth_m)] = True
+                shared[segment_indices_from_projection(cloud_uv, cloud_depth, polygon,
+                                                       config.lidar_cut.min_depth_m)] = True
         if shared[index].mean() >= 0.5:
             points = points[:0]
     if len(points) >= config.lidar_min_points:
