@@ -9,7 +9,8 @@ from collections import defaultdict
 import numpy as np
 
 from pedx_graph.data.types import Track
-from pedx_graph.graph.build import build_track_graph, fitted_views
+from factors.stereo_reprojection import image_projection
+from pedx_graph.graph.build import build_track_graph, extract_estimate, fitted_views
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.init import yaw_of
 from pedx_graph.solvers.batched import BatchedLinearizer
@@ -140,22 +141,16 @@ def view_residuals(track: Track, ctx, problem, values, config: FitConfig) -> lis
     (:func:`~pedx_graph.graph.build.fitted_views`): the norm of
     each labelled keypoint's pixel error over its sigma (the label's own ``sigma_px``, else the config's
     ``noise.keypoint_sigma_px``), median over the image's keypoints."""
-    import gtsam
-
-    pose = np.stack([np.concatenate([gtsam.Rot3.Logmap(values.atRot3(k.root)), values.atVector(k.body_pose)])
-                     for k in problem.keys])
-    betas = np.asarray(values.atVector(problem.keys[0].betas), dtype=float)
-    trans = np.stack([np.asarray(values.atVector(k.trans), dtype=float) for k in problem.keys])
-    world_p = np.asarray(ctx.model.keypoints(pose, np.broadcast_to(betas, (len(pose), len(betas))), trans))
+    est = extract_estimate(problem, values, ctx)
+    betas = np.broadcast_to(est.betas, (len(est.pose), len(est.betas)))
+    world_p = np.asarray(ctx.model.keypoints(est.pose, betas, est.trans))    # the label rows (a fit layout's too)
     default_sigma = float(config.noise.keypoint_sigma_px)
     out = []
     for i, frame in enumerate(track.frames):
         rows = []
         for pair, side, view in fitted_views(frame, config.terms):
-            calib = track.calibrations[pair]
-            image_P_rect = calib.left_P_rect if side == "left" else calib.right_P_rect
-            rect_p = world_p[i] @ calib.rect_T_world[:3, :3].T + calib.rect_T_world[:3, 3]
-            hom = rect_p @ image_P_rect[:, :3].T + image_P_rect[:, 3]
+            image_P_world = image_projection(track.calibrations[pair], side)
+            hom = world_p[i] @ image_P_world[:, :3].T + image_P_world[:, 3]
             labelled = view.labelled & (hom[:, 2] > 0)
             if not labelled.any():
                 continue
