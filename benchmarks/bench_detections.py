@@ -16,8 +16,8 @@ simulator's SMPL truth: manual tracks by their tracking id; detector tracks agai
 present (labelled or not) whose pelvis is nearest the fitted pelvis at that frame (within 1 m in the ground
 plane; frames matched to a bystander or to an unlabelled instance are not scored; a frame fitted farther than
 1 m from everyone whose detections are mostly a labelled person's is counted as *misplaced*, without an
-MPJPE).  Reported per input and distance bin (horizontal distance of the true pelvis from the LiDAR): global MPJPE and root-relative MPJPE (13 evaluation joints, after similarity
-alignment for the latter), mean keypoint NEES / 3 dof and the 95 % ellipsoid coverage of the 18 fitted
+MPJPE).  Reported per input and distance bin (horizontal distance of the true pelvis from the LiDAR): global
+MPJPE and root-relative MPJPE (13 evaluation joints, after similarity alignment for the latter), mean keypoint NEES / 3 dof and the 95 % ellipsoid coverage of the 18 fitted
 keypoints (covariance status ``ok``).
 
 Association (per detector format, run as the import runs it, scored against ``truth/detections``,

@@ -10,8 +10,8 @@ polygon is the detection's *hull*:
   the silhouette reaches past them: head top, feet, arms' width);
 * **depth gate**: with a depth ``Z`` for the person (stereo, along the rectified optical axis) only points with
   ``Z - gate_front_m <= z <= Z + gate_back_m`` are kept (each gate at least ``depth_gate_sigmas`` times the
-  depth's uncertainty when that is known and large: a stereo centre at range), and of those the depth cluster (depths sorted, split
-  at gaps over ``cluster_gap_m``) whose median is nearest ``Z`` (an occluder just in front, a wall just
+  depth's uncertainty when that is known and large: a stereo centre at range), and of those the depth
+  cluster (depths sorted, split at gaps over ``cluster_gap_m``) whose median is nearest ``Z`` (an occluder just in front, a wall just
   behind are clusters of their own); without a depth, the nearest cluster with ``min_cluster_points``;
 * **ground**: points less than ``ground_clearance_m`` above the ground plane of the sequence's
   :class:`~pedx_graph.data.ground.GroundFrame` are removed (kept when its ground height is unknown);
