@@ -1035,7 +1035,7 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     its own cluster keeps its stereo centre too when most of its cut lies inside another detection's hull
     of that image (``others``: side -> those detections' rectified keypoints): a cut of someone hidden
     behind a neighbour holds the neighbour."""
-    from pedx_graph.data.segment_cut import segment_indices_from_projection
+    from pedx_graph.data.segment_cut import points_in_polygon
     from pedx_graph.detections.lidar_cut import cut_indices, hull_polygon, project_cloud
 
     side = "left" if "left" in obs.uv else "right"
@@ -1053,15 +1053,13 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     points = cloud[index]
     centre, sigma = None, config.lidar_sigma_m
     if own_range is None and others and len(index):
-        shared = np.zeros(len(cloud), dtype=bool)
-        cloud_uv = np.where(np.isfinite(projections[side][0]), projections[side][0], -1e9)
-        cloud_depth = np.where(np.isfinite(projections[side][1]), projections[side][1], -1.0)
+        cut_uv = projections[side][0][index]              # the cut's pixels (finite: they lie in its hull)
+        shared = np.zeros(len(index), dtype=bool)
         for other_uv in others.get(side, []):
             polygon = hull_polygon(np.asarray(other_uv, dtype=float), config.lidar_cut)
             if polygon is not None:
-                shared[segment_indices_from_projection(cloud_uv, cloud_depth, polygon,
-                                                       config.lidar_cut.min_depth_m)] = True
-        if shared[index].mean() >= 0.5:
+                shared |= points_in_polygon(cut_uv, polygon)
+        if shared.mean() >= 0.5:
             points = points[:0]
     if len(points) >= config.lidar_min_points:
         centre = ground.median_point(points)
