@@ -483,12 +483,13 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     for i, index in enumerate(inside):
         counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
         support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
+    cluster_range = {int(c): float(np.median(depth[used[label_of == c]]))
+                     for c in np.flatnonzero(support.max(axis=0, initial=0.0) > 0)}
     for i, (det, rect_uv) in enumerate(items):
         for c in np.flatnonzero(support[i] > 0):
             # a cluster at a range where the person would float above the ground or sink into it is not its
             # person (a car or a pole between the camera and someone farther, inside the silhouette)
-            if not _feet_on_ground(det.keypoint_set, rect_uv, calib, side, float(np.median(depth[used[label_of == c]])),
-                                   ground, config):
+            if not _feet_on_ground(det.keypoint_set, rect_uv, calib, side, cluster_range[int(c)], ground, config):
                 support[i, c] = 0.0
     rows, cols = linear_sum_assignment(-support)
     out = {}
@@ -500,8 +501,7 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
         if any(len(x) and x.max() > 0 and support[i, c] - x.max() < config.lidar_support_margin
                for x in (others, rivals)):
             continue
-        members = used[label_of == c]
-        out[id(items[i][0])] = float(np.median(depth[members]))
+        out[id(items[i][0])] = cluster_range[int(c)]
     return out
 
 
