@@ -232,7 +232,7 @@ def test_two_people_crossing_at_20_m_on_the_pedx_rig_keep_their_ids():
     calib = calibs[cfg.cameras.forward.name]
     up = ground_from_calibrations(calibs).world_up        # the simulator's frame, derived from the cameras
     world_T_cam = np.asarray(calib.world_T_cam, dtype=float)
-    axis = (world_T_cam[:3, :3] @ np.asarray(calib.rect_R_cam).T)[:, 2]    # the rectified viewing direction
+    axis = calib.world_R_rect[:, 2]                                        # the rectified viewing direction
     forward = axis - (axis @ up) * up
     forward /= np.linalg.norm(forward)
     lateral = np.cross(up, forward)
@@ -284,7 +284,7 @@ def _walkers_together(with_clouds: bool, seed: int):
     calib = calibs[cfg.cameras.forward.name]
     up = ground_from_calibrations(calibs).world_up
     world_T_cam = np.asarray(calib.world_T_cam, dtype=float)
-    axis = (world_T_cam[:3, :3] @ np.asarray(calib.rect_R_cam).T)[:, 2]
+    axis = calib.world_R_rect[:, 2]
     forward = axis - (axis @ up) * up
     forward /= np.linalg.norm(forward)
     lateral = np.cross(up, forward)

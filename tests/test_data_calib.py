@@ -164,3 +164,23 @@ def test_bad_pair_skipped_good_pair_kept(tmp_path, caplog):
 def test_no_pair_readable_raises(tmp_path):
     with pytest.raises(DataFormatError, match="no 'calib_cam_to_cam"):
         read_calibrations(tmp_path)
+
+
+def test_rectified_frame_to_world_and_camera_centres():
+    """``rect_to_world`` inverts ``world_to_rect``; the left camera sits at the rectified frame's origin, the
+    right one a baseline along the rectified x axis, where the right projection puts its principal ray."""
+    from pedx_graph.sim.cameras import make_calibration
+    from pedx_graph.sim.config import SimConfig
+
+    rng = np.random.default_rng(5)
+    for pair in SimConfig().cameras.pairs():
+        calib = make_calibration(pair)
+        world_p = rng.normal(scale=10.0, size=(20, 3))
+        np.testing.assert_allclose(calib.rect_to_world(calib.world_to_rect(world_p)), world_p, atol=1e-9)
+        np.testing.assert_allclose(calib.world_to_rect(calib.camera_centre("left")), 0.0, atol=1e-9)
+        right = calib.world_to_rect(calib.camera_centre("right"))
+        np.testing.assert_allclose(right, [calib.baseline_m, 0.0, 0.0], atol=1e-9)
+        # a point on the right camera's optical axis projects to the right principal point
+        ahead = calib.rect_to_world(right + [0.0, 0.0, 7.0])
+        np.testing.assert_allclose(calib.project(ahead)[1], calib.right_P_rect[:2, 2], atol=1e-6)
+        np.testing.assert_allclose(calib.world_R_rect @ calib.world_R_rect.T, np.eye(3), atol=1e-12)

@@ -186,8 +186,7 @@ def camera_up_vectors(calibrations: dict) -> dict[str, np.ndarray]:
     out = {}
     for name in sorted(calibrations):
         calib = calibrations[name]
-        world_R_rect = np.asarray(calib.world_T_cam)[:3, :3] @ np.asarray(calib.rect_R_cam).T
-        out[name] = _unit(-world_R_rect[:, 1])
+        out[name] = _unit(-calib.world_R_rect[:, 1])
     return out
 
 
@@ -196,17 +195,14 @@ def camera_centres(calibrations: dict) -> np.ndarray:
     centres = []
     for name in sorted(calibrations):
         calib = calibrations[name]
-        world_R_rect = np.asarray(calib.world_T_cam)[:3, :3] @ np.asarray(calib.rect_R_cam).T
-        left = np.asarray(calib.world_T_cam)[:3, 3]
-        centres += [left, left + world_R_rect[:, 0] * calib.baseline_m]
+        centres += [calib.camera_centre("left"), calib.camera_centre("right")]
     return np.asarray(centres, dtype=float).reshape(-1, 3)
 
 
 def reference_forward(calibrations: dict) -> np.ndarray:
     """(3,) optical axis of the reference camera (the left camera of the first pair by name)."""
     calib = calibrations[sorted(calibrations)[0]]
-    world_R_rect = np.asarray(calib.world_T_cam)[:3, :3] @ np.asarray(calib.rect_R_cam).T
-    return world_R_rect[:, 2]
+    return calib.world_R_rect[:, 2].copy()
 
 
 def calibration_up(calibrations: dict, sequence: str = "", max_disagreement_deg: float = 5.0

@@ -99,6 +99,31 @@ class StereoCalibration:
         rect_T_world = self.rect_T_world
         return world_p @ rect_T_world[:3, :3].T + rect_T_world[:3, 3]
 
+    @cached_property
+    def world_R_rect(self) -> np.ndarray:
+        """(3, 3) orientation of the rectified left frame in the world: its columns are the rectified x (image
+        right), y (image down) and z (optical axis) directions in world coordinates (computed once,
+        read-only)."""
+        out = np.asarray(self.world_T_cam, dtype=float)[:3, :3] @ np.asarray(self.rect_R_cam, dtype=float).T
+        out.setflags(write=False)
+        return out
+
+    def rect_to_world(self, rect_p: np.ndarray) -> np.ndarray:
+        """Map (..., 3) points of the rectified left camera frame into the world (the inverse of
+        :meth:`world_to_rect`; the rectified frame shares the left camera's origin)."""
+        world_t = np.asarray(self.world_T_cam, dtype=float)[:3, 3]
+        return np.asarray(rect_p, dtype=float) @ self.world_R_rect.T + world_t
+
+    def camera_centre(self, side: str) -> np.ndarray:
+        """(3,) optical centre of the pair's ``side`` (``"left"`` / ``"right"``) camera in the world frame: the
+        right one is the left one moved by the baseline along the rectified x axis."""
+        centre = np.asarray(self.world_T_cam, dtype=float)[:3, 3].copy()
+        if side == "right":
+            centre = centre + self.world_R_rect[:, 0] * self.baseline_m
+        elif side != "left":
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        return centre
+
     def project(self, world_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project (..., 3) world points into the left and right rectified images: two (..., 2) arrays.
 

@@ -349,7 +349,7 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
         se_depth = depth / d_med * 1.2533 * np.sqrt(2.0) * (config.keypoint_sigma_px + config.keypoint_sigma_frac
                                                                * max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))) \
             / np.sqrt(len(left))
-        camera_height = float(ground.height(_camera_centre(calib, "left")[None])[0])
+        camera_height = float(ground.height(calib.camera_centre("left")[None])[0])
         slack = config.gate_sigmas * se_depth * abs(camera_height - _FOOT_HEIGHT_M) / depth
         if not _feet_on_ground(keypoint_set, uv_left, calib, "left", depth, ground, config, slack):
             return _GATED
@@ -391,9 +391,7 @@ def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoC
     depth = calib.focal_px * calib.baseline_m / d_med
     rect_p = np.stack([(left[:, 0] - c_u) * depth / f_u, (left[:, 1] - c_v) * depth / f_v,
                        np.full(len(left), depth)], axis=1)
-    world_T_rect = np.asarray(calib.world_T_cam, dtype=float).copy()
-    world_T_rect[:3, :3] = world_T_rect[:3, :3] @ np.asarray(calib.rect_R_cam).T
-    world_p = rect_p @ world_T_rect[:3, :3].T + world_T_rect[:3, 3]
+    world_p = calib.rect_to_world(rect_p)
     disparity = left[:, 0] - right[:, 0]
     spread = max(1.4826 * float(np.median(np.abs(disparity - d_med))), sigma_disparity_px)
     sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * spread / np.sqrt(max(len(left), 1))
@@ -419,14 +417,6 @@ def match_stereo(left: list[tuple[Detection, np.ndarray]], right: list[tuple[Det
     pairs += [(i, None) for i in range(len(left)) if i not in used_l]
     pairs += [(None, j) for j in range(len(right)) if j not in used_r]
     return sorted(pairs, key=lambda p: (p[0] is None, p[0] if p[0] is not None else p[1]))
-
-
-def _camera_centre(calib: StereoCalibration, side: str) -> np.ndarray:
-    centre = np.asarray(calib.world_T_cam, dtype=float)[:3, 3].copy()
-    if side == "right":
-        world_R_rect = np.asarray(calib.world_T_cam)[:3, :3] @ np.asarray(calib.rect_R_cam).T
-        centre = centre + world_R_rect[:, 0] * calib.baseline_m
-    return centre
 
 
 # ---------------------------------------------------------------------------------------------- LiDAR ranges
@@ -827,7 +817,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             if frame in person.paired:
                 obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground,
                                                                     sigma_disparity)
-                obs.world_p_camera = _camera_centre(calib, "left")
+                obs.world_p_camera = calib.camera_centre("left")
                 both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                 obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
             track.append(obs)
@@ -972,8 +962,7 @@ def pixel_at_depth(calib: StereoCalibration, side: str, uv: np.ndarray, depth_m:
     u, v = float(uv[0]), float(uv[1])
     rect_p = np.array([((u - P[0, 2]) * depth_m - P[0, 3]) / P[0, 0], ((v - P[1, 2]) * depth_m - P[1, 3]) / P[1, 1],
                        depth_m])
-    rect_T_world = np.asarray(calib.rect_T_world, dtype=float)      # rigid: its inverse is the transpose
-    return rect_T_world[:3, :3].T @ (rect_p - rect_T_world[:3, 3])
+    return calib.rect_to_world(rect_p)
 
 
 #: Height of a foot keypoint above the ground when standing (ankle ~0.08 m, heel and toe lower), metres.
@@ -1016,7 +1005,7 @@ def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[in
     if len(present) == 0:
         return
     obs.world_p = pixel_at_depth(calib, side, np.median(present, axis=0), ranges[id(obs.payload[side])])
-    obs.world_p_camera = _camera_centre(calib, side)
+    obs.world_p_camera = calib.camera_centre(side)
     obs.depth_sigma_m = 1.0
 
 
@@ -1071,7 +1060,7 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
             centre = None
     if centre is None and own_range is not None and depth is not None and depth > 0:
         # the cut missed the detection's own cluster: the stereo centre slid along its ray to that range
-        camera = _camera_centre(calib, "left")           # the rectified frame's origin
+        camera = calib.camera_centre("left")           # the rectified frame's origin
         centre = camera + (own_range / depth) * (np.asarray(obs.world_p, dtype=float) - camera)
         sigma = config.lidar_range_sigma_m
     if centre is None:
@@ -1080,7 +1069,7 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     offset = np.linalg.norm(ground.to_level(centre)[:2] - ground.to_level(obs.world_p)[:2])
     if offset <= config.gate_sigmas * obs.depth_sigma_m + config.lidar_agreement_m:
         obs.world_p = centre
-        obs.world_p_camera = _camera_centre(calib, side)
+        obs.world_p_camera = calib.camera_centre(side)
         obs.depth_sigma_m = sigma
 
 
@@ -1206,7 +1195,7 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
                 score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
                 if calibrations is not None:
                     # a centre is uncertain along its viewing ray, hardly across it: gated and ordered so
-                    cameras = [ground.to_level(_camera_centre(calibrations[pair_tracks[i][0]], "left"))[:2]
+                    cameras = [ground.to_level(calibrations[pair_tracks[i][0]].camera_centre("left"))[:2]
                                for i in (a, b)]
                     distance = _ray_distance(pa, pb, cameras,
                                              [np.array([centres[i][f][1] for f in shared]) for i in (a, b)],
@@ -1222,7 +1211,7 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
                         continue
                     known_centres = {f: (c, s, spans[known]) for f, (c, s) in centres[known].items()}
                     value = _image_agreement(pair_tracks[seen][1], known_centres,
-                                             _camera_centre(calibrations[pair_tracks[known][0]], "left"),
+                                             calibrations[pair_tracks[known][0]].camera_centre("left"),
                                              calibrations[pair_tracks[seen][0]], config)
                     if value is not None:
                         options.append(value)

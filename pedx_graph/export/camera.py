@@ -43,11 +43,7 @@ class Camera:
     def world_center(self) -> np.ndarray:
         """(3,) optical centre in the world frame (the right camera: the left one moved by the baseline along
         the rectified x axis)."""
-        world_R_rect = self.calib.world_T_cam[:3, :3] @ self.calib.rect_R_cam.T
-        centre = self.calib.world_T_cam[:3, 3].copy()
-        if self.side == "right":
-            centre = centre + world_R_rect[:, 0] * self.calib.baseline_m
-        return centre
+        return self.calib.camera_centre(self.side)
 
     def project(self, world_p: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """(..., 3) world points -> ((..., 2) pixels of an image ``scale`` times the calibration's size,

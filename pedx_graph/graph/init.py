@@ -224,10 +224,7 @@ def _effective_baseline(frame: TrackFrame, calibrations, world_p: np.ndarray, al
     labelling ``frame``, metres (the in-pair baseline for one pair; ~1 m for both PedX pairs)."""
     centres = []
     for pair, side, _ in frame.labelled_views(all_views):
-        calib = calibrations[pair]
-        world_R_rect = calib.world_T_cam[:3, :3] @ calib.rect_R_cam.T
-        centre = calib.world_T_cam[:3, 3] + (world_R_rect[:, 0] * calib.baseline_m if side == "right" else 0.0)
-        centres.append(centre)
+        centres.append(calibrations[pair].camera_centre(side))
     centres = np.asarray(centres)
     ray = world_p - centres.mean(axis=0)
     ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
@@ -369,8 +366,7 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], ground: 
     for i, m in enumerate(measurements):
         if not (np.isfinite(heading[i]) and speed[i] > 0):
             continue
-        rect_T_world = m.calibration.rect_T_world
-        camera = ground.to_level(-rect_T_world[:3, :3].T @ rect_T_world[:3, 3])
+        camera = ground.to_level(m.calibration.camera_centre("left"))
         ray = level_centre[i, :2] - camera[:2]
         ray = ray / max(float(np.hypot(*ray)), 1e-9)
         sin_across = abs(ray[0] * np.sin(heading[i]) - ray[1] * np.cos(heading[i]))

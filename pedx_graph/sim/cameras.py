@@ -95,7 +95,7 @@ def output_calibration(calib: StereoCalibration, output_T_sim: np.ndarray) -> St
 
 def sim_yaw_deg(calib: StereoCalibration) -> float:
     """Bearing (degrees about the sim frame's z, 0 = +x) of the rectified left camera's optical axis."""
-    axis = (calib.world_T_cam[:3, :3] @ calib.rect_R_cam.T)[:, 2]
+    axis = calib.world_R_rect[:, 2]
     return float(np.degrees(np.arctan2(axis[1], axis[0])))
 
 
@@ -111,7 +111,7 @@ class CameraView:
     @cached_property
     def world_R_rect(self) -> np.ndarray:
         """(3, 3) orientation of the rectified left frame in the world."""
-        return self.calib.world_T_cam[:3, :3] @ self.calib.rect_R_cam.T
+        return self.calib.world_R_rect
 
     @cached_property
     def _rect_T_world(self) -> np.ndarray:
@@ -120,10 +120,7 @@ class CameraView:
     @cached_property
     def world_center(self) -> np.ndarray:
         """(3,) optical centre in the world frame."""
-        centre = self.calib.world_T_cam[:3, 3].copy()
-        if self.side == "right":
-            centre = centre + self.world_R_rect[:, 0] * self.calib.baseline_m
-        return centre
+        return self.calib.camera_centre(self.side)
 
     @property
     def P_rect(self) -> np.ndarray:

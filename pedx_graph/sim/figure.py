@@ -35,7 +35,7 @@ def _top_view(ax, meta, calibs, pair, points, truth, person_ids, limits, title, 
         ax.add_patch(MplPolygon(quad[:, ::-1], closed=True, lw=0, alpha=0.5, zorder=0,
                                 color="gold" if w["kind"] == "crosswalk" else "0.88"))
     for name, c in calibs.items():
-        axis = (sim_T_output[:3, :3] @ c.world_T_cam[:3, :3] @ c.rect_R_cam.T)[:, 2]
+        axis = (sim_T_output[:3, :3] @ c.world_R_rect)[:, 2]
         yaw = np.degrees(np.arctan2(axis[1], axis[0]))
         half = np.degrees(np.arctan2(c.image_size[0] / 2, c.focal_px))
         ax.add_patch(Wedge((0, 0), 60, 90 - yaw - half, 90 - yaw + half, alpha=0.07, zorder=0,
