@@ -306,6 +306,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.disparity_smooth_px": NON_NEGATIVE,
     "AssociationConfig.tracklet_switch_cost": NON_NEGATIVE,
     "AssociationConfig.swap_motion_m": NON_NEGATIVE,
+    "AssociationConfig.min_separation_m": NON_NEGATIVE,
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,
     "AssociationConfig.smooth_motion_m": POSITIVE,
     "AssociationConfig.lidar_cluster_gap_m": POSITIVE,
@@ -339,6 +340,8 @@ RULES: dict[str, Range | Choice] = {
     "LidarCutConfig.min_cluster_points": COUNT,
     "LidarCutConfig.ground_clearance_m": ANY,
     "LidarCutConfig.min_depth_m": NON_NEGATIVE,
+    "LidarCutConfig.body_radius_m": NON_NEGATIVE,
+    "LidarCutConfig.claim_sigma_m": NON_NEGATIVE,
     # pedx_graph.detections.importer.ImportConfig, noise.DetectionNoiseConfig (SigmaCurve checks itself)
     "ImportConfig.min_keypoints": COUNT,
     "DetectionNoiseConfig.min_confidence": FRACTION,

@@ -110,3 +110,65 @@ def test_segments_in_the_release_layout(tmp_path):
     counts = write_track_segments(tmp_path / "b", "20991231T1200", [track], {calib.name: calib}, ground,
                                   lambda f: (_ for _ in ()).throw(OSError("missing")))
     assert counts == {"segments": 0, "points": 0, "frames_without_cloud": 1}
+
+
+def test_a_hidden_person_leaves_the_neighbours_points_to_the_neighbour(tmp_path):
+    """A person hidden from the LiDAR 0.8 m behind a near one: its hull holds the near one's points, and its
+    uncertain depth (0.3 m) gates them in.  Each point goes to one person, the one whose centre is nearest
+    on the ground: the near one (whose detection here shows only its head and shoulders, its centre known
+    to 0.1 m, so it claims the rest of its body by ``body_radius_m``); the hidden one gets no segment."""
+    calib = make_calibration(SimConfig().cameras.forward)
+    rng = np.random.default_rng(3)
+    near_xy, far_xy = (12.0, 0.0), (12.8, 0.1)
+    stick = _person_points(near_xy, 0.0, 0.0)
+    limbs = [(5, 7), (7, 9), (6, 8), (8, 10), (11, 13), (13, 15), (12, 14), (14, 16), (5, 11), (6, 12)]
+    pick = rng.integers(len(limbs), size=300)
+    along = rng.random((300, 1))
+    cloud = (stick[[limbs[i][0] for i in pick]] * (1 - along) + stick[[limbs[i][1] for i in pick]] * along
+             + 0.02 * rng.normal(size=(300, 3)))
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+
+    def detection(xy, keep):
+        uv = calib.project(_person_points(xy, 0.0, 0.0))[0]
+        conf = np.where(np.isin(np.arange(17), keep), 0.9, 0.0)
+        return Detection(camera=calib.name.split("-")[0], frame=3, keypoint_set="coco17", image_uv=uv,
+                         confidence=conf, score=0.9, source=f"test{xy}")
+
+    near = DetectedTrackFrame(frame=3, detections={"l": detection(near_xy, np.arange(7))},
+                              world_p=np.array([*near_xy, GROUND_Z + 0.9]), depth_sigma_m=0.1)
+    far = DetectedTrackFrame(frame=3, detections={"l": detection(far_xy, np.arange(17))},
+                             world_p=np.array([*far_xy, GROUND_Z + 0.9]), depth_sigma_m=0.3)
+    for fr in (near, far):
+        fr.detections = {fr.detections["l"].camera: fr.detections["l"]}
+    tracks = [DetectedTrack(track_id="det000001", frames=[near], pairs=(calib.name,)),
+              DetectedTrack(track_id="det000002", frames=[far], pairs=(calib.name,))]
+    alone = write_track_segments(tmp_path / "alone", "20991231T1200", tracks[1:], {calib.name: calib}, ground,
+                                 lambda f: cloud)
+    assert alone["points"] > 200                        # by itself, the hidden one's cut is the neighbour
+    write_track_segments(tmp_path, "20991231T1200", tracks, {calib.name: calib}, ground, lambda f: cloud)
+    assert not segment_path(tmp_path, "20991231T1200", 3, "det000002").exists()
+    # every point the hidden one's cut held is the near one's now (its own hull held a few)
+    assert len(read_ply_points(segment_path(tmp_path, "20991231T1200", 3, "det000001"))) >= alone["points"]
+
+
+def test_exclusive_cuts_give_each_point_to_one_person():
+    """A point two people's cuts share goes to the nearer centre; a point claimed by a confident centre's
+    body radius leaves a farther person's cut; a point shared by two people without a centre goes to no one;
+    a point only one person claims stays with it, centre or not."""
+    from pedx_graph.detections.lidar_cut import exclusive_cuts
+
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    points = np.array([[10.0, 0.0, -1.0], [10.9, 0.0, -1.0], [10.1, 0.1, -1.0], [30.0, 5.0, -1.0],
+                       [31.0, 5.0, -1.0]])
+    config = LidarCutConfig()
+    cuts = [np.array([0, 1]), np.array([0, 1, 2]), np.array([3]), np.array([3, 4])]
+    centres = [np.array([10.0, 0.0, -1.0]), np.array([11.0, 0.0, -1.0]), None, None]
+    out = exclusive_cuts(cuts, points, centres, [0.1, 0.5, np.inf, np.inf], ground, config)
+    # 0 nearer person 0; 1 nearer person 1; 2 only in person 1's cut but within person 0's body radius
+    np.testing.assert_array_equal(out[0], [0, 2])
+    np.testing.assert_array_equal(out[1], [1])
+    np.testing.assert_array_equal(out[2], [])                 # shared by two without a centre
+    np.testing.assert_array_equal(out[3], [4])                # its own point
+    # a wide centre (sigma above claim_sigma_m) claims nothing by radius
+    out = exclusive_cuts(cuts, points, centres, [0.5, 0.5, np.inf, np.inf], ground, config)
+    np.testing.assert_array_equal(out[1], [1, 2])

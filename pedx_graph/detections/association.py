@@ -88,7 +88,9 @@ Steps:
    centres within ``gate_sigmas``, not the weighted least squares a single confident outlier would
    steer), centres beyond ``gate_sigmas`` left out, the line's speed at most ``tracker.max_speed_mps`` —
    one frame's noisy stereo depth or a cut that caught a passing car no longer sets the gate, and frames
-   seen in one image get a depth too.
+   seen in one image get a depth too.  Two people whose smoothed centres come within ``min_separation_m``
+   at a frame take back the centres there that came from a LiDAR cut other than their detection's own
+   cluster, and are smoothed again (:func:`separate_people`).
 """
 from __future__ import annotations
 
@@ -211,6 +213,10 @@ class AssociationConfig:
     swap_motion_m: float = 0.05
     """How far a walker's position across the line of sight leaves a straight line over a track (sway, gentle
     curves), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise."""
+    min_separation_m: float = 0.35
+    """Two people's smoothed centres closer than this at one frame, in the ground plane, cannot both be
+    right (bodies do not overlap), metres: a centre either took from a LiDAR cut that is not its
+    detection's own cluster (a neighbour's points) is taken back (:func:`separate_people`)."""
     smooth_window_frames: int = 5
     """Each frame's centre is the track's centres within this many frames fitted by a line in time
     (step 7), frames."""
@@ -1068,6 +1074,8 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     # accepted only where it agrees with the stereo centre (a cut that caught an occluder does not)
     offset = np.linalg.norm(ground.to_level(centre)[:2] - ground.to_level(obs.world_p)[:2])
     if offset <= config.gate_sigmas * obs.depth_sigma_m + config.lidar_agreement_m:
+        if own_range is None:
+            obs.fallback = (obs.world_p, obs.world_p_camera, obs.depth_sigma_m)
         obs.world_p = centre
         obs.world_p_camera = calib.camera_centre(side)
         obs.depth_sigma_m = sigma
@@ -1309,6 +1317,56 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
         fr.depth_sigma_m = min(float(fr.depth_sigma_m), fit_sigma) if fr.frame in set(t[near][keep]) else fit_sigma
 
 
+def _frame_centre(entry: DetectedTrackFrame, sources: list[Observation]) -> None:
+    """Set a merged frame's centre to that of its pairs' observations with the smallest depth sigma."""
+    entry.world_p, entry.depth_sigma_m = None, float("inf")
+    for obs in sources:
+        if obs.world_p is not None and obs.depth_sigma_m < entry.depth_sigma_m:
+            entry.world_p, entry.depth_sigma_m = obs.world_p, obs.depth_sigma_m
+
+
+def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[Observation]]]],
+                    ground: GroundFrame, config: AssociationConfig) -> None:
+    """Smooth every person's centres (:func:`smooth_centres`; ``people``: per person its frames and, per
+    frame, the pairs' observations behind it), in place; where two people's smoothed centres lie within
+    ``min_separation_m`` of each other at a frame, the centres either took from a LiDAR cut without its
+    detection's own cluster (:attr:`Observation.fallback`) within that frame go back to their stereo ones
+    and the person is smoothed again (a cut of someone hidden behind a neighbour in an image where the
+    neighbour was not detected holds the neighbour: one confident wrong frame would otherwise draw the
+    smoothed track onto the neighbour)."""
+    for frames, sources in people:
+        for entry in frames:
+            _frame_centre(entry, sources.get(entry.frame, []))
+        smooth_centres(frames, ground, config)
+    for _ in range(3):
+        by_frame: dict[int, list[tuple[int, DetectedTrackFrame]]] = defaultdict(list)
+        for person, (frames, _) in enumerate(people):
+            for entry in frames:
+                if entry.world_p is not None:
+                    by_frame[entry.frame].append((person, entry))
+        revert: set[tuple[int, int]] = set()
+        for frame, entries in by_frame.items():
+            flat = [ground.to_level(np.asarray(e.world_p, dtype=float))[:2] for _, e in entries]
+            for i in range(len(entries)):
+                for j in range(i + 1, len(entries)):
+                    if np.linalg.norm(flat[i] - flat[j]) < config.min_separation_m:
+                        revert |= {(entries[i][0], frame), (entries[j][0], frame)}
+        changed = set()
+        for person, frame in sorted(revert):
+            for obs in people[person][1].get(frame, []):
+                if obs.fallback is not None:
+                    obs.world_p, obs.world_p_camera, obs.depth_sigma_m = obs.fallback
+                    obs.fallback = None
+                    changed.add(person)
+        if not changed:
+            return
+        for person in sorted(changed):
+            frames, sources = people[person]
+            for entry in frames:
+                _frame_centre(entry, sources.get(entry.frame, []))
+            smooth_centres(frames, ground, config)
+
+
 def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                     calibrations: Mapping[str, StereoCalibration], config: AssociationConfig | None = None,
                     ground: GroundFrame | None = None) -> list[DetectedTrack]:
@@ -1365,9 +1423,10 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
     tracks: list[tuple[str, list[Observation]]] = []
     for pair in sorted(by_pair):
         tracks += [(pair, track) for track in pair_tracks(by_pair[pair], calibrations[pair], config, ground, clouds)]
-    people = []
+    people, smoothing = [], []
     for group in merge_pair_tracks(tracks, ground, config, calibrations):
         frames: dict[int, DetectedTrackFrame] = {}
+        sources: dict[int, list[Observation]] = defaultdict(list)
         for index in group:
             pair, track = tracks[index]
             left_name, right_name = pair.split("-")
@@ -1375,16 +1434,18 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
                 entry = frames.setdefault(obs.frame, DetectedTrackFrame(frame=obs.frame, detections={}))
                 for side, det in obs.payload.items():
                     entry.detections[left_name if side == "left" else right_name] = det
-                if obs.world_p is not None and obs.depth_sigma_m < entry.depth_sigma_m:
-                    entry.world_p, entry.depth_sigma_m = obs.world_p, obs.depth_sigma_m
+                sources[obs.frame].append(obs)
+        for frame, entry in frames.items():
+            _frame_centre(entry, sources[frame])
         centres = np.array([fr.world_p for fr in frames.values() if fr.world_p is not None]).reshape(-1, 3)
         if len(centres):
             distance = float(np.median(ground.horizontal_distance(centres)))
             if not config.min_distance_m <= distance <= config.max_distance_m:
                 continue
-        smooth_centres([frames[f] for f in sorted(frames)], ground, config)
         pairs = tuple(sorted({tracks[i][0] for i in group}))
         people.append((min(frames), pairs, [frames[f] for f in sorted(frames)]))
+        smoothing.append((people[-1][2], sources))
+    separate_people(smoothing, ground, config)
     people.sort(key=lambda item: (item[0], item[1], sorted(item[2][0].detections)))
     out = []
     for number, (_, pairs, frames) in enumerate(people, start=1):

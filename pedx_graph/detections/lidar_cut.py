@@ -19,7 +19,8 @@ polygon is the detection's *hull*:
 
 :func:`write_track_segments` writes the cuts of :class:`~pedx_graph.detections.association.DetectedTrack` s in
 the release layout (``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply``), one file per track and frame
-with points (union over the images that saw the person: the left images, else the right ones).
+with points (union over the images that saw the person: the left images, else the right ones), each point
+given to one person only (:func:`exclusive_cuts`: the nearest centre among those claiming it).
 """
 from __future__ import annotations
 
@@ -67,6 +68,11 @@ class LidarCutConfig:
     """Points lower than this above the ground plane are removed (ground at the feet), metres."""
     min_depth_m: float = 0.5
     """Only points at least this far in front of the camera are projected, metres."""
+    body_radius_m: float = 0.4
+    """A person whose centre is known (:attr:`claim_sigma_m`) claims the cut points within this horizontal
+    distance of it, metres (a body's LiDAR points lie within ~0.3 m of its centre)."""
+    claim_sigma_m: float = 0.3
+    """A centre known to within this (its depth uncertainty) claims points by :attr:`body_radius_m`, metres."""
 
 
 def ground_with_plane(ground: GroundFrame, calibrations: Mapping[str, StereoCalibration],
@@ -199,11 +205,12 @@ def cut_indices(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_
     return np.sort(index)
 
 
-def track_frame_points(frame, calibrations: Mapping[str, StereoCalibration], world_points: np.ndarray,
-                       ground: GroundFrame, config: LidarCutConfig | None = None,
-                       rectify: Callable | None = None) -> np.ndarray:
-    """(M, 3) points of one :class:`~pedx_graph.detections.association.DetectedTrackFrame`: the union of the
-    cuts of its left-image detections (else its right-image ones), gated around its centre's depth."""
+def track_frame_indices(frame, calibrations: Mapping[str, StereoCalibration], world_points: np.ndarray,
+                        ground: GroundFrame, config: LidarCutConfig | None = None,
+                        rectify: Callable | None = None) -> np.ndarray:
+    """Sorted row indices into ``world_points`` of one
+    :class:`~pedx_graph.detections.association.DetectedTrackFrame`'s points: the union of the cuts of its
+    left-image detections (else its right-image ones), gated around its centre's depth."""
     from pedx_graph.detections.undistort import find_camera, rectified
 
     config = config or LidarCutConfig()
@@ -223,8 +230,42 @@ def track_frame_points(frame, calibrations: Mapping[str, StereoCalibration], wor
         index.append(cut_indices(uv, calib, side, world_points, ground, config, depth,
                                  depth_sigma_m=getattr(frame, "depth_sigma_m", None)))
     if not index:
-        return np.zeros((0, 3))
-    return world_points[np.unique(np.concatenate(index))]
+        return np.zeros(0, dtype=np.int64)
+    return np.unique(np.concatenate(index))
+
+
+def exclusive_cuts(cuts: list[np.ndarray], world_points: np.ndarray, centres: list, sigmas: list,
+                   ground: GroundFrame, config: LidarCutConfig) -> list[np.ndarray]:
+    """One frame's cuts (row indices into ``world_points``, one array per person) with every point kept by
+    one person only.  A point is claimed by every person whose cut holds it, and by every person whose
+    centre (``centres``: (3,) world points or None, uncertain by ``sigmas`` metres) is known to within
+    ``claim_sigma_m`` and lies within ``body_radius_m`` of it on the ground plane; it stays with the
+    claimant whose centre is nearest on the ground plane, whether or not that person's own cut held it (a
+    claimant without a centre keeps it only when it is the only one; shared by claimants none of whom has a
+    centre, it goes to no one).  Two people one behind the other in an image
+    share the hull's points; the near one's body is where they lie, whether or not that image saw all of
+    the near one."""
+    flat_centres = [None if c is None else ground.to_level(np.asarray(c, dtype=float))[:2] for c in centres]
+    confident = [p for p, (c, s) in enumerate(zip(flat_centres, sigmas))
+                 if c is not None and s is not None and s <= config.claim_sigma_m]
+    used = np.unique(np.concatenate(cuts)) if cuts else np.zeros(0, dtype=np.int64)
+    if not len(used):
+        return cuts
+    flat = ground.to_level(world_points[used])[:, :2]
+    gap = np.full((len(cuts), len(used)), np.inf)
+    for p, c in enumerate(flat_centres):
+        if c is not None:
+            gap[p] = np.linalg.norm(flat - c, axis=1)
+    claims = np.zeros((len(cuts), len(used)), dtype=bool)
+    for p, index in enumerate(cuts):
+        claims[p, np.searchsorted(used, index)] = True
+    for p in confident:
+        claims[p] |= gap[p] <= config.body_radius_m
+    claimed_gap = np.where(claims, gap, np.inf)
+    winner = np.argmin(claimed_gap, axis=0)
+    winner = np.where(np.isfinite(claimed_gap.min(axis=0)), winner, -1)   # shared, no claimant placed: no one's
+    winner = np.where(claims.sum(axis=0) == 1, np.argmax(claims, axis=0), winner)
+    return [used[winner == p] for p in range(len(cuts))]
 
 
 def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
@@ -250,8 +291,11 @@ def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
             log.warning("%s frame %d: no scene cloud (%s); no segments cut", sequence, frame, exc)
             counts["frames_without_cloud"] += 1
             continue
-        for track_id, fr in by_frame[frame]:
-            points = track_frame_points(fr, calibrations, cloud, ground, config)
+        cuts = [track_frame_indices(fr, calibrations, cloud, ground, config) for _, fr in by_frame[frame]]
+        cuts = exclusive_cuts(cuts, cloud, [fr.world_p for _, fr in by_frame[frame]],
+                              [fr.depth_sigma_m for _, fr in by_frame[frame]], ground, config)
+        for (track_id, fr), index in zip(by_frame[frame], cuts):
+            points = cloud[index]
             if len(points):
                 write_segment(root, sequence, frame, track_id, points)
                 counts["segments"] += 1

@@ -120,6 +120,9 @@ class Observation:
     metres, or None (no cloud, too few points)."""
     payload: object = None
     """What the caller attaches (the association keeps the raw detections here)."""
+    fallback: tuple | None = None
+    """``(world_p, world_p_camera, depth_sigma_m)`` the centre had before a LiDAR cut that is not the
+    detection's own cluster replaced it (the association may take the cut back), else None."""
 
     def height_px(self, side: str) -> float:
         """Vertical extent of the present keypoints in ``side``, pixels (0 when fewer than two)."""
