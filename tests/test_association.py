@@ -686,10 +686,10 @@ def test_a_one_image_range_centre_must_agree_with_the_tracks_stereo_depth():
 
 def test_a_cut_on_a_neighbour_that_puts_two_people_in_one_place_is_taken_back():
     """A far walker (21.5 m) whose images give only uncertain stereo depths (1 m) and one frame whose LiDAR
-    cut, not its detection's own cluster, held the walker 0.75 m in front (a confident 0.1 m centre on the
-    neighbour): smoothed, the two would stand within a few centimetres of each other at that frame.  The
-    cut is taken back and the far walker's smoothed centres stay on its own line; with the separation test
-    off the confident cut draws it onto the neighbour."""
+    centre held the walker 0.75 m in front (a confident 0.1 m centre on the neighbour): smoothed, the two
+    would stand within a few centimetres of each other at that frame.  That centre is taken back and the far
+    walker's smoothed centres stay on its own line, while the neighbour keeps every LiDAR centre of its
+    own; with the separation test off the confident centre draws the far walker onto the neighbour."""
     from pedx_graph.detections.association import DetectedTrackFrame, separate_people
 
     ground = _ground(_rig())
@@ -707,17 +707,21 @@ def test_a_cut_on_a_neighbour_that_puts_two_people_in_one_place_is_taken_back():
                 obs.fallback = (obs.world_p, None, obs.depth_sigma_m)
                 obs.world_p, obs.depth_sigma_m = np.array([20.8, y - 0.05, GROUND_Z + 0.9]), 0.1
             far_sources[k] = [obs]
-            near_sources[k] = [Observation(frame=k, uv={}, score=0.9, world_p=np.array([20.75, y, GROUND_Z + 0.9]),
-                                           depth_sigma_m=0.1)]
+            lidar = Observation(frame=k, uv={}, score=0.9, world_p=np.array([20.75, y, GROUND_Z + 0.9]),
+                                depth_sigma_m=0.1)
+            lidar.fallback = (np.array([21.0, y, GROUND_Z + 0.9]), None, 1.0)
+            near_sources[k] = [lidar]                          # the neighbour's centres: from the LiDAR too
             far.append(DetectedTrackFrame(frame=k, detections={}))
             near.append(DetectedTrackFrame(frame=k, detections={}))
         separate_people([(far, far_sources), (near, near_sources)], ground, config)
         gap = min(np.linalg.norm(a.world_p[:2] - b.world_p[:2]) for a, b in zip(far, near))
-        return far, far_sources, gap
+        return far, far_sources, near_sources, gap
 
-    far, sources, gap = people(AssociationConfig())
+    far, sources, near_sources, gap = people(AssociationConfig())
     assert gap > 0.35
     assert sources[5][0].fallback is None and sources[5][0].depth_sigma_m == 1.0
     assert max(abs(fr.world_p[0] - 21.5) for fr in far) < 0.5
-    _, _, gap_off = people(AssociationConfig(min_separation_m=0.0))
+    # the neighbour's own LiDAR centres lie on its own track: all kept
+    assert all(obs[0].fallback is not None and obs[0].depth_sigma_m == 0.1 for obs in near_sources.values())
+    _, _, _, gap_off = people(AssociationConfig(min_separation_m=0.0))
     assert gap_off < 0.35

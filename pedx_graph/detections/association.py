@@ -88,9 +88,9 @@ Steps:
    centres within ``gate_sigmas``, not the weighted least squares a single confident outlier would
    steer), centres beyond ``gate_sigmas`` left out, the line's speed at most ``tracker.max_speed_mps`` —
    one frame's noisy stereo depth or a cut that caught a passing car no longer sets the gate, and frames
-   seen in one image get a depth too.  Two people whose smoothed centres come within ``min_separation_m``
-   at a frame take back the centres there that came from a LiDAR cut other than their detection's own
-   cluster, and are smoothed again (:func:`separate_people`).
+   seen in one image get a depth too.  A centre taken from the LiDAR that lies within ``min_separation_m`` of
+   another person's smoothed centre, nearer to it than to its own person's, is taken back and the person
+   smoothed again (:func:`separate_people`).
 """
 from __future__ import annotations
 
@@ -214,9 +214,9 @@ class AssociationConfig:
     """How far a walker's position across the line of sight leaves a straight line over a track (sway, gentle
     curves), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise."""
     min_separation_m: float = 0.35
-    """Two people's smoothed centres closer than this at one frame, in the ground plane, cannot both be
-    right (bodies do not overlap), metres: a centre either took from a LiDAR cut that is not its
-    detection's own cluster (a neighbour's points) is taken back (:func:`separate_people`)."""
+    """Two bodies' centres are never closer than this in the ground plane, metres: a centre taken from the
+    LiDAR that lies closer than this to another person's smoothed centre, and nearer to it than to its own
+    person's, is the neighbour's and is taken back (:func:`separate_people`)."""
     smooth_window_frames: int = 5
     """Each frame's centre is the track's centres within this many frames fitted by a line in time
     (step 7), frames."""
@@ -1010,6 +1010,7 @@ def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[in
     present = obs.uv[side][np.all(np.isfinite(obs.uv[side]), axis=1)]
     if len(present) == 0:
         return
+    obs.fallback = (obs.world_p, obs.world_p_camera, obs.depth_sigma_m)
     obs.world_p = pixel_at_depth(calib, side, np.median(present, axis=0), ranges[id(obs.payload[side])])
     obs.world_p_camera = calib.camera_centre(side)
     obs.depth_sigma_m = 1.0
@@ -1074,8 +1075,7 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     # accepted only where it agrees with the stereo centre (a cut that caught an occluder does not)
     offset = np.linalg.norm(ground.to_level(centre)[:2] - ground.to_level(obs.world_p)[:2])
     if offset <= config.gate_sigmas * obs.depth_sigma_m + config.lidar_agreement_m:
-        if own_range is None:
-            obs.fallback = (obs.world_p, obs.world_p_camera, obs.depth_sigma_m)
+        obs.fallback = (obs.world_p, obs.world_p_camera, obs.depth_sigma_m)
         obs.world_p = centre
         obs.world_p_camera = calib.camera_centre(side)
         obs.depth_sigma_m = sigma
@@ -1325,39 +1325,66 @@ def _frame_centre(entry: DetectedTrackFrame, sources: list[Observation]) -> None
             entry.world_p, entry.depth_sigma_m = obs.world_p, obs.depth_sigma_m
 
 
+def _smoothed_without(frames: list[DetectedTrackFrame], sources: dict[int, list[Observation]], left_out: Observation,
+                      ground: GroundFrame, config: AssociationConfig) -> np.ndarray | None:
+    """The person's smoothed centre (3,) at ``left_out``'s frame with that observation's LiDAR centre replaced
+    by what it was before (:attr:`Observation.fallback`), or None; ``frames`` are left as they are."""
+    copies = []
+    for entry in frames:
+        copy = DetectedTrackFrame(frame=entry.frame, detections={})
+        kept = [obs for obs in sources.get(entry.frame, []) if obs is not left_out]
+        _frame_centre(copy, kept)
+        if entry.frame == left_out.frame and left_out.fallback[0] is not None and \
+                left_out.fallback[2] < copy.depth_sigma_m:
+            copy.world_p, copy.depth_sigma_m = left_out.fallback[0], left_out.fallback[2]
+        copies.append(copy)
+    smooth_centres(copies, ground, config)
+    return next((c.world_p for c in copies if c.frame == left_out.frame), None)
+
+
 def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[Observation]]]],
                     ground: GroundFrame, config: AssociationConfig) -> None:
     """Smooth every person's centres (:func:`smooth_centres`; ``people``: per person its frames and, per
-    frame, the pairs' observations behind it), in place; where two people's smoothed centres lie within
-    ``min_separation_m`` of each other at a frame, the centres either took from a LiDAR cut without its
-    detection's own cluster (:attr:`Observation.fallback`) within that frame go back to their stereo ones
-    and the person is smoothed again (a cut of someone hidden behind a neighbour in an image where the
-    neighbour was not detected holds the neighbour: one confident wrong frame would otherwise draw the
-    smoothed track onto the neighbour)."""
+    frame, the pairs' observations behind it), in place; then a centre an observation took from the LiDAR
+    (:attr:`Observation.fallback` set) that lies within ``min_separation_m`` of another person's smoothed
+    centre at its frame, and nearer to it than to its own person's smoothed centre without it
+    (:func:`_smoothed_without`), goes back to what it was before (its stereo centre, or none) and the person
+    is smoothed again (up to three rounds).  Someone hidden behind a
+    neighbour in an image where the neighbour was not detected gets the neighbour's points, as a cut or as
+    "its own" cluster: one such confident centre would draw the smoothed track onto the neighbour, whose
+    own track the other frames place there; a person's own LiDAR centre lies nearest its own track."""
+    def level_xy(world_p) -> np.ndarray:
+        return ground.to_level(np.asarray(world_p, dtype=float))[:2]
+
     for frames, sources in people:
         for entry in frames:
             _frame_centre(entry, sources.get(entry.frame, []))
         smooth_centres(frames, ground, config)
     for _ in range(3):
-        by_frame: dict[int, list[tuple[int, DetectedTrackFrame]]] = defaultdict(list)
+        smoothed: dict[int, dict[int, np.ndarray]] = defaultdict(dict)      # frame -> person -> (2,)
         for person, (frames, _) in enumerate(people):
             for entry in frames:
                 if entry.world_p is not None:
-                    by_frame[entry.frame].append((person, entry))
-        revert: set[tuple[int, int]] = set()
-        for frame, entries in by_frame.items():
-            flat = [ground.to_level(np.asarray(e.world_p, dtype=float))[:2] for _, e in entries]
-            for i in range(len(entries)):
-                for j in range(i + 1, len(entries)):
-                    if np.linalg.norm(flat[i] - flat[j]) < config.min_separation_m:
-                        revert |= {(entries[i][0], frame), (entries[j][0], frame)}
+                    smoothed[entry.frame][person] = level_xy(entry.world_p)
         changed = set()
-        for person, frame in sorted(revert):
-            for obs in people[person][1].get(frame, []):
-                if obs.fallback is not None:
-                    obs.world_p, obs.world_p_camera, obs.depth_sigma_m = obs.fallback
-                    obs.fallback = None
-                    changed.add(person)
+        for person, (_, sources) in enumerate(people):
+            for frame, observations in sources.items():
+                others = [xy for other, xy in smoothed[frame].items() if other != person]
+                if not others:
+                    continue
+                for obs in observations:
+                    if obs.fallback is None or obs.world_p is None:
+                        continue
+                    xy = level_xy(obs.world_p)
+                    nearest = min(float(np.linalg.norm(xy - q)) for q in others)
+                    if nearest >= config.min_separation_m:
+                        continue
+                    own = _smoothed_without(people[person][0], sources, obs, ground, config)
+                    mine = float(np.linalg.norm(xy - level_xy(own))) if own is not None else np.inf
+                    if nearest < mine:
+                        obs.world_p, obs.world_p_camera, obs.depth_sigma_m = obs.fallback
+                        obs.fallback = None
+                        changed.add(person)
         if not changed:
             return
         for person in sorted(changed):
