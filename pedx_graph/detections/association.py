@@ -836,6 +836,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                     _range_centre(obs, calib, ranges)
                     if obs.world_p is not None and not _agrees_with_stereo(obs, stereo, calib, config):
                         obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
+                        obs.fallback = None
                 if obs.world_p is not None and obs.frame in clouds:
                     views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
                     claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
@@ -1349,10 +1350,10 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
     (:attr:`Observation.fallback` set) that lies within ``min_separation_m`` of another person's smoothed
     centre at its frame, and nearer to it than to its own person's smoothed centre without it
     (:func:`_smoothed_without`), goes back to what it was before (its stereo centre, or none) and the person
-    is smoothed again (up to three rounds).  Someone hidden behind a
-    neighbour in an image where the neighbour was not detected gets the neighbour's points, as a cut or as
-    "its own" cluster: one such confident centre would draw the smoothed track onto the neighbour, whose
-    own track the other frames place there; a person's own LiDAR centre lies nearest its own track."""
+    is smoothed again (up to three rounds).  Someone hidden behind a neighbour in an image where the
+    neighbour was not detected gets the neighbour's points, as a cut or as "its own" cluster: one such
+    confident centre would draw the smoothed track onto the neighbour, whose own track the other frames
+    place there; a person's own LiDAR centre lies nearest its own track."""
     def level_xy(world_p) -> np.ndarray:
         return ground.to_level(np.asarray(world_p, dtype=float))[:2]
 

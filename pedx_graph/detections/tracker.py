@@ -121,8 +121,9 @@ class Observation:
     payload: object = None
     """What the caller attaches (the association keeps the raw detections here)."""
     fallback: tuple | None = None
-    """``(world_p, world_p_camera, depth_sigma_m)`` the centre had before the LiDAR (a cut, a cluster's
-    range) replaced it — the association may take that back —, else None."""
+    """``(world_p, world_p_camera, depth_sigma_m)`` the centre had before the LiDAR last replaced it (a one-image
+    frame's cluster-range centre replaced by its cut goes back to that range centre) — the association may
+    take it back —, else None."""
 
     def height_px(self, side: str) -> float:
         """Vertical extent of the present keypoints in ``side``, pixels (0 when fewer than two)."""
