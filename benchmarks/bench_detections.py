@@ -191,8 +191,9 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
     Detector tracks (``by_id`` False) are scored against the person most of the frame's detections belong to
     (``owners``, :func:`frame_owners`; frames of a bystander's, clutter or fragments are not scored); a frame
     fitted farther than ``MATCH_RADIUS_M`` from that person is a row with ``misplaced`` set (counted, no
-    MPJPE: its error is that of a body placed at the wrong spot).  Without ``owners``: the nearest person
-    within ``MATCH_RADIUS_M``."""
+    MPJPE: its error is that of a body placed at the wrong spot)."""
+    if not by_id and owners is None:
+        raise ValueError("fit_rows: detector tracks are scored against their frames' owners (frame_owners)")
     rows, failures = [], 0
     for track, (result, error) in zip(tracks, fit_tracks(tracks, config, workers=workers)):
         if result is None:
@@ -203,7 +204,7 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
             pelvis_fit = np.asarray(result.world_keypoints[i])[[12, 13]].mean(axis=0)
             if by_id:
                 chosen = [c for c in candidates if c[0] == track.tracking_id]
-            elif owners is not None:
+            else:
                 # the person whose detections the frame holds: a body placed on a neighbour is that
                 # person's error, not a good fit of the neighbour's
                 owner = owners.get((track.tracking_id, frame))
@@ -214,11 +215,6 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
                     if gap > MATCH_RADIUS_M:
                         rows.append({"distance_m": labelled[owner][frame], "misplaced": True})
                         continue
-            else:
-                # the nearest person present (a bystander too: its frames are not scored)
-                gaps = [np.linalg.norm(ground.to_level(c[1][[12, 13]].mean(axis=0))[:2]
-                                       - ground.to_level(pelvis_fit)[:2]) for c in candidates]
-                chosen = [candidates[int(np.argmin(gaps))]] if gaps and min(gaps) <= MATCH_RADIUS_M else []
             if not chosen or not chosen[0][2]:
                 continue
             tid, true_kp, _ = chosen[0]
