@@ -101,8 +101,8 @@ def detection_runs(results_dir: str | os.PathLike) -> list[dict]:
 def detections_section(runs: list[dict]) -> str:
     """Markdown: per seed and detector format, the issue's goals (MPJPE at 5-25 m against the manual labels,
     identity switches among crossing people, false tracks) with root-relative error, the frames fitted more
-    than the match radius from everyone (misplaced: not in the MPJPE; absent from older runs), people
-    recovered and the keypoint NEES."""
+    than the match radius from the person whose detections they hold (misplaced: not in the MPJPE; absent
+    from older runs), people recovered and the keypoint NEES."""
     lines = ["| seed | input | manual MPJPE 5-25 m, global / root-rel. (mm) | detector MPJPE 5-25 m (mm) | "
              "ratio (goal <= 1.5) | id switches, crossing people (goal 0) | false tracks (goal 0) | "
              "misplaced frames 5-25 m / scored | recovered / labelled people | keypoint NEES / dof |",
