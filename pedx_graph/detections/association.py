@@ -63,8 +63,9 @@ Steps:
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
    two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
-   tried (:func:`repair_swaps`): a walker's image column is a straight line in time, so the exchange is
-   made when it straightens the two tracks clearly (a tracker carrying each on with the other while they
+   tried (:func:`repair_swaps`): a walker moves on a straight line at constant speed, which the image column
+   (projected: curved near the camera) and the frames' centre depths follow, so the exchange is made when it
+   fits the two tracks to such walks clearly better (a tracker carrying each on with the other while they
    were missed in turns).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
    flickering bystanders).
@@ -107,7 +108,7 @@ from pedx_graph.body.keypoint_defs import load_keypoint_set
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
-from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig
+from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig, keypoint_box
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 
@@ -211,8 +212,9 @@ class AssociationConfig:
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
     swap_motion_m: float = 0.05
-    """How far a walker's position across the line of sight leaves a straight line over a track (sway, gentle
-    curves), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise."""
+    """How far a walker's position leaves a straight walk at constant speed over a track (sway, gentle curves,
+    pace), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise of the
+    image column (at the track's depth) and to the uncertainty of each frame's centre depth."""
     min_separation_m: float = 0.35
     """Two bodies' centres are never closer than this in the ground plane, metres: a centre taken from the
     LiDAR that lies closer than this to another person's smoothed centre, and nearer to it than to its own
@@ -851,18 +853,24 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
 
 
 def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
-                 side: str = "left") -> tuple:
-    """A pair track as positions over time in one image (``side``): ``(frames (n,), u (n,) px, sigma (n,)
-    px)``; ``u`` is the median column of the detection's keypoints in that image, or in the other image
-    shifted by the track's median disparity (frames seen only in the other image are left out when the
-    track has no disparity); ``sigma`` the keypoint noise of that median plus how far a walker leaves a
-    straight line (``swap_motion_m`` at the track's depth)."""
+                 side: str = "left", stereo_frames: frozenset = frozenset()) -> tuple:
+    """A pair track as positions over time seen from one camera (``side``): ``(frames (n,), u (n,) px,
+    sigma (n,) px, depth (n,) m, depth_sigma (n,) m, px_per_m)``.
+
+    ``u`` is the median column of the detection's keypoints in that image, measured from the image's
+    principal column; for a frame seen only in the other image, that image's column shifted by the disparity
+    of the frame's centre depth (else by the track's median disparity; left out when the track has none).
+    ``sigma`` is the keypoint noise of that median plus how far a walker leaves a straight walk
+    (``swap_motion_m`` at the track's depth).  ``depth`` is the depth of the frame's centre (``world_p``) in
+    the pair's rectified frame, ``depth_sigma`` its uncertainty (``depth_sigma_m``) plus ``swap_motion_m``;
+    NaN for a frame without a centre.  In ``stereo_frames`` a centre the LiDAR replaced gives way to the one
+    it replaced (``fallback``).  ``px_per_m`` is the track's scale (``f / depth``: from its median
+    disparity, else from its median image height and ``person_height_m``), None when it has no frame."""
     disparities = [o.disparity_px for o in track if o.disparity_px is not None and o.disparity_px > 0]
     disparity = float(np.median(disparities)) if disparities else None
-    shift = {"left": 0.0, "right": 0.0}
-    if disparity is not None:
-        shift = {side: 0.0, ("right" if side == "left" else "left"): disparity if side == "left" else -disparity}
-    frames, u, sigma = [], [], []
+    principal = {"left": float(calib.left_P_rect[0, 2]), "right": float(calib.right_P_rect[0, 2])}
+    toward = 1.0 if side == "left" else -1.0             # the other image's columns + this * disparity
+    frames, u, sigma, heights, depth, depth_sigma = [], [], [], [], [], []
     for obs in track:
         seen = side if side in obs.uv else next(iter(obs.uv))
         if seen != side and disparity is None:
@@ -870,33 +878,113 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
         present = obs.uv[seen][np.all(np.isfinite(obs.uv[seen]), axis=1)]
         if len(present) < config.min_shared_keypoints:
             continue
+        centre_p, centre_sigma = obs.world_p, obs.depth_sigma_m
+        if obs.frame in stereo_frames and obs.fallback is not None:
+            centre_p, _, centre_sigma = obs.fallback
+        known = centre_p is not None and np.isfinite(centre_sigma)
+        frame_depth = float(calib.world_to_rect(np.asarray(centre_p, dtype=float))[2]) if known else np.nan
+        column = float(np.median(present[:, 0])) - principal[seen]
+        if seen != side:         # the disparity at the frame's centre depth, else the track's median
+            column += toward * (calib.focal_px * calib.baseline_m / frame_depth if frame_depth > 0
+                                else disparity - (principal["left"] - principal["right"]))
         height = float(np.ptp(present[:, 1]))
-        noise = (config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present))
-        px_per_m = disparity / calib.baseline_m if disparity else height / config.person_height_m
         frames.append(obs.frame)
-        u.append(float(np.median(present[:, 0])) + shift[seen])
-        sigma.append(float(np.hypot(noise, config.swap_motion_m * px_per_m)))
-    return np.array(frames, dtype=float), np.array(u), np.array(sigma)
+        u.append(column)
+        sigma.append((config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present)))
+        heights.append(height)
+        depth.append(frame_depth)
+        depth_sigma.append(float(np.hypot(centre_sigma, config.swap_motion_m)) if known else np.nan)
+    px_per_m = None
+    if disparity is not None:
+        px_per_m = disparity / calib.baseline_m
+    elif heights:
+        px_per_m = float(np.median(heights)) / config.person_height_m
+    slack = config.swap_motion_m * (px_per_m or 0.0)
+    return (np.array(frames, dtype=float), np.array(u), np.hypot(np.array(sigma), slack), np.array(depth),
+            np.array(depth_sigma), px_per_m)
 
 
-def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float) -> float:
-    """Robust misfit of image positions to one straight walk ``u = a + b f``: the sum of ``min(z^2, gate^2)``
-    of the normalised residuals of the weighted line (iterated with outliers left out); 0 for < 3 frames."""
+def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float) -> np.ndarray:
+    """Sums of ``min(z^2, gate^2)`` of the normalised residuals of weighted least-squares fits of ``y`` (n,)
+    with standard deviations ``sigma`` (n,) by the columns of each of ``design`` (m, n, k) (one fit per model),
+    each fit iterated three times with the residuals beyond ``gate`` left out (as long as ``k`` remain): (m,)."""
+    weight = 1.0 / sigma
+    a = design * weight[None, :, None]
+    b = y * weight
+    keep = np.ones(design.shape[:2], dtype=bool)
+    z = np.zeros(design.shape[:2])
+    for _ in range(3):
+        ak = a * keep[:, :, None]
+        normal = np.einsum("mni,mnj->mij", ak, ak) + 1e-12 * np.eye(design.shape[2])
+        coef = np.linalg.solve(normal, np.einsum("mni,n->mi", ak, b)[:, :, None])[:, :, 0]
+        z = b[None, :] - np.einsum("mni,mi->mn", a, coef)
+        new_keep = np.abs(z) <= gate
+        enough = new_keep.sum(axis=1) >= design.shape[2]
+        keep = np.where(enough[:, None], new_keep, keep)
+    return np.sum(np.minimum(z ** 2, gate ** 2), axis=1)
+
+
+def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
+               depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None) -> float:
+    """Robust misfit of a track's image columns and depths to one straight walk at constant velocity.
+
+    A point moving on a straight line at constant velocity, seen by a rectified camera, has the depth
+    ``Z(f) = Z0 (1 + c tau)`` and the column (from the principal column) ``u(f) = (a + b tau) / (1 + c tau)``,
+    ``tau = f - f0`` (the track's middle frame; ``c`` the depth's relative rate per frame, shared by both).
+    ``|c| <= max_rate`` (the walker's top speed over its depth; 0: the straight line ``u = a + b f`` of a walker
+    far away, whose depth hardly changes).  The misfit is the smallest, over ``c``, of the summed
+    ``min(z^2, gate^2)`` of the normalised residuals of the columns and of the depths (NaN = unknown; used from
+    three known) (:func:`_robust_fit`): ``c`` searched on a grid of 33 rates, then on a grid 16 times finer
+    around the best; 0 for < 3 frames."""
     if len(frames) < 3:
         return 0.0
-    keep = np.ones(len(frames), dtype=bool)
-    z = np.zeros(len(frames))
-    for _ in range(3):
-        if len(np.unique(frames[keep])) < 2:
-            break
-        w = 1.0 / sigma[keep]
-        coef = np.linalg.lstsq(np.stack([w, frames[keep] * w], axis=1), u[keep] * w, rcond=None)[0]
-        z = (u - coef[0] - coef[1] * frames) / sigma
-        new_keep = np.abs(z) <= gate
-        if np.array_equal(new_keep, keep) or new_keep.sum() < 2:
-            break
-        keep = new_keep
-    return float(np.sum(np.minimum(z ** 2, gate ** 2)))
+    tau = frames - 0.5 * (frames.min() + frames.max())
+    known = np.isfinite(depth) if depth is not None else np.zeros(len(frames), dtype=bool)
+
+    def costs(rates: np.ndarray) -> np.ndarray:
+        stretch = 1.0 + rates[:, None] * tau[None, :]                  # Z / Z0, (m, n)
+        total = _robust_fit(np.stack([1.0 / stretch, tau / stretch], axis=2), u, sigma, gate)
+        if known.sum() >= 3:
+            total = total + _robust_fit(stretch[:, known, None], depth[known], depth_sigma[known], gate)
+        return total
+
+    if max_rate * float(np.max(np.abs(tau))) <= 1e-3:
+        return float(costs(np.zeros(1))[0])
+    coarse = np.linspace(-max_rate, max_rate, 33)
+    coarse_costs = costs(coarse)
+    best = coarse[int(np.argmin(coarse_costs))]
+    step = coarse[1] - coarse[0]
+    fine = np.clip(best + np.linspace(-step, step, 33), -max_rate, max_rate)
+    return float(min(coarse_costs.min(), costs(fine).min()))
+
+
+def _depth_rate(px_per_m: float | None, calib: StereoCalibration, config: AssociationConfig) -> float:
+    """The largest relative rate of change of a walker's depth per frame, ``v_max dt / Z`` with ``v_max`` =
+    ``tracker.max_speed_mps`` and ``Z = f / px_per_m``: the bound of :func:`_walk_cost`'s ``c``; 0 without
+    a scale."""
+    if not px_per_m:
+        return 0.0
+    return config.tracker.max_speed_mps * config.tracker.frame_interval_s * px_per_m / calib.focal_px
+
+
+def _overlapping_frames(track_a: list[Observation], track_b: list[Observation], cover: float = 0.5) -> frozenset:
+    """Frames where, in an image both tracks' detections are in, one detection's box covers at least ``cover``
+    of the other's: one person (partly) in front of the other, whose LiDAR cuts cannot be told apart."""
+    by_frame = {o.frame: o for o in track_b}
+    out = set()
+    for obs in track_a:
+        other = by_frame.get(obs.frame)
+        if other is None:
+            continue
+        for side in set(obs.uv) & set(other.uv):
+            box_a, box_b = keypoint_box(obs.uv[side]), keypoint_box(other.uv[side])
+            if box_a is None or box_b is None:
+                continue
+            inter = np.clip(np.minimum(box_a[2:], box_b[2:]) - np.maximum(box_a[:2], box_b[:2]), 0.0, None).prod()
+            smaller = min(np.prod(box_a[2:] - box_a[:2]), np.prod(box_b[2:] - box_b[:2]))
+            if smaller > 0 and inter >= cover * smaller:
+                out.add(obs.frame)
+    return frozenset(out)
 
 
 def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
@@ -904,12 +992,15 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     """Undo identity swaps between one pair's tracks where two people pass each other in the image.
 
     The per-camera tracker decides frame by frame; when the two are missed in turns while they overlap it can
-    carry each track on with the other person.  Over the whole track, a walker's image column is a straight
-    line in time (:func:`_image_track`, :func:`_walk_cost`); a swap shows as kinks or steps.  For two tracks that
+    carry each track on with the other person.  Over the whole track, a walker's image column follows the
+    projection of a straight walk at constant velocity (:func:`_image_track`, :func:`_walk_cost`: a line
+    far away, curved by perspective near the camera); a swap shows as kinks or steps.  For two tracks that
     come within half a person's height of each other in the image at frames at most 2 apart, every split
-    time ``tau`` within their common span is tried: heads kept, tails exchanged.  The exchange with the lowest
-    summed cost is made when it beats the tracks as they are by more than ``gate_sigmas^2``; repeated until no
-    exchange helps.  Returns the tracks (each in frame order)."""
+    time ``tau`` within their common span is tried: heads kept, tails exchanged.  The frames' centre depths
+    weigh in too, except LiDAR centres of frames where one's detection hides half of the other's
+    (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
+    The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
+    ``gate_sigmas^2``; repeated until no exchange helps.  Returns the tracks (each in frame order)."""
     gate = config.gate_sigmas
     tracks = [list(t) for t in tracks]
     for _ in range(2 * len(tracks)):
@@ -919,8 +1010,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
             for b in range(a + 1, len(tracks)):
                 # compared in the image where both are seen most
                 side = max(("left", "right"), key=lambda sd: min(len(series[sd][a][0]), len(series[sd][b][0])))
-                fa, ua, _ = series[side][a]
-                fb, ub, _ = series[side][b]
+                fa, ua = series[side][a][:2]
+                fb, ub = series[side][b][:2]
                 if len(fa) < 2 or len(fb) < 2:
                     continue
                 heights = [o.height_px(side) for o in tracks[a] + tracks[b] for side in o.uv]
@@ -929,8 +1020,13 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                 if not near.any():
                     continue
                 lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
+                hidden = _overlapping_frames(tracks[a], tracks[b])
+
                 def cost_of(track):
-                    return _walk_cost(*_image_track(track, calib, config, side), gate)
+                    frames, u, sigma, depth, depth_sigma, px_per_m = _image_track(track, calib, config, side,
+                                                                                  hidden)
+                    return _walk_cost(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth,
+                                      depth_sigma)
 
                 now = cost_of(tracks[a]) + cost_of(tracks[b])
                 for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo < o.frame <= hi}):
