@@ -108,7 +108,7 @@ from pedx_graph.body.keypoint_defs import load_keypoint_set
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
-from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig, keypoint_box
+from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig, box_cover, keypoint_box
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 
@@ -978,11 +978,7 @@ def _overlapping_frames(track_a: list[Observation], track_b: list[Observation], 
             continue
         for side in set(obs.uv) & set(other.uv):
             box_a, box_b = keypoint_box(obs.uv[side]), keypoint_box(other.uv[side])
-            if box_a is None or box_b is None:
-                continue
-            inter = np.clip(np.minimum(box_a[2:], box_b[2:]) - np.maximum(box_a[:2], box_b[:2]), 0.0, None).prod()
-            smaller = min(np.prod(box_a[2:] - box_a[:2]), np.prod(box_b[2:] - box_b[:2]))
-            if smaller > 0 and inter >= cover * smaller:
+            if box_a is not None and box_b is not None and box_cover(box_a, box_b) >= cover:
                 out.add(obs.frame)
     return frozenset(out)
 

@@ -142,11 +142,23 @@ def keypoint_box(uv: np.ndarray) -> np.ndarray | None:
     return np.concatenate([present.min(axis=0), present.max(axis=0)])
 
 
+def _box_intersection(a: np.ndarray, b: np.ndarray) -> float:
+    """Area of the intersection of two ``u0, v0, u1, v1`` boxes."""
+    return float(np.clip(np.minimum(a[2:], b[2:]) - np.maximum(a[:2], b[:2]), 0.0, None).prod())
+
+
 def box_iou(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two ``u0, v0, u1, v1`` boxes (0 when either is degenerate)."""
-    inter = np.clip(np.minimum(a[2:], b[2:]) - np.maximum(a[:2], b[:2]), 0.0, None).prod()
+    inter = _box_intersection(a, b)
     union = np.prod(a[2:] - a[:2]) + np.prod(b[2:] - b[:2]) - inter
     return float(inter / union) if union > 0 else 0.0
+
+
+def box_cover(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection of two ``u0, v0, u1, v1`` boxes over the smaller one's area (0 when either is degenerate):
+    1 when one lies inside the other."""
+    smaller = min(np.prod(a[2:] - a[:2]), np.prod(b[2:] - b[:2]))
+    return _box_intersection(a, b) / float(smaller) if smaller > 0 else 0.0
 
 
 @dataclass
