@@ -853,7 +853,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
 
 
 def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
-                 side: str = "left", stereo_frames: frozenset = frozenset()) -> tuple:
+                 side: str = "left", stereo_frames: frozenset = frozenset(), memo: dict | None = None) -> tuple:
     """A pair track as positions over time seen from one camera (``side``): ``(frames (n,), u (n,) px,
     sigma (n,) px, depth (n,) m, depth_sigma (n,) m, px_per_m)``.
 
@@ -865,7 +865,8 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
     the pair's rectified frame, ``depth_sigma`` its uncertainty (``depth_sigma_m``) plus ``swap_motion_m``;
     NaN for a frame without a centre.  In ``stereo_frames`` a centre the LiDAR replaced gives way to the one
     it replaced (``fallback``).  ``px_per_m`` is the track's scale (``f / depth``: from its median
-    disparity, else from its median image height and ``person_height_m``), None when it has no frame."""
+    disparity, else from its median image height and ``person_height_m``), None when it has no frame.
+    ``memo`` keeps each observation's own numbers across calls (the observations must not change)."""
     disparities = [o.disparity_px for o in track if o.disparity_px is not None and o.disparity_px > 0]
     disparity = float(np.median(disparities)) if disparities else None
     principal = {"left": float(calib.left_P_rect[0, 2]), "right": float(calib.right_P_rect[0, 2])}
@@ -875,25 +876,25 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
         seen = side if side in obs.uv else next(iter(obs.uv))
         if seen != side and disparity is None:
             continue
-        present = obs.uv[seen][np.all(np.isfinite(obs.uv[seen]), axis=1)]
-        if len(present) < config.min_shared_keypoints:
+        key = (id(obs), seen, obs.frame in stereo_frames)
+        if memo is not None and key in memo:
+            entry = memo[key]
+        else:
+            entry = _seen_column(obs, seen, calib, config, obs.frame in stereo_frames)
+            if memo is not None:
+                memo[key] = entry
+        if entry is None:
             continue
-        centre_p, centre_sigma = obs.world_p, obs.depth_sigma_m
-        if obs.frame in stereo_frames and obs.fallback is not None:
-            centre_p, _, centre_sigma = obs.fallback
-        known = centre_p is not None and np.isfinite(centre_sigma)
-        frame_depth = float(calib.world_to_rect(np.asarray(centre_p, dtype=float))[2]) if known else np.nan
-        column = float(np.median(present[:, 0])) - principal[seen]
+        column, height, noise, frame_depth, frame_depth_sigma = entry
         if seen != side:         # the disparity at the frame's centre depth, else the track's median
             column += toward * (calib.focal_px * calib.baseline_m / frame_depth if frame_depth > 0
                                 else disparity - (principal["left"] - principal["right"]))
-        height = float(np.ptp(present[:, 1]))
         frames.append(obs.frame)
         u.append(column)
-        sigma.append((config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present)))
+        sigma.append(noise)
         heights.append(height)
         depth.append(frame_depth)
-        depth_sigma.append(float(np.hypot(centre_sigma, config.swap_motion_m)) if known else np.nan)
+        depth_sigma.append(frame_depth_sigma)
     px_per_m = None
     if disparity is not None:
         px_per_m = disparity / calib.baseline_m
@@ -902,6 +903,29 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
     slack = config.swap_motion_m * (px_per_m or 0.0)
     return (np.array(frames, dtype=float), np.array(u), np.hypot(np.array(sigma), slack), np.array(depth),
             np.array(depth_sigma), px_per_m)
+
+
+def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: AssociationConfig,
+                 stereo: bool) -> tuple | None:
+    """One observation's numbers for :func:`_image_track`, seen in image ``seen``: ``(median keypoint column
+    from that image's principal column px, keypoint height px, the median's noise px, centre depth m, its
+    uncertainty m)`` (depth NaN without a centre; with ``stereo``, a LiDAR centre gives way to its
+    fallback); None with fewer than ``min_shared_keypoints`` keypoints."""
+    present = obs.uv[seen][np.all(np.isfinite(obs.uv[seen]), axis=1)]
+    if len(present) < config.min_shared_keypoints:
+        return None
+    centre_p, centre_sigma = obs.world_p, obs.depth_sigma_m
+    if stereo and obs.fallback is not None:
+        centre_p, _, centre_sigma = obs.fallback
+    known = centre_p is not None and np.isfinite(centre_sigma)
+    principal = float((calib.left_P_rect if seen == "left" else calib.right_P_rect)[0, 2])
+    height = float(np.ptp(present[:, 1]))
+    noise = (config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present))
+    if not known:
+        return float(np.median(present[:, 0])) - principal, height, noise, np.nan, np.nan
+    depth = float(calib.world_to_rect(np.asarray(centre_p, dtype=float))[2])
+    return (float(np.median(present[:, 0])) - principal, height, noise, depth,
+            float(np.hypot(centre_sigma, config.swap_motion_m)))
 
 
 def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float) -> np.ndarray:
@@ -999,9 +1023,10 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     ``gate_sigmas^2``; repeated until no exchange helps.  Returns the tracks (each in frame order)."""
     gate = config.gate_sigmas
     tracks = [list(t) for t in tracks]
+    memo: dict = {}
     for _ in range(2 * len(tracks)):
         best = None
-        series = {side: [_image_track(t, calib, config, side) for t in tracks] for side in ("left", "right")}
+        series = {side: [_image_track(t, calib, config, side, memo=memo) for t in tracks] for side in ("left", "right")}
         for a in range(len(tracks)):
             for b in range(a + 1, len(tracks)):
                 # compared in the image where both are seen most
@@ -1020,7 +1045,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
 
                 def cost_of(track):
                     frames, u, sigma, depth, depth_sigma, px_per_m = _image_track(track, calib, config, side,
-                                                                                  hidden)
+                                                                                  hidden, memo)
                     return _walk_cost(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth,
                                       depth_sigma)
 
