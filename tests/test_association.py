@@ -491,6 +491,25 @@ def test_tracks_swapped_where_two_people_cross_are_repaired():
     assert [id(o) for o in kept[0]] == [id(o) for o in c] and [id(o) for o in kept[1]] == [id(o) for o in d]
 
 
+def _walkers_in_step(calib, rng, frames):
+    """Two people walking side by side in step along +y (sim frame), 1.5 m apart in depth at ~20 m, placed so
+    that they stand in the same image column at frame 10: pair-track observations of each with LiDAR-like
+    centres (0.1 m), and a function giving the true centre of a walker (depth, start) at a frame."""
+    def position(depth_x, start_y, k):
+        return np.array([depth_x, start_y + 0.14 * k, GROUND_Z + 1.0])
+
+    def walker(depth_x, start_y):
+        observations = _walker_observations(calib, (depth_x, start_y), (0.0, 0.14), frames, rng)
+        for obs in observations:
+            obs.world_p = position(depth_x, start_y, obs.frame)
+            obs.world_p[:2] += rng.normal(scale=0.1, size=2)
+            obs.depth_sigma_m = 0.1
+        return observations
+
+    far_y = -1.6 + 0.2 * (1.0 - 21.5 / 20.0)
+    return walker(20.0, -1.6), walker(21.5, far_y), position, far_y
+
+
 def test_swap_between_people_walking_in_step_at_different_depths_is_repaired_by_their_depths():
     """Two people walking side by side in step, 1.5 m apart in depth at ~20 m, placed so that they stand in
     the same image column at frame 10: their columns stay within ~16 px of each other, so the image alone
@@ -500,18 +519,8 @@ def test_swap_between_people_walking_in_step_at_different_depths_is_repaired_by_
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    rng = np.random.default_rng(3)
     frames = range(20)
-
-    def walker(depth_x, start_y):
-        observations = _walker_observations(calib, (depth_x, start_y), (0.0, 0.14), frames, rng)
-        for obs in observations:
-            obs.world_p = np.array([depth_x, start_y + 0.14 * obs.frame, GROUND_Z + 1.0])
-            obs.world_p[:2] += rng.normal(scale=0.1, size=2)
-            obs.depth_sigma_m = 0.1
-        return observations
-
-    near, far = walker(20.0, -1.6), walker(21.5, -1.6 + 0.2 * (1.0 - 21.5 / 20.0))
+    near, far, _, _ = _walkers_in_step(calib, np.random.default_rng(3), frames)
     columns = [abs(np.median(near[k].uv["left"][:, 0]) - np.median(far[k].uv["left"][:, 0])) for k in frames]
     assert max(columns) < 25.0
     repaired = repair_swaps([near[:12] + far[12:], far[:12] + near[12:]], calib, AssociationConfig())
@@ -529,22 +538,7 @@ def test_lidar_centre_on_the_person_in_front_does_not_decide_the_swap():
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
-    rng = np.random.default_rng(4)
-    frames = range(20)
-
-    def position(depth_x, start_y, k):
-        return np.array([depth_x, start_y + 0.14 * k, GROUND_Z + 1.0])
-
-    def walker(depth_x, start_y):
-        observations = _walker_observations(calib, (depth_x, start_y), (0.0, 0.14), frames, rng)
-        for obs in observations:
-            obs.world_p = position(depth_x, start_y, obs.frame)
-            obs.world_p[:2] += rng.normal(scale=0.1, size=2)
-            obs.depth_sigma_m = 0.1
-        return observations
-
-    far_y = -1.6 + 0.2 * (1.0 - 21.5 / 20.0)
-    near, far = walker(20.0, -1.6), walker(21.5, far_y)
+    near, far, position, far_y = _walkers_in_step(calib, np.random.default_rng(4), range(20))
     near[10] = Observation(frame=10, uv={"left": near[10].uv["left"]}, score=0.8, payload=10)
     far[10].fallback = (position(21.5, far_y, 10), calib.camera_centre("left"), 1.0)
     far[10].world_p, far[10].depth_sigma_m = position(20.0, -1.6, 10), 0.1
