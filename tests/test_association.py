@@ -547,6 +547,24 @@ def test_lidar_centre_on_the_person_in_front_does_not_decide_the_swap():
         assert [id(o) for o in track] == [id(o) for o in person]
 
 
+def test_track_head_or_tail_holding_the_other_walker_goes_back_to_it():
+    """The walkers in step again.  One track begins with the far walker's frame 0 and goes on with the near
+    one from frame 2, while the far one's own track starts at frame 2 (the tracker took the far walker's first
+    detection for the near one); another time, the far walker's track goes on with the near one after frame
+    15, where the near one's track ends.  Moving that head or tail to the other track is tried too: each
+    track ends up with one walker."""
+    from pedx_graph.detections.association import repair_swaps
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
+    near, far, _, _ = _walkers_in_step(calib, np.random.default_rng(5), range(20))
+    head = repair_swaps([[far[0]] + near[2:], far[2:]], calib, AssociationConfig())
+    assert sorted([id(o) for o in t] for t in head) == sorted([[id(o) for o in near[2:]],
+                                                               [id(o) for o in [far[0]] + far[2:]]])
+    tail = repair_swaps([near[:16], far[:16] + near[16:]], calib, AssociationConfig())
+    assert sorted([id(o) for o in t] for t in tail) == sorted([[id(o) for o in near], [id(o) for o in far[:16]]])
+
+
 def test_walk_cost_follows_perspective_near_the_camera():
     """A walker 4-7 m away walking diagonally away from the camera: its image speed halves over 20 frames
     (perspective), which no straight line in time fits; the projected straight walk fits it to the noise."""

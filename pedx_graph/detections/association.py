@@ -63,10 +63,10 @@ Steps:
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
    two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
-   tried (:func:`repair_swaps`): a walker moves on a straight line at constant speed, which the image column
-   (projected: curved near the camera) and the frames' centre depths follow, so the exchange is made when it
-   fits the two tracks to such walks clearly better (a tracker carrying each on with the other while they
-   were missed in turns).  A person with fewer than
+   tried, and at their ends a head or tail moved from one to the other (:func:`repair_swaps`): a walker moves
+   on a straight line at constant speed, which the image column (projected: curved near the camera) and the
+   frames' centre depths follow, so the exchange is made when it fits the two tracks to such walks clearly
+   better (a tracker carrying each on with the other while they were missed in turns).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
    flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
@@ -1016,7 +1016,9 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     projection of a straight walk at constant velocity (:func:`_image_track`, :func:`_walk_cost`: a line
     far away, curved by perspective near the camera); a swap shows as kinks or steps.  For two tracks that
     come within half a person's height of each other in the image at frames at most 2 apart, every split
-    time ``tau`` within their common span is tried: heads kept, tails exchanged.  The frames' centre depths
+    time ``tau`` from the later start to just after the earlier end is tried: heads kept, tails exchanged (at
+    the first such time one track's head moves to the other, at the last one track's tail: a track begun
+    with, or carried on to, the other person).  The frames' centre depths
     weigh in too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
@@ -1050,7 +1052,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                                       depth_sigma)
 
                 now = cost_of(tracks[a]) + cost_of(tracks[b])
-                for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo < o.frame <= hi}):
+                for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1}):
                     new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
                     new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
                     cost = cost_of(new_a) + cost_of(new_b)
