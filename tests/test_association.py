@@ -563,6 +563,8 @@ def test_track_head_or_tail_holding_the_other_walker_goes_back_to_it():
                                                                [id(o) for o in [far[0]] + far[2:]]])
     tail = repair_swaps([near[:16], far[:16] + near[16:]], calib, AssociationConfig())
     assert sorted([id(o) for o in t] for t in tail) == sorted([[id(o) for o in near], [id(o) for o in far[:16]]])
+    apart = repair_swaps([near[:6], near[8:]], calib, AssociationConfig())     # one walker lost for two frames
+    assert [[id(o) for o in t] for t in apart] == [[id(o) for o in near[:6]], [id(o) for o in near[8:]]]
 
 
 def test_walk_cost_follows_perspective_near_the_camera():

@@ -1018,8 +1018,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     come within half a person's height of each other in the image at frames at most 2 apart, every split
     time ``tau`` from the later start to just after the earlier end is tried: heads kept, tails exchanged (at
     the first such time one track's head moves to the other, at the last one track's tail: a track begun
-    with, or carried on to, the other person).  The frames' centre depths
-    weigh in too, except LiDAR centres of frames where one's detection hides half of the other's
+    with, or carried on to, the other person; never all of one track).  The frames' centre depths weigh in
+    too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
     ``gate_sigmas^2``; repeated until no exchange helps.  Returns the tracks (each in frame order)."""
@@ -1055,6 +1055,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                 for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1}):
                     new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
                     new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
+                    if not new_a or not new_b:          # tracks apart in time: that would join them
+                        continue
                     cost = cost_of(new_a) + cost_of(new_b)
                     gain = now - cost
                     if gain > gate ** 2 and (best is None or gain > best[0]):
