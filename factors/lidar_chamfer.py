@@ -15,7 +15,15 @@ Noise: isotropic ``sigma_m`` metres per coordinate; robust (Geman-McClure by def
 units) against points mislabelled as the pedestrian, by default on each point's 3D distance
 (``rho(|r_i| / sigma_m)``, rotation invariant, :func:`factors.common.robustify_groups`), optionally per
 coordinate row.  ``candidate_vertex_ids`` restricts the
-vertices that can be matched (e.g. a decimated subset, to speed up the tree).  No factor is created for
+vertices that can be matched (e.g. a decimated subset, to speed up the tree).
+
+**Seen side.**  A LiDAR return lies on the part of the surface that faces the sensor.  With
+``world_p_sensor`` (the rig's viewpoint, world frame) a point is matched only among the vertices whose
+normal ``n_v`` faces it: ``n_v . (v - world_p_sensor) / |v - world_p_sensor| < facing_cos`` (normals from
+:meth:`~pedx_graph.body.BodyModel.vertex_normals_subset`; ``facing_cos`` > 0 keeps grazing vertices, as the
+viewpoint is not exactly the LiDAR's centre).  Without it, a body shifted a couple of decimetres along the
+ray still finds a vertex near each point on its flanks or its back, and the term hardly resists the shift.
+The facing set is part of the correspondence search: held fixed within one evaluation like ``n(i)``.  No factor is created for
 zero points (:func:`make_lidar_chamfer_factor` returns ``None``).  The factor remembers the matches of its
 last evaluation point (a pure memo of a deterministic function: LM evaluates the error at a new estimate
 and then linearises at that same estimate, which then skips the forward pass and the tree).
@@ -69,11 +77,47 @@ def nearest_indices(verts: np.ndarray, world_points: np.ndarray) -> np.ndarray:
     return cKDTree(verts, balanced_tree=False, compact_nodes=False).query(world_points)[1]
 
 
+def facing_margin(world_points: np.ndarray, world_p_sensor: np.ndarray, viewpoint_offset_m: float,
+                  normal_tolerance_rad: float) -> float:
+    """The ``facing_cos`` of points (M, 3) seen from about ``world_p_sensor`` (3,): ``sin(atan(offset / d) +
+    tolerance)``, ``d`` their median distance from it — the true sensor may lie ``viewpoint_offset_m`` away
+    (its rays to the points then turn by up to ``atan(offset / d)``) and a vertex normal be
+    ``normal_tolerance_rad`` off."""
+    distance = float(np.median(np.linalg.norm(np.asarray(world_points, float) - world_p_sensor, axis=1)))
+    angle = np.arctan2(viewpoint_offset_m, max(distance, 1e-9)) + normal_tolerance_rad
+    return float(np.sin(min(angle, np.pi / 2)))
+
+
+def facing_sensor(verts: np.ndarray, normals: np.ndarray, world_p_sensor: np.ndarray, facing_cos: float
+                  ) -> np.ndarray:
+    """(C,) bool: the vertices (C, 3) whose unit normals (C, 3) face the sensor at ``world_p_sensor`` (3,):
+    ``n . (v - sensor) / |v - sensor| < facing_cos`` (module docstring, "Seen side")."""
+    ray = verts - np.asarray(world_p_sensor, dtype=float)
+    cos = np.einsum("ij,ij->i", normals, ray) / np.maximum(np.linalg.norm(ray, axis=1), 1e-12)
+    return cos < facing_cos
+
+
+def _nearest_among(verts: np.ndarray, world_points: np.ndarray, facing: np.ndarray | None) -> np.ndarray:
+    """Index into ``verts`` of each point's nearest vertex, among the ``facing`` ones when given (all when
+    none faces)."""
+    if facing is None or not facing.any():
+        return nearest_indices(verts, world_points)
+    keep = np.flatnonzero(facing)
+    return keep[nearest_indices(verts[keep], world_points)]
+
+
 def nearest_vertices(model: BodyModelLike, state: FrameState, world_points: np.ndarray,
-                     candidate_vertex_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex id (M,) of the nearest posed vertex of each world point (M, 3), and that vertex's position (M, 3)."""
+                     candidate_vertex_ids: np.ndarray | None = None, world_p_sensor: np.ndarray | None = None,
+                     facing_cos: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex id (M,) of the nearest posed vertex of each world point (M, 3), and that vertex's position (M, 3);
+    with ``world_p_sensor``, among the vertices facing it (:func:`facing_sensor`)."""
     verts = posed_vertices(model, state, candidate_vertex_ids)
-    nn = nearest_indices(verts, world_points)
+    facing = None
+    if world_p_sensor is not None:
+        ids = np.arange(model.num_vertices) if candidate_vertex_ids is None else candidate_vertex_ids
+        normals = model.vertex_normals_subset(state.full_pose, state.betas, ids)
+        facing = facing_sensor(verts, normals, world_p_sensor, facing_cos)
+    nn = _nearest_among(verts, world_points, facing)
     ids = nn if candidate_vertex_ids is None else candidate_vertex_ids[nn]
     return np.asarray(ids, dtype=np.int64), verts[nn]
 
@@ -111,6 +155,16 @@ class ChamferSpec:
     robust: str
     robust_scale: float
     robust_per_point: bool
+    world_p_sensor: np.ndarray | None = None
+    """(3,) the viewpoint the points were seen from, world frame, metres; None: any vertex can be matched."""
+    facing_cos: float = 0.0
+    """A vertex faces the viewpoint when the cosine of its normal and the ray to it is below this."""
+
+
+def spec_matches(model: BodyModelLike, state: FrameState, spec: ChamferSpec) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nearest_vertices` of a factor's points at ``state``, as its spec says."""
+    return nearest_vertices(model, state, spec.world_points, spec.candidate_vertex_ids, spec.world_p_sensor,
+                            spec.facing_cos)
 
 
 def noise_of(spec: ChamferSpec) -> RowNoise:
@@ -136,6 +190,7 @@ def chamfer_residual(model: BodyModelLike, state: FrameState, spec: ChamferSpec,
                      ) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """The factor's residual (whitened and robustified per point when ``spec.robust_per_point``, else
     unwhitened) and Jacobian blocks; ``matches`` / ``vertex_jacobians`` as in :func:`lidar_chamfer_error`."""
+    matches = spec_matches(model, state, spec) if matches is None else matches
     r, blocks = lidar_chamfer_error(model, state, spec.world_points, spec.candidate_vertex_ids, want_jacobians,
                                     matches, vertex_jacobians)
     if spec.robust_per_point:
@@ -187,13 +242,16 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
 def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike, world_points: np.ndarray,
                               sigma_m: float = 0.03, robust: str = "gemanmcclure", robust_scale: float = 3.0,
                               candidate_vertex_ids: np.ndarray | None = None,
-                              robust_per_point: bool = True) -> gtsam.CustomFactor | None:
+                              robust_per_point: bool = True, world_p_sensor: np.ndarray | None = None,
+                              facing_cos: float = 0.0) -> gtsam.CustomFactor | None:
     """LiDAR-to-mesh factor on ``keys = [root, trans, body_pose, betas]``; ``None`` when there are no points.
 
     ``world_points`` (M, 3) metres, world frame; ``sigma_m`` metres per coordinate; ``robust_scale`` in
     whitened units.  ``robust_per_point`` (default): the kernel acts on each point's whitened 3D distance
     (rotation invariant; applied inside the callback, unit noise model, so ``unwhitenedError`` returns the
     robustified whitened residual); otherwise on each coordinate row through GTSAM's ``Robust`` noise model.
+    ``world_p_sensor`` (3,) metres, world frame: points match only vertices facing it (module docstring,
+    "Seen side"; ``facing_cos`` its grazing margin); None: any vertex.
     """
     pts = as_f64(world_points).reshape(-1, 3) if np.size(world_points) else np.zeros((0, 3))
     if pts.shape[0] == 0:
@@ -205,9 +263,17 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
     cand = None if candidate_vertex_ids is None else np.asarray(candidate_vertex_ids, dtype=np.int64).reshape(-1)
     if cand is not None and cand.size == 0:
         raise ValueError("lidar chamfer: candidate_vertex_ids is empty")
+    sensor = None
+    if world_p_sensor is not None:
+        sensor = as_f64(world_p_sensor).reshape(-1)
+        if sensor.shape != (3,) or not np.all(np.isfinite(sensor)):
+            raise ValueError(f"lidar chamfer: world_p_sensor must be 3 finite numbers, got {world_p_sensor!r}")
+    if not -1.0 <= facing_cos <= 1.0:
+        raise ValueError(f"lidar chamfer: facing_cos must lie in [-1, 1], got {facing_cos}")
     rows = 3 * pts.shape[0]
     memo: dict = {}             # last (state bytes -> matches): LM evaluates the error, then linearises there
-    spec = ChamferSpec(pts, cand, float(sigma_m), robust, float(robust_scale), bool(robust_per_point))
+    spec = ChamferSpec(pts, cand, float(sigma_m), robust, float(robust_scale), bool(robust_per_point), sensor,
+                       float(facing_cos))
     cache = getattr(model, "term_cache", None)
     if cache is not None:
         cache.register(KIND, frame_key_list(keys), spec)
@@ -217,7 +283,7 @@ def make_lidar_chamfer_factor(keys: FrameKeys | Sequence[int], model: BodyModelL
         tag = b"".join(a.tobytes() for a in (state.root_rotvec, state.trans, state.body_pose, state.betas))
         matches = memo.get(tag)
         if matches is None:
-            matches = nearest_vertices(model, state, pts, cand)
+            matches = spec_matches(model, state, spec)
             memo.clear()
             memo[tag] = matches
         return chamfer_residual(model, state, spec, jacobians, matches)
@@ -240,14 +306,18 @@ def unique_per_frame(ids: list[np.ndarray], num_vertices: int) -> tuple[np.ndarr
     return np.diff(starts), padded, inverse.reshape(-1) - starts[frame]
 
 
-def _nearest(cache, state: FrameState, spec: ChamferSpec, subset_vertices: np.ndarray | None
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`nearest_vertices` of one factor, searched directly in the prefetched posed subset vertices
-    (C, 3) of the term cache when its candidates are that subset."""
+def _nearest(cache, state: FrameState, spec: ChamferSpec, subset_vertices: np.ndarray | None,
+             subset_normals: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`spec_matches` of one factor, searched directly in the prefetched posed subset vertices (C, 3)
+    of the term cache (and their normals (C, 3), when the spec has a viewpoint) when its candidates are that
+    subset."""
     cand, subset = spec.candidate_vertex_ids, cache.subset_vertex_ids
     if subset_vertices is None or cand is None or not (cand is subset or np.array_equal(cand, subset)):
-        return nearest_vertices(cache, state, spec.world_points, cand)
-    nn = nearest_indices(subset_vertices, spec.world_points)
+        return spec_matches(cache, state, spec)
+    facing = None
+    if spec.world_p_sensor is not None:
+        facing = facing_sensor(subset_vertices, subset_normals, spec.world_p_sensor, spec.facing_cos)
+    nn = _nearest_among(subset_vertices, spec.world_points, facing)
     return cand[nn], subset_vertices[nn]
 
 
@@ -285,7 +355,14 @@ def evaluate(cache, specs: dict, prefetched: Prefetched) -> None:
     frames = np.array([frame_of[fk[0]] for fk, _ in chamfer], dtype=np.int64)
     fstates = [states[f] for f in frames]
     subset = prefetched.subset_vertices
-    matches = [_nearest(cache, st, spec, None if subset is None else subset[f])
+    normals = None
+    if subset is not None and any(spec.world_p_sensor is not None for _, spec in chamfer):
+        arrays = cache.frame_arrays          # the subset's normals of every frame in one batched pass
+        setup = prefetched.setup
+        normals = cache.model.vertex_normals_subset(arrays["pose"], arrays["betas"], cache.subset_vertex_ids,
+                                                    kinematics=None if setup is None else setup.kin)
+    matches = [_nearest(cache, st, spec, None if subset is None else subset[f],
+                        None if normals is None else normals[f])
                for st, f, (_, spec) in zip(fstates, frames, chamfer)]
     vjac = distinct = local = None
     if prefetched.jacobians:          # the matched vertices' Jacobians of every frame in one batched pass

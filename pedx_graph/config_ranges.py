@@ -127,6 +127,8 @@ RULES: dict[str, Range | Choice] = {
     "NoiseConfig.lidar_loss": LOSSES,
     "NoiseConfig.lidar_loss_scale": POSITIVE,
     "NoiseConfig.lidar_max_points": COUNT,
+    "NoiseConfig.lidar_viewpoint_offset_m": NON_NEGATIVE,
+    "NoiseConfig.lidar_normal_tolerance_deg": Range(0.0, 90.0),
     "NoiseConfig.translation_sigma_m": POSITIVE,
     "NoiseConfig.translation_ray_sigma_m": POSITIVE,
     "NoiseConfig.translation_vertical_sigma_m": POSITIVE,

@@ -4,7 +4,7 @@ import pytest
 
 from solver_fixtures import synthetic_config, synthetic_context, synthetic_track
 from factors.common import FrameState, group_robust_weights
-from factors.lidar_chamfer import nearest_vertices
+from factors.lidar_chamfer import facing_margin, nearest_vertices
 from pedx_graph.graph.build import build_track_graph
 from pedx_graph.graph.config import SolverConfig
 from pedx_graph.solvers.lm import python_lm
@@ -43,7 +43,10 @@ def test_plane_rows_equal_normal_projection_of_matched_vertices(ctx, solved):
         assert len(pts) <= config.noise.lidar_max_points          # every point enters, in order
         state = FrameState.from_arrays(values.atRot3(k.root).matrix(), values.atVector(k.trans),
                                        values.atVector(k.body_pose), betas)
-        ids, verts = nearest_vertices(ctx.model, state, pts, ctx.chamfer_vertex_ids)
+        sensor = track.ground.world_p_sensor if config.noise.lidar_seen_side else None
+        margin = facing_margin(pts, track.ground.world_p_sensor, config.noise.lidar_viewpoint_offset_m,
+                               np.radians(config.noise.lidar_normal_tolerance_deg))
+        ids, verts = nearest_vertices(ctx.model, state, pts, ctx.chamfer_vertex_ids, sensor, margin)
         posed = np.asarray(ctx.model.forward(state.full_pose, betas, state.trans).vertices)
         n = vertex_normals(posed, np.asarray(ctx.model.faces))[ids]
         r = (verts - pts) / sigma

@@ -53,4 +53,5 @@ def test_gaussian_first_stage_reaches_labels_far_from_the_template():
                        for i, fr in enumerate(track.frames))
         results[loss] = (report.final_error, residual)
     assert results["none"][1] < 5.0                     # the wrists reach their labels (pixels)
-    assert results["none"][0] <= results["geman_mcclure"][0] * (1 + 1e-6)
+    # no worse: both runs stop once LM's relative decrease is below relative_error_tol, so equal up to it
+    assert results["none"][0] <= results["geman_mcclure"][0] * (1 + synthetic_config().solver.relative_error_tol)

@@ -20,6 +20,7 @@ import scipy.sparse as sp
 
 from pedx_graph.body import jacobians as jac
 from pedx_graph.body.io import ModelData, load_model_data
+from pedx_graph.body.normals import unit, vertex_normals
 from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model, keypoint_set_map
 from pedx_graph.body.lbs import (batch_rigid_transform, descendant_mask, pose_features, skin, skin_frames_last,
                                  vertices2joints)
@@ -116,6 +117,7 @@ class BodyModel:
         self._joint_shapedirs = np.asarray(jsd).reshape(len(self._parents), 3, -1)                # (J, 3, B)
         self._kp_subset = None
         self._last_subset = None
+        self._rest_normals = None            # the template's vertex normals, computed on first use
         if keypoint_map is not None:
             if keypoint_map.vertex_ids.size:
                 self._kp_subset = self._subset(keypoint_map.vertex_ids)
@@ -325,6 +327,22 @@ class BodyModel:
         rest = self._rest_points(sub, betas, kin.rot_mats)
         pts = skin(rest, sub.weights, kin.world_rot, kin.bone_trans) + trans[:, None]
         return pts.reshape(lead + (len(vertex_ids), 3))
+
+    def vertex_normals_subset(self, pose: np.ndarray, betas: np.ndarray, vertex_ids: np.ndarray,
+                              kinematics=None) -> np.ndarray:
+        """Unit normals (..., P, 3) of the posed vertices ``vertex_ids`` (P,): the rest template's area-weighted
+        vertex normals turned by each vertex's blended joint rotation (skinning applied to directions; the
+        shape and pose blend shapes' small tilt of the surface is left out).  For telling which side of the
+        body faces a sensor, not for shading (:mod:`pedx_graph.solvers.marginals.normals` poses the faces
+        for exact normals).  ``kinematics`` as in :meth:`vertices_subset`."""
+        pose, betas, _, lead = self._prepare(pose, betas, None)
+        vertex_ids = np.asarray(vertex_ids, dtype=np.int64)
+        if self._rest_normals is None:
+            self._rest_normals = vertex_normals(self.v_template, self.faces)
+        kin = self._kinematics(pose, betas) if kinematics is None else kinematics
+        turned = skin(self._rest_normals[vertex_ids], self.weights[vertex_ids], kin.world_rot,
+                      np.zeros(kin.world_rot.shape[:-1]))
+        return unit(turned).reshape(lead + (len(vertex_ids), 3))
 
     def keypoints(self, pose: np.ndarray, betas: np.ndarray, trans: np.ndarray | None = None) -> np.ndarray:
         """PedX keypoints (..., 18, 3), computing only the few vertices they use."""

@@ -25,7 +25,7 @@ import numpy as np
 from factors.common import FrameKeys
 from factors.heading_prior import make_heading_prior_factor
 from factors.joint_limits import make_joint_limit_factor
-from factors.lidar_chamfer import make_lidar_chamfer_factor
+from factors.lidar_chamfer import facing_margin, make_lidar_chamfer_factor
 from factors.pose_prior import make_pose_prior_factor
 from factors.registry import frame_terms
 from factors.shape_prior import shape_factors
@@ -230,7 +230,12 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
     if terms.lidar_chamfer and len(points):
         add(make_lidar_chamfer_factor(k, model, points, sigma_m=chamfer_sigma_m(noise),
                                       robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
-                                      candidate_vertex_ids=ctx.chamfer_vertex_ids), "lidar_chamfer")
+                                      candidate_vertex_ids=ctx.chamfer_vertex_ids,
+                                      world_p_sensor=ground.world_p_sensor if noise.lidar_seen_side else None,
+                                      facing_cos=facing_margin(points, ground.world_p_sensor,
+                                                               noise.lidar_viewpoint_offset_m,
+                                                               np.radians(noise.lidar_normal_tolerance_deg))),
+        "lidar_chamfer")
     if terms.translation_prior and len(points):
         add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points, ground),
                                           world_up=ground.world_up, world_p_sensor=ground.world_p_sensor,

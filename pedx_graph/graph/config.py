@@ -100,6 +100,20 @@ class NoiseConfig:
     """Scale of the robust chamfer loss in whitened units."""
     lidar_max_points: int = 150
     """At most this many instance points per frame enter the chamfer term (seeded subsample)."""
+    lidar_seen_side: bool = True
+    """The chamfer matches each LiDAR point only to model vertices facing the rig's viewpoint
+    (``Track.ground.world_p_sensor``; :mod:`factors.lidar_chamfer`, "Seen side"): a return lies on the
+    surface the sensor sees, so a body slid along the ray until its points sit on its flanks or back is
+    penalised.  False: any vertex (the paper's plain chamfer)."""
+    lidar_viewpoint_offset_m: float = 2.5
+    """How far the LiDAR's centre may lie from the rig's viewpoint the seen-side test uses
+    (``Track.ground.world_p_sensor``: the cameras' mean centre unless ``GroundConfig.sensor_xyz`` sets it),
+    metres.  The real PedX rig's left cameras sit 2.3 m from its LiDAR (``simulate --rig pedx``).  With the
+    points' range ``d`` a vertex still counts as facing while its normal is turned up to
+    ``atan(offset / d) + lidar_normal_tolerance_deg`` past perpendicular to the ray."""
+    lidar_normal_tolerance_deg: float = 5.0
+    """Angular error allowed for the seen-side test's vertex normals, degrees (the rest template's normals
+    turned by the skinning: 4 deg median error in strongly bent random poses)."""
     translation_sigma_m: float = 0.10
     """Translation prior: pelvis vs LiDAR points' mean, metres, across the viewing ray (paper Eq. 2)."""
     translation_ray_sigma_m: float = 0.20
