@@ -2,8 +2,10 @@
 
 * translation from the LiDAR instance points (median, robust to mislabeled points), or from the triangulation
   of the labelled keypoints over every camera that labels them (both stereo pairs: a ~1 m baseline on the
-  PedX rig) when a frame has no LiDAR points, or — one camera, no LiDAR — from the body's size
-  (:mod:`pedx_graph.graph.monocular`); each frame records which (``TrackInit.depth_source``);
+  PedX rig) when a frame has no LiDAR points or its points' depth contradicts the keypoints' (a segment that
+  is mostly background), or — one camera, no LiDAR — from the body's size
+  (:mod:`pedx_graph.graph.monocular`); each frame records which (``TrackInit.depth_source``); the depths are
+  smoothed over time along one reference pair's axis when the track's frames are measured by several pairs;
 * heading from the LiDAR (or triangulated) trajectory, smoothed over neighbouring frames; at low speed from
   the triangulated torso (left-right shoulder/hip line); the body stands upright (body +Y = the sequence's
   up axis, :class:`~pedx_graph.data.ground.GroundFrame`: derived from the data, never a fixed world axis);
@@ -184,6 +186,30 @@ def _local_linear(times: np.ndarray, obs: np.ndarray, sigma: np.ndarray, half_wi
     return out, slope_sigma
 
 
+def _reference_depth_maps(measurements: list, centroids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame ``(offset, gain)`` (T,) mapping its depth measured along its own pair's rectified axis to
+    the depth along the reference pair's axis (the pair most frames use), ``ref = offset + gain * own``:
+    exact on the frame's centre ray (depths along two axes are affine in each other on one ray); a frame
+    without a centre pixel is shifted by its LiDAR centroid's depth difference.  ``(0, 1)`` for the
+    reference pair's own frames, and where the ray runs nearly across the reference axis (gain < 0.2)."""
+    n = len(measurements)
+    offset, gain = np.zeros(n), np.ones(n)
+    names = [m.calibration.name for m in measurements]
+    ref_name = max(dict.fromkeys(names), key=names.count)
+    ref = next(m.calibration for m in measurements if m.calibration.name == ref_name)
+    for i, m in enumerate(measurements):
+        if names[i] == ref_name:
+            continue
+        if m.centre_pixel is not None:
+            near = ref.world_to_rect(_back_project(m.calibration, m.centre_pixel[0], m.centre_pixel[1], 0.0))[2]
+            far = ref.world_to_rect(_back_project(m.calibration, m.centre_pixel[0], m.centre_pixel[1], 1.0))[2]
+            if far - near >= 0.2:
+                offset[i], gain[i] = near, far - near
+        elif np.all(np.isfinite(centroids[i])):
+            offset[i] = ref.world_to_rect(centroids[i])[2] - m.calibration.world_to_rect(centroids[i])[2]
+    return offset, gain
+
+
 @dataclass
 class FrameMeasurements:
     """What the initialisation measures in one frame on its own (:func:`measure_frame`); the streaming
@@ -217,6 +243,9 @@ class FrameMeasurements:
     depth_source: str = "none"
     """What places the frame in depth: ``lidar``, ``stereo`` (one pair), ``multi_view`` (cameras of several
     pairs), ``body_size`` (one camera, no LiDAR) or ``none``."""
+    stereo_source: str = "none"
+    """``stereo`` or ``multi_view`` when ``stereo_depth`` is known (what places the frame if its LiDAR depth
+    is refused), else ``none``."""
 
 
 def _effective_baseline(frame: TrackFrame, calibrations, world_p: np.ndarray, all_views: bool) -> float:
@@ -253,13 +282,15 @@ def measure_frame(calibrations, frame: TrackFrame, ground: GroundFrame, surface_
     ok = np.all(np.isfinite(tri), axis=1)
     stereo_depth = stereo_sigma = float("nan")
     source = "lidar" if np.isfinite(lidar_depth) else "none"
+    stereo_source = "none"
     if ok.any():
         z = float(np.median(calib.world_to_rect(tri[ok])[:, 2]))
         stereo_depth = z
         baseline = _effective_baseline(frame, calibrations, np.median(tri[ok], axis=0), all_views)
         stereo_sigma = max(0.2, z * z / (calib.focal_px * max(baseline, 1e-3)) * stereo_px / np.sqrt(ok.sum()))
+        stereo_source = "multi_view" if len({p for p, _, _ in frame.labelled_views(all_views)}) > 1 else "stereo"
         if source == "none":
-            source = "multi_view" if len({p for p, _, _ in frame.labelled_views(all_views)}) > 1 else "stereo"
+            source = stereo_source
     with np.errstate(invalid="ignore"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)      # all-NaN rows: no torso this frame
@@ -283,7 +314,8 @@ def measure_frame(calibrations, frame: TrackFrame, ground: GroundFrame, surface_
     return FrameMeasurements(time=float(frame.timestamp), calibration=calib, lidar_centroid=centroid,
                              lidar_depth=lidar_depth, stereo_depth=stereo_depth, stereo_sigma=stereo_sigma,
                              centre_pixel=centre_pixel, torso_yaw=torso_yaw, placeable=placeable,
-                             size_depth=size_depth, size_sigma=size_sigma, depth_source=source)
+                             size_depth=size_depth, size_sigma=size_sigma, depth_source=source,
+                             stereo_source=stereo_source)
 
 
 def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_window_s: float = 0.35,
@@ -316,19 +348,34 @@ def initialise_track(track: Track, *, surface_offset_m: float = 0.10, half_windo
 
 def initialise_from_measurements(measurements: list[FrameMeasurements], ground: GroundFrame, name: str = "", *,
                                  half_window_s: float = 0.35, min_speed_mps: float = 0.3,
-                                 lidar_sigma_m: float = 0.15, depth_window_s: float = 1.0) -> TrackInit:
+                                 lidar_sigma_m: float = 0.15, depth_window_s: float = 1.0,
+                                 lidar_stereo_gate: float = 4.0) -> TrackInit:
     """:func:`initialise_track` from the frames' :class:`FrameMeasurements` and the sequence's ground frame
-    (``name``: for the errors)."""
+    (``name``: for the errors).  ``lidar_stereo_gate``: a frame's LiDAR depth farther than this many
+    standard deviations (``hypot(lidar_sigma_m, stereo_sigma)``) from its keypoints' stereo depth is refused
+    and the frame placed by stereo: its points are mostly not the person's (a polygon or a detection's hull
+    that caught the background or an occluder) — unless as many of the track's frames disagree as agree:
+    then the keypoints or the calibration are what is off, and LiDAR keeps the lead."""
     n = len(measurements)
     times = np.array([m.time for m in measurements], dtype=float)
     centroids = np.array([m.lidar_centroid for m in measurements], dtype=float).reshape(n, 3)
 
     # Per-frame depth measurements with their standard deviations: LiDAR (running median against stray
-    # clusters) where the frame has points, else the median stereo depth of the joints visible in both
-    # images (sigma from the disparity noise: Z^2 / (f b) * sigma_px / sqrt(n)).
-    lidar_depth = _median_filter_nan(np.array([m.lidar_depth for m in measurements], dtype=float), half_window=2)
+    # clusters) where the frame has points that agree with the keypoints' stereo depth, else the median
+    # stereo depth of the joints visible in both images (sigma from the disparity noise: Z^2 / (f b) *
+    # sigma_px / sqrt(n)).
+    lidar_depth = np.array([m.lidar_depth for m in measurements], dtype=float)
     stereo_depth = np.array([m.stereo_depth for m in measurements], dtype=float)
     stereo_sigma = np.array([m.stereo_sigma for m in measurements], dtype=float)
+    with np.errstate(invalid="ignore"):
+        gap = np.abs(lidar_depth - stereo_depth) / np.hypot(lidar_sigma_m, stereo_sigma)
+    refused = gap > lidar_stereo_gate
+    if refused.sum() >= np.sum(gap <= lidar_stereo_gate):
+        refused[:] = False          # most frames disagree: the keypoints (or the calibration) are what is off
+    lidar_depth[refused] = np.nan
+    centroids[refused] = np.nan
+    sources = [m.stereo_source if gone else m.depth_source for m, gone in zip(measurements, refused)]
+    lidar_depth = _median_filter_nan(lidar_depth, half_window=2)
     size_depth = np.array([m.size_depth for m in measurements], dtype=float)
     size_sigma = np.array([m.size_sigma for m in measurements], dtype=float)
     depth_obs = np.where(np.isfinite(lidar_depth), lidar_depth, np.where(np.isfinite(stereo_depth), stereo_depth,
@@ -339,7 +386,14 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], ground: 
     if not good.any():
         raise ValueError(f"track {name}: no LiDAR points, no keypoint seen by two cameras and no body-size "
                          "depth to place the pedestrian")
-    depth, depth_rate_sigma = _local_linear(times, depth_obs, depth_sigma, depth_window_s)
+    # Each frame's depth is measured along its own pair's rectified axis; a track seen by several pairs
+    # (the PedX pairs' axes are ~30 degrees apart) is smoothed along one reference axis (the pair most of
+    # its frames use: depth along a fixed axis is linear in time for a straight walk), then each frame's
+    # depth is read back on its own ray.
+    offset, gain = _reference_depth_maps(measurements, centroids)
+    depth_ref, depth_rate_sigma = _local_linear(times, offset + gain * depth_obs, np.abs(gain) * depth_sigma,
+                                                depth_window_s)
+    depth = (depth_ref - offset) / gain
 
     centre = np.full((n, 3), np.nan)
     for i, m in enumerate(measurements):
@@ -385,4 +439,4 @@ def initialise_from_measurements(measurements: list[FrameMeasurements], ground: 
             yaw[i] = yaw[known[np.argmin(np.abs(known - i))]]
     return TrackInit(world_R_body=world_R_body_from_yaw(yaw, ground), world_p_centre=centre, heading_yaw=heading,
                      speed_mps=speed, lidar_centroid=centroids, times=times, heading_sigma_rad=heading_sigma,
-                     depth_source=[m.depth_source for m in measurements])
+                     depth_source=sources)
