@@ -20,10 +20,10 @@ import scipy.sparse as sp
 
 from pedx_graph.body import jacobians as jac
 from pedx_graph.body.io import ModelData, load_model_data
-from pedx_graph.body.normals import unit, vertex_normals
 from pedx_graph.body.keypoint_defs import KeypointMap, keypoint_map_for_model, keypoint_set_map
 from pedx_graph.body.lbs import (batch_rigid_transform, descendant_mask, pose_features, skin, skin_frames_last,
                                  vertices2joints)
+from pedx_graph.body.normals import unit, vertex_normals
 from pedx_graph.body.rotation import exp_and_right_jacobian, exp_so3, exp_so3_derivative
 
 #: File name of the open default model inside ``pedx_graph/body/data``.
