@@ -452,6 +452,32 @@ def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():
         assert sorted(person.paired) == list(range(20))
 
 
+def test_single_frame_glitches_do_not_break_a_pairing():
+    """A person's left and right tracklets share 7 frames; in every other one (1, 3, 5) the right detection is
+    off by 60 px in rows (a detector's glitch: that frame fails the stereo gates).  No run of passing frames
+    is long enough on its own, yet the tracklets are one person: paired at the passing frames."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(12)
+    left, right = [], []
+    for k in range(7):
+        uv_l, uv_r = calib.project(_person_points((21.0, -1.0 + 0.12 * k), 0.0, 0.5 * k))
+        uv_l, uv_r = uv_l + rng.normal(size=uv_l.shape), uv_r + rng.normal(size=uv_r.shape)
+        if k % 2:
+            uv_r = uv_r + [0.0, 60.0]
+        for side, uv, out in (("left", uv_l, left), ("right", uv_r, right)):
+            det = Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                            confidence=np.full(len(uv), 0.8), score=0.8, source=f"{side}/{k}")
+            out.append((k, det, uv))
+    people = pair_tracklets([left], [right], calib, AssociationConfig())
+    paired = [p for p in people if p.paired]
+    assert len(paired) == 1
+    assert sorted(paired[0].paired) == [0, 2, 4, 6]
+    assert sorted(paired[0].sides["left"]) == list(range(7))
+
+
 def _walker_observations(calib, start_xy, step_xy, frames, rng):
     """Pair-track observations (both images, rectified) of a stick walker, one per frame."""
     out = []

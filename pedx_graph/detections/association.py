@@ -50,7 +50,8 @@ Steps:
    slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each shared frame passing
    every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``,
    summed over the runs of consecutive shared frames that support the pairing most (a tracklet the
-   per-camera tracker carried on with someone else midway is paired over the part before the change).
+   per-camera tracker carried on with someone else midway is paired over the part before the change; one
+   failing frame between two passing ones, a detector's glitch, does not break a run).
    Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
@@ -578,8 +579,9 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
     unpaired).  The stretches are the runs of consecutive shared frames with the largest summed evidence,
     found in turn (:func:`_supported_runs`): a per-camera tracker that carried one of the two tracklets on
     with someone else midway leaves the part before the switch paired, where a sum over the whole overlap
-    would reject both parts.  A run shorter than the whole overlap counts only with at least
-    ``pair_min_run_frames`` paired frames."""
+    would reject both parts.  A single failing frame between two passing ones counts zero instead (a
+    detector's one-frame glitch is no change of person; it stays unpaired).  A run shorter than the whole
+    overlap counts only with at least ``pair_min_run_frames`` paired frames."""
     by_frame = {frame: (det, uv) for frame, det, uv in right}
     items = []
     for frame, det, uv_left in left:
@@ -601,12 +603,17 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
         for k, zf in zip(good, z):
             if abs(zf) <= config.gate_sigmas:
                 gain[k] = c0 - 0.5 * (items[k][1][0] + zf ** 2)   # the stereo terms and the disparity residual
+    # one failing frame between two passing ones is a detector's glitch, not a change of person: it does not
+    # break the run (it adds nothing and stays unpaired)
+    passing = gain > -c0
+    glitch = ~passing & np.r_[False, passing[:-1]] & np.r_[passing[1:], False]
+    runs_gain = np.where(glitch, 0.0, gain)
     out = []
-    for lo, hi in _supported_runs(gain):
+    for lo, hi in _supported_runs(runs_gain):
         paired = [items[k][0] for k in range(lo, hi) if gain[k] > -c0]
         whole = lo == 0 and hi == len(items)
         if paired and (whole or len(paired) >= config.pair_min_run_frames):
-            out.append((float(gain[lo:hi].sum()), paired))
+            out.append((float(runs_gain[lo:hi].sum()), paired))
     return out
 
 
