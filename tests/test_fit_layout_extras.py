@@ -221,3 +221,15 @@ def test_body25_tracks_fit_with_their_extra_keypoints(scene, model):
         assert covs and all(np.shape(c) == (18, 3, 3) for c in covs)
         errors.append(mpjpe(result, labels, model))
     assert np.mean(errors) < 0.045, errors           # measured 0.030 m (tracks 27, 27, 36 mm)
+
+
+def test_a_detector_track_not_laid_out_is_refused_by_name(scene, model):
+    """Building the graph of a COCO track without its fit layout is a one-line error naming the track, its
+    keypoint set and the layout to use (not a shape error deep in the initialisation)."""
+    tracks, truth = scene
+    base = tracks[0]
+    track = relabel(base, truth[(base.sequence, base.tracking_id)], model, "coco17", seed=3)
+    config = FitConfig()
+    with pytest.raises(ValueError, match=r"'coco17' keypoints; lay the track out .*fit_layout") as err:
+        build_track_graph(track, estimator_context(config), config)
+    assert base.tracking_id in str(err.value) and "\n" not in str(err.value)

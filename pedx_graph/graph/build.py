@@ -286,6 +286,10 @@ def build_track_graph(track: Track, ctx: EstimatorContext, config: FitConfig,
     """
     if len(track.frames) == 0:
         raise ValueError(f"track {track.sequence}/{track.tracking_id} has no frames")
+    if track.keypoint_set != "pedx18":
+        raise ValueError(f"track {track.sequence}/{track.tracking_id}: its labels are {track.keypoint_set!r} "
+                         "keypoints; lay the track out for the fit first (pedx_graph.detections.fit_layout."
+                         "fit_layout; fit_track, fit_tracks and fit_dataset do)")
     noise = config.noise
     model = BatchedBodyModel(ctx.model, ctx.chamfer_vertex_ids)
     nb = model.num_betas
