@@ -168,3 +168,25 @@ def test_admm_and_stream_fit_detector_tracks_and_report_pedx_keypoints(scene):
             res.pose, np.broadcast_to(res.betas, (len(res.pose), len(res.betas))), res.trans), atol=1e-9)
         assert mpjpe(res, labels, model) < 1.5 * lm_error + 0.02
     assert all(est.world_keypoints.shape == (18, 3) for est in causal)
+
+
+def test_covariances_are_recomputed_for_a_detector_dataset(scene, tmp_path):
+    """A detector dataset fitted without covariances: the calibration's recomputation lays its tracks out
+    as the fit did and gives each frame its 18 PedX keypoints' covariances."""
+    from pedx_graph.data.writer import write_tracks
+    from pedx_graph.eval.calibration import run_covariances
+    from pedx_graph.solvers.fit import fit_dataset
+
+    tracks, truth = scene
+    model = BodyModel.load()
+    write_tracks(tmp_path / "data", [relabel(t, truth[(t.sequence, t.tracking_id)], model, "coco17", seed=2)
+                                     for t in tracks[:2]])
+    assert {t.keypoint_set for t in read_dataset(tmp_path / "data")} == {"coco17"}
+    config = FitConfig()
+    config.covariances = False
+    fit_dataset(tmp_path / "data", tmp_path / "results", config, workers=1)
+    covs = run_covariances(tmp_path / "results", tmp_path / "data")
+    assert len(covs) == sum(len(t.frames) for t in tracks[:2])
+    for cov in covs.values():
+        assert cov.shape == (18, 3, 3)
+        assert np.all(np.linalg.eigvalsh(cov) > 0)

@@ -37,6 +37,7 @@ def run_covariances(results: str | os.PathLike, truth: str | os.PathLike) -> dic
     ``{(sequence, tracking_id, frame): (18, 3, 3) or None}``."""
     from pedx_graph.config import load_config
     from pedx_graph.data.reader import read_dataset, read_smpl_labels
+    from pedx_graph.detections.fit_layout import fit_layout
     from pedx_graph.graph.build import EstimatorContext, build_track_graph
     from pedx_graph.graph.config import FitConfig
     from pedx_graph.solvers.marginals import compute_marginals, keypoint_covariances_batch
@@ -70,7 +71,8 @@ def run_covariances(results: str | os.PathLike, truth: str | os.PathLike) -> dic
         if any(fr.frame not in by_frame for fr in track.frames):
             continue
         labels = [by_frame[fr.frame] for fr in track.frames]
-        problem = build_track_graph(track, ctx, config)
+        laid, laid_ctx, laid_config = fit_layout(track, ctx, config)   # a detector track: its own points
+        problem = build_track_graph(laid, laid_ctx, laid_config)
         values = smpl_values(problem.keys, labels)
         problem.prefetch(values, True)
         try:
