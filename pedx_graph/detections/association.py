@@ -610,7 +610,7 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
     runs_gain = np.where(glitch, 0.0, gain)
     out = []
     for lo, hi in _supported_runs(runs_gain):
-        paired = [items[k][0] for k in range(lo, hi) if gain[k] > -c0]
+        paired = [items[k][0] for k in range(lo, hi) if passing[k]]
         whole = lo == 0 and hi == len(items)
         if paired and (whole or len(paired) >= config.pair_min_run_frames):
             out.append((float(runs_gain[lo:hi].sum()), paired))
