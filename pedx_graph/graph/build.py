@@ -228,14 +228,14 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
             robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
     points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
     if terms.lidar_chamfer and len(points):
+        seen = {}
+        if noise.lidar_seen_side:
+            seen = dict(world_p_sensor=ground.world_p_sensor,
+                        facing_cos=facing_margin(points, ground.world_p_sensor, noise.lidar_viewpoint_offset_m,
+                                                 np.radians(noise.lidar_normal_tolerance_deg)))
         add(make_lidar_chamfer_factor(k, model, points, sigma_m=chamfer_sigma_m(noise),
                                       robust=_robust(noise.lidar_loss), robust_scale=noise.lidar_loss_scale,
-                                      candidate_vertex_ids=ctx.chamfer_vertex_ids,
-                                      world_p_sensor=ground.world_p_sensor if noise.lidar_seen_side else None,
-                                      facing_cos=facing_margin(points, ground.world_p_sensor,
-                                                               noise.lidar_viewpoint_offset_m,
-                                                               np.radians(noise.lidar_normal_tolerance_deg))),
-        "lidar_chamfer")
+                                      candidate_vertex_ids=ctx.chamfer_vertex_ids, **seen), "lidar_chamfer")
     if terms.translation_prior and len(points):
         add(make_translation_prior_factor(k.trans, k.betas, model, core_points(points, ground),
                                           world_up=ground.world_up, world_p_sensor=ground.world_p_sensor,
