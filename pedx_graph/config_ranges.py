@@ -310,6 +310,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.swap_motion_m": NON_NEGATIVE,
     "AssociationConfig.min_separation_m": NON_NEGATIVE,
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,
+    "AssociationConfig.smooth_min_centres": COUNT,
     "AssociationConfig.smooth_motion_m": POSITIVE,
     "AssociationConfig.lidar_cluster_gap_m": POSITIVE,
     "AssociationConfig.lidar_support_margin": FRACTION,

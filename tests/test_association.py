@@ -395,6 +395,29 @@ def test_smoothed_centres_follow_the_majority_not_one_confident_outlier():
     assert max(gaps) < 0.6, np.round(gaps, 2)
 
 
+def test_smoothed_centres_do_not_carry_two_noisy_centres_beyond_a_track_end():
+    """A walker crossing the view at a constant depth: stereo centres (0.3 m uncertain) up to frame 12, the
+    last two off in depth in opposite directions, then four frames seen in one image (no centre).  Those
+    frames' smoothed centres follow the walker's line, not the line through the last two centres."""
+    from pedx_graph.detections.association import DetectedTrackFrame, smooth_centres
+
+    ground = _ground(_rig())
+    rng = np.random.default_rng(3)
+    truth = [np.array([7.4, -3.0 + 0.18 * k, GROUND_Z + 0.9]) for k in range(17)]
+    frames = []
+    for k, p in enumerate(truth):
+        if k > 12:
+            frames.append(DetectedTrackFrame(frame=k, detections={}))
+            continue
+        offset = [0.05 * rng.normal(), 0.05 * rng.normal(), 0.0]
+        if k in (11, 12):
+            offset = [0.35 if k == 11 else -0.05, 0.0, 0.0]
+        frames.append(DetectedTrackFrame(frame=k, detections={}, world_p=p + offset, depth_sigma_m=0.3))
+    smooth_centres(frames, ground, AssociationConfig())
+    gaps = [np.linalg.norm((fr.world_p - p)[:2]) for fr, p in zip(frames, truth)]
+    assert max(gaps[13:]) < 0.25, np.round(gaps, 2)
+
+
 def test_a_frame_borrowed_from_someone_else_is_unpaired():
     """A person's left tracklet paired over 8 frames with its right tracklet, plus one frame with a right
     detection of someone 15 m nearer (another tracklet, one frame): that right detection leaves the person."""
@@ -417,6 +440,48 @@ def test_a_frame_borrowed_from_someone_else_is_unpaired():
     drop_disparity_outliers(person, calib, AssociationConfig())
     assert 8 not in person.sides["right"] and 8 in person.sides["left"] and 8 not in person.paired
     assert all(k in person.sides["right"] and k in person.paired for k in range(8))
+
+
+def test_a_frame_a_tracklet_took_from_a_nearer_person_goes_to_that_person_by_its_lidar_range():
+    """Two walkers one behind the other on one line of sight (6.6 and 7.4 m away): at the last frame the far
+    one is hidden and the left image's tracker carried its tracklet on with the near one's detection, which
+    the far walker's own keypoints explain about as well.  That detection's LiDAR range (the near walker's
+    depth) sends it to the near walker, whose right image holds that frame; without ranges it stays with
+    the tracklet it was linked to."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    ahead = _person_points((7.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(12)
+    frames = range(11)
+    dets, ranges = {}, {}
+    for name, distance in (("near", 6.6), ("far", 7.4)):
+        for k in frames:
+            points = _person_points((distance, (-0.9 + 0.14 * k) * distance / 6.6), np.pi / 2, 0.5 * k)
+            depth = float(calib.world_to_rect(points.mean(axis=0))[2])      # along the pair's optical axis
+            for side, uv in zip(("left", "right"), calib.project(points)):
+                uv = uv + rng.normal(size=uv.shape)
+                det = Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                                confidence=np.full(17, 0.8), score=0.8, source=f"{name}/{side}/{k}")
+                dets[name, side, k] = (det, uv)
+                ranges[id(det)] = depth
+
+    def tracklet(items):
+        return [(k, *dets[key]) for k, key in items]
+
+    left = [tracklet([(k, ("far", "left", k)) for k in range(10)] + [(10, ("near", "left", 10))]),
+            tracklet([(k, ("near", "left", k)) for k in range(10)])]
+    right = [tracklet([(k, ("far", "right", k)) for k in range(10)]),
+             tracklet([(k, ("near", "right", k)) for k in frames])]
+
+    def holder_of_the_taken_detection(with_ranges):
+        people = pair_tracklets(left, right, calib, AssociationConfig(), ranges if with_ranges else None)
+        taken = dets["near", "left", 10][0]
+        holder = next(p for p in people if 10 in p.sides["left"] and p.sides["left"][10][1] is taken)
+        return {d.source.split("/")[0] for side in ("left", "right") for _, d, _ in holder.sides[side].values()}
+
+    assert holder_of_the_taken_detection(True) == {"near"}
+    assert holder_of_the_taken_detection(False) == {"near", "far"}
 
 
 def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():
@@ -834,7 +899,7 @@ def test_a_cut_on_a_neighbour_that_puts_two_people_in_one_place_is_taken_back():
             far.append(DetectedTrackFrame(frame=k, detections={}))
             near.append(DetectedTrackFrame(frame=k, detections={}))
         separate_people([(far, far_sources), (near, near_sources)], ground, config)
-        gap = min(np.linalg.norm(a.world_p[:2] - b.world_p[:2]) for a, b in zip(far, near))
+        gap = np.linalg.norm(far[5].world_p[:2] - near[5].world_p[:2])        # at the frame of the cut
         return far, far_sources, near_sources, gap
 
     far, sources, near_sources, gap = people(AssociationConfig())

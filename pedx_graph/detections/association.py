@@ -55,9 +55,11 @@ Steps:
    Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
-   A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time,
-   agree best (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of
-   their own.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
+   A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time
+   (extrapolated at their velocity past the ends), agree best in keypoints and size
+   (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of their own;
+   a detection with a LiDAR range also weighs how far that range lies from the person's depth (its paired
+   frames' disparities), without gating on it.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
    ``clouds``, a LiDAR centre replaces the stereo one where it agrees; a frame seen in one image gets one
    from its detection's own LiDAR cluster (:func:`_range_centre`) where the track's nearest stereo centre
    in time allows that depth (:func:`_agrees_with_stereo`).  A paired frame whose disparity
@@ -85,8 +87,10 @@ Steps:
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
    becomes the weighted line fit, in the ground plane, of the track's centres within
-   ``smooth_window_frames`` (weights: each centre's depth uncertainty and ``smooth_motion_m`` in
-   quadrature), started from the centres the best-supported line explains (:func:`_consensus`: most
+   ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest; weights: each centre's depth
+   uncertainty and ``smooth_motion_m`` in quadrature; the line's velocity drawn to the person's velocity over
+   a wider stretch, so that a track's end is not extrapolated from two noisy centres), started from the
+   centres the best-supported line explains (:func:`_consensus`: most
    centres within ``gate_sigmas``, not the weighted least squares a single confident outlier would
    steer), centres beyond ``gate_sigmas`` left out, the line's speed at most ``tracker.max_speed_mps`` —
    one frame's noisy stereo depth or a cut that caught a passing car no longer sets the gate, and frames
@@ -223,6 +227,9 @@ class AssociationConfig:
     smooth_window_frames: int = 5
     """Each frame's centre is the track's centres within this many frames fitted by a line in time
     (step 7), frames."""
+    smooth_min_centres: int = 4
+    """... but at least this many of the track's centres, the nearest in time (at a track's end or after a
+    stretch seen in one image, a line through two noisy centres would carry their noise frames beyond them)."""
     smooth_motion_m: float = 0.15
     """How far a walker leaves a straight line within that window (added to each centre's uncertainty in
     quadrature), metres."""
@@ -637,10 +644,13 @@ def _supported_runs(gain: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: AssociationConfig) -> float | None:
-    """Normalised median keypoint distance of ``uv`` from a person's keypoints in the same image at ``frame``,
-    linearly interpolated between its nearest observations before and after (held when only one side
-    exists); ``observed``: frame -> (tracklet, detection, uv).  None when the person has no observation of
-    that image within ``tracklet.max_misses`` frames."""
+    """How far ``uv`` lies from a person's keypoints in the same image at ``frame``, in sigmas: the median
+    keypoint distance from the person's keypoints linearly interpolated between its nearest observations
+    before and after (extrapolated at the velocity of its two nearest observations on one side when only one
+    side exists; held with a single one), over ``tracklet.keypoint_sigma_px + tracklet.motion_frac * h *
+    sqrt(gap)``, and the log ratio of the keypoints' vertical spans over ``tracklet.size_sigma`` (capped at
+    ``tracklet.gate_sigmas``), added in quadrature.  ``observed``: frame -> (tracklet, detection, uv).  None
+    when the person has no observation of that image within ``tracklet.max_misses`` frames."""
     frames = np.array(sorted(observed))
     if len(frames) == 0 or frame in observed:
         return None
@@ -655,14 +665,77 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
         predicted = (1 - w) * observed[f0][2] + w * observed[f1][2]
         gap = min(gaps)
     else:
-        predicted = observed[f0 if f0 is not None else f1][2]
-        gap = gaps[0] * 2                          # held, not interpolated: walking moves it
+        # one side only: the two nearest observations' velocity carries the keypoints on (held with one)
+        near = before[-2:] if f0 is not None else after[:2]
+        anchor = f0 if f0 is not None else f1
+        predicted = observed[anchor][2]
+        if len(near) == 2:
+            step = (observed[int(near[1])][2] - observed[int(near[0])][2]) / float(near[1] - near[0])
+            predicted = predicted + np.where(np.isfinite(step), step, 0.0) * (frame - anchor)
+        gap = gaps[0] * 2                          # extrapolated: the velocity itself is uncertain
     both = np.all(np.isfinite(predicted), axis=1) & np.all(np.isfinite(uv), axis=1)
     if both.sum() < config.min_shared_keypoints:
         return None
     height = max(np.ptp(predicted[both, 1]), np.ptp(uv[both, 1]), 1.0)
     sigma = config.tracklet.keypoint_sigma_px + config.tracklet.motion_frac * height * np.sqrt(max(gap, 1))
-    return float(np.median(np.linalg.norm(predicted[both] - uv[both], axis=1))) / sigma
+    distance = float(np.median(np.linalg.norm(predicted[both] - uv[both], axis=1))) / sigma
+    size = 0.0
+    span_pred, span_obs = np.ptp(predicted[both, 1]), np.ptp(uv[both, 1])
+    if config.tracklet.size_sigma > 0 and min(span_pred, span_obs) > 4 * config.tracklet.keypoint_sigma_px:
+        size = min(abs(float(np.log(span_obs / span_pred))) / config.tracklet.size_sigma, config.tracklet.gate_sigmas)
+    return float(np.hypot(distance, size))
+
+
+def _person_depths(person: "_Person", calib: StereoCalibration, config: AssociationConfig,
+                   ranges: Mapping[int, float] | None) -> dict[int, tuple[float, float]]:
+    """frame -> (depth along the pair's rectified optical axis m, its standard error m) of a person under
+    construction: from the median disparity of its paired frames (``f B / d``; the disparity's standard error
+    as in :func:`_frame_terms`), else from the mean LiDAR range of its detections (``lidar_range_sigma_m``)."""
+    out = {}
+    fb = calib.focal_px * calib.baseline_m
+    for frame in set(person.sides["left"]) | set(person.sides["right"]):
+        held = [person.sides[s][frame] for s in ("left", "right") if frame in person.sides[s]]
+        if frame in person.paired and len(held) == 2:
+            uv_l, uv_r = held[0][2], held[1][2]
+            both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
+            if both.sum() >= config.min_shared_keypoints:
+                d_med = float(np.median(uv_l[both, 0] - uv_r[both, 0]))
+                if d_med > 0:
+                    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(uv_l[both, 1]),
+                                                                                         np.ptp(uv_r[both, 1]))
+                    se_px = 1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())
+                    out[frame] = (fb / d_med, fb / d_med ** 2 * se_px)
+                    continue
+        known = [ranges[id(item[1])] for item in held if ranges and id(item[1]) in ranges]
+        if known:
+            out[frame] = (float(np.mean(known)), config.lidar_range_sigma_m)
+    return out
+
+
+def _depth_residual(depths: dict[int, tuple[float, float]], frame: int, range_m: float,
+                    config: AssociationConfig) -> float:
+    """How far a detection's LiDAR range lies from a person's depth at ``frame`` (:func:`_person_depths`,
+    linearly interpolated between its nearest known frames before and after, else held from the nearest), in
+    sigmas: the range's ``lidar_range_sigma_m``, the depth's standard error and a walker's depth change over
+    the gap (``tracker.max_speed_mps`` for a held depth, ``tracklet.accel_sigma_mps`` for an interpolated one)
+    in quadrature; capped at ``tracklet.gate_sigmas`` (a range can lie on a neighbour); 0 without depths."""
+    if not depths:
+        return 0.0
+    frames = np.array(sorted(depths))
+    before, after = frames[frames <= frame], frames[frames >= frame]
+    dt = config.tracker.frame_interval_s
+    if len(before) and len(after):
+        f0, f1 = int(before[-1]), int(after[0])
+        w = 0.0 if f1 == f0 else (frame - f0) / (f1 - f0)
+        depth = (1 - w) * depths[f0][0] + w * depths[f1][0]
+        se = float(np.hypot(depths[f0][1], depths[f1][1]))
+        motion = config.tracklet.accel_sigma_mps * min(frame - f0, f1 - frame) * dt
+    else:
+        near = int(before[-1]) if len(before) else int(after[0])
+        depth, se = depths[near]
+        motion = config.tracker.max_speed_mps * abs(frame - near) * dt
+    sigma = float(np.sqrt(config.lidar_range_sigma_m ** 2 + se ** 2 + motion ** 2))
+    return min(abs(range_m - depth) / sigma, config.tracklet.gate_sigmas)
 
 
 @dataclass
@@ -725,16 +798,21 @@ def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration
     leftovers = [(side, index, f, d, uv) for side, tracklets in (("left", left), ("right", right))
                  for index, tracklet in enumerate(tracklets) for f, d, uv in tracklet if f not in used[side][index]]
     snapshot = [{s: dict(p.sides[s]) for s in ("left", "right")} for p in people]
+    depths = [_person_depths(p, calib, config, ranges) for p in people]
     options = []
-    for n, (side, index, f, _, uv) in enumerate(leftovers):
+    for n, (side, index, f, det, uv) in enumerate(leftovers):
+        range_m = ranges.get(id(det)) if ranges else None
         for k, person in enumerate(people):
             cost = _interpolation_cost(snapshot[k][side], f, uv, config)
             if cost is None:
                 continue
             if (side, index) not in person.tracklets:
                 cost += config.tracklet_switch_cost
-            if cost <= config.tracklet.gate_sigmas:
-                options.append((cost, n, k))
+            if cost > config.tracklet.gate_sigmas:
+                continue
+            if range_m is not None:       # the range weighs in the choice but never gates (it can lie on a neighbour)
+                cost = float(np.hypot(cost, _depth_residual(depths[k], f, range_m, config)))
+            options.append((cost, n, k))
     placed = set()
     for _, n, k in sorted(options):
         side, index, f, d, uv = leftovers[n]
@@ -1387,28 +1465,77 @@ def _consensus(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float, max
     uncertainty that lies on someone else (a wrong pairing, a cut on an occluder) no longer outweighs the
     others, as it would in a weighted least-squares start."""
     n = len(x)
-    lines = [(y[i], np.zeros(2)) for i in range(n)]
-    for i in range(n):
-        for j in range(i + 1, n):
-            if x[i] == x[j]:
-                continue
-            slope = (y[j] - y[i]) / (x[j] - x[i])
-            speed = float(np.linalg.norm(slope))
-            if speed > max_step:
-                slope = slope * max_step / speed
-            lines.append((y[i] - x[i] * slope, slope))
-    best, best_key = np.ones(n, dtype=bool), None
-    for offset, slope in lines:
-        z = np.linalg.norm(y - (offset + x[:, None] * slope), axis=1) / sigma
-        inside = z <= gate
-        key = (-int(inside.sum()), float(np.sum(z[inside] ** 2)))
-        if best_key is None or key < best_key:
-            best, best_key = inside, key
+    i, j = np.triu_indices(n, k=1)
+    moving = x[i] != x[j]
+    i, j = i[moving], j[moving]
+    slope = (y[j] - y[i]) / (x[j] - x[i])[:, None]
+    speed = np.linalg.norm(slope, axis=1)
+    slope = slope * np.minimum(1.0, max_step / np.maximum(speed, 1e-300))[:, None]
+    offsets = np.concatenate([y, y[i] - x[i, None] * slope])           # standing lines first, then pairs
+    slopes = np.concatenate([np.zeros((n, 2)), slope])
+    z = np.linalg.norm(y[None] - (offsets[:, None] + x[None, :, None] * slopes[:, None]), axis=2) / sigma
+    inside = z <= gate
+    counts = inside.sum(axis=1)
+    sums = np.where(inside, z ** 2, 0.0).sum(axis=1)
+    best = inside[np.lexsort((sums, -counts))[0]]
     return best if best.any() else np.ones(n, dtype=bool)
 
 
+def _walking_line(x: np.ndarray, y: np.ndarray, w: np.ndarray, max_step: float,
+                  slope_prior: tuple[np.ndarray, float] | None = None) -> np.ndarray:
+    """Weighted least-squares line ``y = a + b x`` per ground-plane axis (``x`` (n,) frames, ``y`` (n, 2),
+    weights ``w`` (n,)), its speed clipped to ``max_step`` per frame (the offset refitted); ``slope_prior``
+    ``(b0 (2,), weight)`` adds ``weight * |b - b0|^2`` (a walker's velocity changes slowly: a few close
+    centres do not decide it alone).  Returns ``[[a], [b]]`` (2, 2); a constant (b = 0, or ``b0``) with one
+    distinct frame."""
+    if len(np.unique(x)) < 2 and slope_prior is None:
+        return np.stack([np.average(y, axis=0, weights=w), np.zeros(2)])
+    normal = np.array([[w.sum(), (w * x).sum()], [(w * x).sum(), (w * x * x).sum()]])
+    rhs = np.stack([(w[:, None] * y).sum(axis=0), (w[:, None] * x[:, None] * y).sum(axis=0)])
+    if slope_prior is not None:
+        normal[1, 1] += slope_prior[1]
+        rhs[1] += slope_prior[1] * slope_prior[0]
+    coef = np.linalg.solve(normal + 1e-12 * np.eye(2), rhs)
+    speed = float(np.linalg.norm(coef[1]))
+    if speed > max_step:                        # no walker moves faster: the slope clipped, the offset refitted
+        coef[1] *= max_step / speed
+        coef[0] = np.average(y - x[:, None] * coef[1], axis=0, weights=w)
+    return coef
+
+
+def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationConfig) -> np.ndarray:
+    """A walker's velocity (2,) metres per frame around ``x = 0``: the weighted line (:func:`_walking_line`)
+    through the centres (``x`` (n,) frames from it, ``y`` (n, 2), ``sigma`` (n,)) within four
+    ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest), started from the centres the
+    best-supported line explains (:func:`_consensus`) and refitted three times without the centres beyond
+    ``gate_sigmas``; zero with fewer than two distinct frames."""
+    near = np.abs(x) <= 4 * config.smooth_window_frames
+    if near.sum() < config.smooth_min_centres:
+        near = np.zeros(len(x), dtype=bool)
+        near[np.lexsort((x, np.abs(x)))[:config.smooth_min_centres]] = True
+    x, y, w = x[near], y[near], 1.0 / sigma[near] ** 2
+    max_step = config.tracker.max_speed_mps * config.tracker.frame_interval_s
+    keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
+    coef = np.zeros((2, 2))
+    for _ in range(3):
+        if len(np.unique(x[keep])) < 2:
+            return np.zeros(2)
+        coef = _walking_line(x[keep], y[keep], w[keep], max_step)
+        new_keep = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) * np.sqrt(w) <= config.gate_sigmas
+        if new_keep.sum() < 2 or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    return coef[1]
+
+
 def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config: AssociationConfig) -> None:
-    """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place."""
+    """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place.
+
+    Each frame's line is fitted to the centres within ``smooth_window_frames`` (at least the
+    ``smooth_min_centres`` nearest), its velocity drawn to the person's walking velocity over four windows
+    (:func:`_trend`) with the weight of a walker's velocity change over one window
+    (``tracker.accel_sigma_mps``): at a track's end or after a stretch seen in one image, a line through two
+    noisy centres is not carried frames beyond them."""
     known = [(fr.frame, ground.to_level(fr.world_p), min(float(fr.depth_sigma_m), 5.0))
              for fr in frames if fr.world_p is not None]
     if not known:
@@ -1418,23 +1545,19 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
     sigma = np.hypot(np.array([k[2] for k in known]), config.smooth_motion_m)
     height = float(np.median(level[:, 2]))
     world_R_level = ground.world_R_level
-    max_step = config.tracker.max_speed_mps * config.tracker.frame_interval_s
+    dt = config.tracker.frame_interval_s
+    max_step = config.tracker.max_speed_mps * dt
+    velocity_sigma = max(config.tracker.accel_sigma_mps * dt * max(config.smooth_window_frames, 1) * dt, 1e-6)
     for fr in frames:
         near = np.abs(t - fr.frame) <= config.smooth_window_frames
-        if not near.any():
-            continue
+        if near.sum() < config.smooth_min_centres:
+            near = np.zeros(len(t), dtype=bool)
+            near[np.lexsort((t, np.abs(t - fr.frame)))[:config.smooth_min_centres]] = True
         x, y, w = t[near] - fr.frame, level[near, :2], 1.0 / sigma[near] ** 2
+        prior = (_trend(t - fr.frame, level[:, :2], sigma, config), 1.0 / velocity_sigma ** 2)
         keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
         for _ in range(3):                       # weighted line per axis; outlying centres left out
-            if len(np.unique(x[keep])) >= 2:
-                a = np.stack([np.ones(keep.sum()), x[keep]], axis=1) * np.sqrt(w[keep])[:, None]
-                coef = np.linalg.lstsq(a, y[keep] * np.sqrt(w[keep])[:, None], rcond=None)[0]
-                speed = float(np.linalg.norm(coef[1]))
-                if speed > max_step:            # no walker moves faster: the slope clipped, the offset refitted
-                    coef[1] *= max_step / speed
-                    coef[0] = np.average(y[keep] - x[keep, None] * coef[1], axis=0, weights=w[keep])
-            else:
-                coef = np.stack([np.average(y[keep], axis=0, weights=w[keep]), np.zeros(2)])
+            coef = _walking_line(x[keep], y[keep], w[keep], max_step, prior)
             residual = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) / sigma[near]
             new_keep = residual <= config.gate_sigmas
             if not new_keep.any() or np.array_equal(new_keep, keep):
