@@ -912,6 +912,43 @@ def test_a_cut_on_a_neighbour_that_puts_two_people_in_one_place_is_taken_back():
     assert gap_off < 0.35
 
 
+def test_a_frame_where_one_pair_saw_someone_else_loses_that_pairs_detections():
+    """A walker seen by both pairs over 10 frames (centres 0.1 m uncertain in depth); at frame 6 one pair's
+    track went on with a neighbour 1.2 m behind.  That pair's detections leave frame 6, the other pair's
+    stay, every other frame keeps both pairs; a 0.1 m disagreement (noise) changes nothing."""
+    from pedx_graph.detections.association import DetectedTrackFrame, drop_conflicting_pairs
+
+    calibs = _rig()
+    ground = _ground(calibs)
+    pairs = sorted(calibs)
+
+    def person(offset_m):
+        frames, sources, pair_of = {}, {}, {}
+        for k in range(10):
+            walker = np.array([12.0, -2.0 + 0.14 * k, GROUND_Z + 0.9])
+            entry = DetectedTrackFrame(frame=k, detections={})
+            sources[k] = []
+            for pair in pairs:
+                centre = walker + ([offset_m, 0.0, 0.0] if (k == 6 and pair == pairs[1]) else 0.0)
+                obs = Observation(frame=k, uv={"left": np.zeros((17, 2)), "right": np.zeros((17, 2))}, score=0.9,
+                                  payload={"left": f"{pair}/L/{k}", "right": f"{pair}/R/{k}"}, world_p=centre,
+                                  depth_sigma_m=0.1, world_p_camera=calibs[pair].camera_centre("left"))
+                for side, camera in zip(("left", "right"), pair.split("-")):
+                    entry.detections[camera] = obs.payload[side]
+                sources[k].append(obs)
+                pair_of[id(obs)] = pair
+            frames[k] = entry
+        drop_conflicting_pairs(frames, sources, pair_of, ground, AssociationConfig(), calibs)
+        return frames, sources
+
+    frames, sources = person(1.2)
+    assert sorted(frames[6].detections) == sorted(pairs[0].split("-"))
+    assert [pair for pair in pairs if any(o.payload["left"].startswith(pair) for o in sources[6])] == [pairs[0]]
+    assert all(len(frames[k].detections) == 4 and len(sources[k]) == 2 for k in range(10) if k != 6)
+    frames, sources = person(0.1)
+    assert all(len(frames[k].detections) == 4 for k in range(10))
+
+
 def test_box_cover_and_iou():
     """A box inside another covers it fully (cover 1) while their IoU is the area ratio; disjoint boxes 0;
     a degenerate box 0."""

@@ -82,7 +82,10 @@ Steps:
    track's centres, projected, must lie under its detections within ``merge_distance_m`` (plus the
    centre's depth uncertainty seen from that camera), and its keypoint span must match the span the
    centre's depth predicts.  Merged greedily, best agreement first, never two tracks of one pair at one
-   frame (one pair's tracks of one person at different times — lost and found again — do join).
+   frame (one pair's tracks of one person at different times — lost and found again — do join).  At a frame
+   where two merged pairs' centres disagree beyond ``gate_sigmas``, the pair whose centre the person's walk
+   over its other frames does not explain loses that frame's detections (:func:`drop_conflicting_pairs`:
+   one pair's track went on with a neighbour for a frame).
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
@@ -1594,6 +1597,92 @@ def _smoothed_without(frames: list[DetectedTrackFrame], sources: dict[int, list[
     return next((c.world_p for c in copies if c.frame == left_out.frame), None)
 
 
+def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[int, list[Observation]],
+                           pair_of: Mapping[int, str], ground: GroundFrame, config: AssociationConfig,
+                           calibrations: Mapping[str, StereoCalibration]) -> None:
+    """Take out, in place, a pair's detections at a frame where its centre contradicts another pair's centre
+    of the same merged person and the person's walk (module docstring, step 5): tracks of two pairs are merged
+    on the median agreement of their shared frames, so one frame where a pair's own track went on with
+    someone else (a neighbour a metre behind, overlapping in its images) joins the person with both people's
+    detections, and a fit to both is confidently wrong.
+
+    ``frames``: frame -> the merged person's :class:`DetectedTrackFrame`; ``sources``: frame -> the pairs'
+    observations behind it; ``pair_of``: id of an observation -> its pair.  An observation's centre is its
+    own, else, seen in both images of its pair but left unpaired, the one its median disparity gives
+    (:func:`triangulate_centre`).  At a frame where two pairs' centres lie more than ``gate_sigmas`` apart (:func:`_ray_distance`: each uncertain by its depth sigma
+    along its ray and ``centre_lateral_sigma_m`` across it), the person's smoothed centre from its other
+    frames (:func:`smooth_centres`) decides: the observation nearest it (same distance, the smoothed centre's
+    own uncertainty and ``smooth_motion_m`` added) stays, an observation beyond ``gate_sigmas`` of it leaves
+    the frame with its pair's detections.  Nothing changes where no observation lies within the gate."""
+    def level_xy(world_p) -> np.ndarray:
+        return ground.to_level(np.asarray(world_p, dtype=float))[:2]
+
+    def camera_xy(obs: Observation) -> np.ndarray:
+        camera = obs.world_p_camera if obs.world_p_camera is not None \
+            else calibrations[pair_of[id(obs)]].camera_centre("left")
+        return level_xy(camera)
+
+    def distance(a_xy, a_camera, a_sigma, b_xy, b_camera, b_sigma) -> float:
+        return _ray_distance(a_xy[None], b_xy[None], [a_camera, b_camera], [np.array([a_sigma]), np.array([b_sigma])],
+                             config.centre_lateral_sigma_m)
+
+    def centre(obs: Observation) -> tuple[np.ndarray, float] | None:
+        # its own centre, else (both images seen, left unpaired) the one its median disparity gives
+        if obs.world_p is not None:
+            return level_xy(obs.world_p), float(obs.depth_sigma_m)
+        if set(obs.uv) != {"left", "right"}:
+            return None
+        both = np.all(np.isfinite(obs.uv["left"]), axis=1) & np.all(np.isfinite(obs.uv["right"]), axis=1)
+        if both.sum() < config.min_shared_keypoints or \
+                np.median(obs.uv["left"][both, 0] - obs.uv["right"][both, 0]) <= 0:
+            return None
+        world_p, sigma = triangulate_centre(obs.uv["left"], obs.uv["right"], calibrations[pair_of[id(obs)]],
+                                            ground, config.keypoint_sigma_px * np.sqrt(2.0))
+        return level_xy(world_p), sigma
+
+    for frame in sorted(frames):
+        placed = []
+        for obs in sources.get(frame, []):
+            known = centre(obs) if id(obs) in pair_of else None
+            if known is not None:
+                placed.append((obs, *known))
+        if len({pair_of[id(o)] for o, _, _ in placed}) < 2:
+            continue
+        conflict = any(pair_of[id(a)] != pair_of[id(b)] and
+                       distance(a_xy, camera_xy(a), a_sigma, b_xy, camera_xy(b), b_sigma) > config.gate_sigmas
+                       for i, (a, a_xy, a_sigma) in enumerate(placed) for b, b_xy, b_sigma in placed[i + 1:])
+        if not conflict:
+            continue
+        others = []
+        for f, entry in frames.items():
+            copy = DetectedTrackFrame(frame=f, detections={})
+            if f != frame:
+                _frame_centre(copy, sources.get(f, []))
+            others.append(copy)
+        if sum(c.world_p is not None for c in others) < 2:
+            continue
+        smooth_centres(others, ground, config)
+        walk = next(c for c in others if c.frame == frame)
+        if walk.world_p is None:
+            continue
+        walk_sigma = float(np.hypot(min(walk.depth_sigma_m, 5.0), config.smooth_motion_m))
+        scores = [distance(xy, camera_xy(o), sigma, level_xy(walk.world_p), camera_xy(o), walk_sigma)
+                  for o, xy, sigma in placed]
+        best = int(np.argmin(scores))
+        if scores[best] > config.gate_sigmas:
+            continue
+        for (obs, _, _), score in zip(placed, scores):
+            if score <= config.gate_sigmas or pair_of[id(obs)] == pair_of[id(placed[best][0])]:
+                continue
+            sources[frame] = [o for o in sources[frame] if o is not obs]
+            left_name, right_name = pair_of[id(obs)].split("-")
+            for side in obs.payload:
+                frames[frame].detections.pop(left_name if side == "left" else right_name, None)
+        if not frames[frame].detections:
+            del frames[frame]
+            sources.pop(frame, None)
+
+
 def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[Observation]]]],
                     ground: GroundFrame, config: AssociationConfig) -> None:
     """Smooth every person's centres (:func:`smooth_centres`; ``people``: per person its frames and, per
@@ -1714,6 +1803,8 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
                 for side, det in obs.payload.items():
                     entry.detections[left_name if side == "left" else right_name] = det
                 sources[obs.frame].append(obs)
+        drop_conflicting_pairs(frames, sources, {id(obs): tracks[i][0] for i in group for obs in tracks[i][1]},
+                               ground, config, calibrations)
         for frame, entry in frames.items():
             _frame_centre(entry, sources[frame])
         centres = np.array([fr.world_p for fr in frames.values() if fr.world_p is not None]).reshape(-1, 3)
