@@ -545,11 +545,8 @@ def _frame_terms(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibra
     cost = stereo_cost(uv_left, uv_right, calib, config, keypoint_set, ranges_m, ground)
     if cost >= _GATED:
         return None
-    both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
-    left, right = uv_left[both], uv_right[both]
-    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))
-    se = 1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left))
-    return cost, float(np.median(left[:, 0] - right[:, 0])), float(se)
+    disparity, se = _disparity_of(uv_left, uv_right, config)      # stereo_cost passed: enough shared keypoints
+    return cost, disparity, se
 
 
 def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray, calib: StereoCalibration,
@@ -689,26 +686,40 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
     return float(np.hypot(distance, size))
 
 
+def _disparity_of(uv_left: np.ndarray, uv_right: np.ndarray, config: AssociationConfig) -> tuple[float, float] | None:
+    """A left and a right detection's median disparity over their shared keypoints and its standard error,
+    pixels (``1.2533 sqrt(2) sigma / sqrt(n)``, ``sigma = keypoint_sigma_px + keypoint_sigma_frac * h``); None
+    with fewer than ``min_shared_keypoints`` shared."""
+    both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
+    if both.sum() < config.min_shared_keypoints:
+        return None
+    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(uv_left[both, 1]),
+                                                                         np.ptp(uv_right[both, 1]))
+    return (float(np.median(uv_left[both, 0] - uv_right[both, 0])),
+            float(1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())))
+
+
+def _paired_disparities(person: "_Person", config: AssociationConfig) -> list[tuple[int, float, float]]:
+    """``(frame, disparity px, its standard error px)`` of a person's paired frames (:func:`_disparity_of`),
+    in frame order."""
+    out = []
+    for frame in sorted(f for f in person.paired if f in person.sides["left"] and f in person.sides["right"]):
+        item = _disparity_of(person.sides["left"][frame][2], person.sides["right"][frame][2], config)
+        if item is not None:
+            out.append((frame, *item))
+    return out
+
+
 def _person_depths(person: "_Person", calib: StereoCalibration, config: AssociationConfig,
                    ranges: Mapping[int, float] | None) -> dict[int, tuple[float, float]]:
     """frame -> (depth along the pair's rectified optical axis m, its standard error m) of a person under
     construction: from the median disparity of its paired frames (``f B / d``; the disparity's standard error
     as in :func:`_frame_terms`), else from the mean LiDAR range of its detections (``lidar_range_sigma_m``)."""
-    out = {}
     fb = calib.focal_px * calib.baseline_m
-    for frame in set(person.sides["left"]) | set(person.sides["right"]):
+    out = {frame: (fb / d_med, fb / d_med ** 2 * se_px) for frame, d_med, se_px in _paired_disparities(person, config)
+           if d_med > 0}
+    for frame in (set(person.sides["left"]) | set(person.sides["right"])) - set(out):
         held = [person.sides[s][frame] for s in ("left", "right") if frame in person.sides[s]]
-        if frame in person.paired and len(held) == 2:
-            uv_l, uv_r = held[0][2], held[1][2]
-            both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
-            if both.sum() >= config.min_shared_keypoints:
-                d_med = float(np.median(uv_l[both, 0] - uv_r[both, 0]))
-                if d_med > 0:
-                    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(uv_l[both, 1]),
-                                                                                         np.ptp(uv_r[both, 1]))
-                    se_px = 1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())
-                    out[frame] = (fb / d_med, fb / d_med ** 2 * se_px)
-                    continue
         known = [ranges[id(item[1])] for item in held if ranges and id(item[1]) in ranges]
         if known:
             out[frame] = (float(np.mean(known)), config.lidar_range_sigma_m)
@@ -838,19 +849,7 @@ def drop_disparity_outliers(person: _Person, calib: StereoCalibration, config: A
     judged per pair of tracklets: a short tracklet of someone else, paired for a frame or two with one of the
     person's tracklets, passes on its own and joins the person.  At such a frame the side whose tracklet holds
     fewer of the person's frames is taken out (the intruder); the frame stays with its other side, unpaired."""
-    paired = sorted(f for f in person.paired if f in person.sides["left"] and f in person.sides["right"])
-    if len(paired) < 3:
-        return
-    items = []
-    for frame in paired:
-        uv_l, uv_r = person.sides["left"][frame][2], person.sides["right"][frame][2]
-        both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
-        if both.sum() < config.min_shared_keypoints:
-            continue
-        sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(uv_l[both, 1]),
-                                                                             np.ptp(uv_r[both, 1]))
-        items.append((frame, float(np.median(uv_l[both, 0] - uv_r[both, 0])),
-                      1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())))
+    items = _paired_disparities(person, config)
     if len(items) < 3:
         return
     z = _smooth_disparity(np.array([i[0] for i in items], dtype=float), np.array([i[1] for i in items]),
