@@ -646,8 +646,8 @@ def _supported_runs(gain: np.ndarray) -> list[tuple[int, int]]:
 def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: AssociationConfig) -> float | None:
     """How far ``uv`` lies from a person's keypoints in the same image at ``frame``, in sigmas: the median
     keypoint distance from the person's keypoints linearly interpolated between its nearest observations
-    before and after (extrapolated at the velocity of its two nearest observations on one side when only one
-    side exists; held with a single one), over ``tracklet.keypoint_sigma_px + tracklet.motion_frac * h *
+    before and after (extrapolated at the body's velocity between its two nearest observations on one side,
+    the median keypoint step, when only one side exists; held with a single one), over ``tracklet.keypoint_sigma_px + tracklet.motion_frac * h *
     sqrt(gap)``, and the log ratio of the keypoints' vertical spans over ``tracklet.size_sigma`` (capped at
     ``tracklet.gate_sigmas``), added in quadrature.  ``observed``: frame -> (tracklet, detection, uv).  None
     when the person has no observation of that image within ``tracklet.max_misses`` frames."""
@@ -670,8 +670,12 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
         anchor = f0 if f0 is not None else f1
         predicted = observed[anchor][2]
         if len(near) == 2:
+            # the body's velocity (the median keypoint step, as the tracker's): swinging limbs' own steps would
+            # be carried on too
             step = (observed[int(near[1])][2] - observed[int(near[0])][2]) / float(near[1] - near[0])
-            predicted = predicted + np.where(np.isfinite(step), step, 0.0) * (frame - anchor)
+            shared = np.all(np.isfinite(step), axis=1)
+            if shared.sum() >= 2:
+                predicted = predicted + np.median(step[shared], axis=0) * (frame - anchor)
         gap = gaps[0] * 2                          # extrapolated: the velocity itself is uncertain
     both = np.all(np.isfinite(predicted), axis=1) & np.all(np.isfinite(uv), axis=1)
     if both.sum() < config.min_shared_keypoints:
