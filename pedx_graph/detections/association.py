@@ -1534,8 +1534,10 @@ def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationC
     return coef[1]
 
 
-def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config: AssociationConfig) -> None:
-    """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place.
+def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config: AssociationConfig,
+                   only: frozenset | None = None) -> None:
+    """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place; with
+    ``only``, just those frames' (every frame's centre still counts).
 
     Each frame's line is fitted to the centres within ``smooth_window_frames`` (at least the
     ``smooth_min_centres`` nearest), its velocity drawn to the person's walking velocity over four windows
@@ -1555,6 +1557,8 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
     max_step = config.tracker.max_speed_mps * dt
     velocity_sigma = max(config.tracker.accel_sigma_mps * dt * max(config.smooth_window_frames, 1) * dt, 1e-6)
     for fr in frames:
+        if only is not None and fr.frame not in only:
+            continue
         near = np.abs(t - fr.frame) <= config.smooth_window_frames
         if near.sum() < config.smooth_min_centres:
             near = np.zeros(len(t), dtype=bool)
@@ -1596,7 +1600,7 @@ def _smoothed_without(frames: list[DetectedTrackFrame], sources: dict[int, list[
                 left_out.fallback[2] < copy.depth_sigma_m:
             copy.world_p, copy.depth_sigma_m = left_out.fallback[0], left_out.fallback[2]
         copies.append(copy)
-    smooth_centres(copies, ground, config)
+    smooth_centres(copies, ground, config, only=frozenset({left_out.frame}))
     return next((c.world_p for c in copies if c.frame == left_out.frame), None)
 
 
@@ -1664,7 +1668,7 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
             others.append(copy)
         if sum(c.world_p is not None for c in others) < 2:
             continue
-        smooth_centres(others, ground, config)
+        smooth_centres(others, ground, config, only=frozenset({frame}))
         walk = next(c for c in others if c.frame == frame)
         if walk.world_p is None:
             continue
