@@ -56,13 +56,14 @@ Steps:
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
    A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time
-   (extrapolated at their velocity past the ends), agree best in keypoints and size
-   (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of their own;
-   a detection with a LiDAR range also weighs how far that range lies from the person's depth (its paired
-   frames' disparities), without gating on it.  Paired frames are triangulated at their median disparity (:func:`triangulate_centre`); with
-   ``clouds``, a LiDAR centre replaces the stereo one where it agrees; a frame seen in one image gets one
-   from its detection's own LiDAR cluster (:func:`_range_centre`) where the track's nearest stereo centre
-   in time allows that depth (:func:`_agrees_with_stereo`).  A paired frame whose disparity
+   (past the ends carried on at the body's velocity, the median keypoint step), agree best in keypoints and
+   size (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of their
+   own; a detection with a LiDAR range also weighs how far that range lies from the person's depth (its
+   paired frames' disparities), without gating on it.  Paired frames are triangulated at their median
+   disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
+   agrees; a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
+   where the track's nearest stereo centre in time allows that depth (:func:`_agrees_with_stereo`).  A
+   paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
    two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
@@ -647,10 +648,11 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
     """How far ``uv`` lies from a person's keypoints in the same image at ``frame``, in sigmas: the median
     keypoint distance from the person's keypoints linearly interpolated between its nearest observations
     before and after (extrapolated at the body's velocity between its two nearest observations on one side,
-    the median keypoint step, when only one side exists; held with a single one), over ``tracklet.keypoint_sigma_px + tracklet.motion_frac * h *
-    sqrt(gap)``, and the log ratio of the keypoints' vertical spans over ``tracklet.size_sigma`` (capped at
-    ``tracklet.gate_sigmas``), added in quadrature.  ``observed``: frame -> (tracklet, detection, uv).  None
-    when the person has no observation of that image within ``tracklet.max_misses`` frames."""
+    the median keypoint step, when only one side exists; held with a single one), over
+    ``tracklet.keypoint_sigma_px + tracklet.motion_frac * h * sqrt(gap)``, and the log ratio of the
+    keypoints' vertical spans over ``tracklet.size_sigma`` (capped at ``tracklet.gate_sigmas``), added in
+    quadrature.  ``observed``: frame -> (tracklet, detection, uv).  None when the person has no observation
+    of that image within ``tracklet.max_misses`` frames."""
     frames = np.array(sorted(observed))
     if len(frames) == 0 or frame in observed:
         return None
@@ -718,7 +720,7 @@ def _person_depths(person: "_Person", calib: StereoCalibration, config: Associat
                    ranges: Mapping[int, float] | None) -> dict[int, tuple[float, float]]:
     """frame -> (depth along the pair's rectified optical axis m, its standard error m) of a person under
     construction: from the median disparity of its paired frames (``f B / d``; the disparity's standard error
-    as in :func:`_frame_terms`), else from the mean LiDAR range of its detections (``lidar_range_sigma_m``)."""
+    of :func:`_disparity_of`), else from the mean LiDAR range of its detections (``lidar_range_sigma_m``)."""
     fb = calib.focal_px * calib.baseline_m
     out = {frame: (fb / d_med, fb / d_med ** 2 * se_px) for frame, d_med, se_px in _paired_disparities(person, config)
            if d_med > 0}
@@ -1616,8 +1618,9 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
     ``frames``: frame -> the merged person's :class:`DetectedTrackFrame`; ``sources``: frame -> the pairs'
     observations behind it; ``pair_of``: id of an observation -> its pair.  An observation's centre is its
     own, else, seen in both images of its pair but left unpaired, the one its median disparity gives
-    (:func:`triangulate_centre`).  At a frame where two pairs' centres lie more than ``gate_sigmas`` apart (:func:`_ray_distance`: each uncertain by its depth sigma
-    along its ray and ``centre_lateral_sigma_m`` across it), the person's smoothed centre from its other
+    (:func:`triangulate_centre`).  At a frame where two pairs' centres lie more than ``gate_sigmas`` apart
+    (:func:`_ray_distance`: each uncertain by its depth sigma along its ray and ``centre_lateral_sigma_m``
+    across it), the person's smoothed centre from its other
     frames (:func:`smooth_centres`) decides: the observation nearest it (same distance, the smoothed centre's
     own uncertainty and ``smooth_motion_m`` added) stays, an observation beyond ``gate_sigmas`` of it leaves
     the frame with its pair's detections.  Nothing changes where no observation lies within the gate."""
