@@ -395,6 +395,28 @@ def test_smoothed_centres_follow_the_majority_not_one_confident_outlier():
     assert max(gaps) < 0.6, np.round(gaps, 2)
 
 
+def test_a_track_that_turns_back_across_a_gap_is_split_there():
+    """A one-image track whose first two frames are a walker going one way at 21 m and whose frames after a
+    three-frame gap are another walker going the other way (the tracker carried it across the gap while the
+    two crossed): split at the gap.  A walker at constant velocity with the same gap stays one track."""
+    from pedx_graph.detections.association import split_reversals
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(13)
+
+    def observation(k, xy):
+        uv = calib.project(_person_points(xy, np.pi / 2, 0.5 * k))[0] + 2.0 * rng.normal(size=(17, 2))
+        return Observation(frame=k, uv={"left": uv}, score=0.8, payload={"left": f"{xy}/{k}"})
+
+    swapped = [observation(k, (21.6, -0.6 + 0.16 * k)) for k in (7, 8)] + \
+        [observation(k, (20.6, 1.8 - 0.16 * k)) for k in (11, 12, 15, 16, 17, 19)]
+    parts = split_reversals([swapped], calib, AssociationConfig())
+    assert [[o.frame for o in part] for part in parts] == [[7, 8], [11, 12, 15, 16, 17, 19]]
+    steady = [observation(k, (21.6, -0.6 + 0.16 * k)) for k in (7, 8, 11, 12, 15, 16, 17, 19)]
+    assert len(split_reversals([steady], calib, AssociationConfig())) == 1
+
+
 def test_smoothed_centres_do_not_carry_two_noisy_centres_beyond_a_track_end():
     """A walker crossing the view at a constant depth: stereo centres (0.3 m uncertain) up to frame 12, the
     last two off in depth in opposite directions, then four frames seen in one image (no centre).  Those

@@ -66,7 +66,9 @@ Steps:
    paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
-   two).  Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
+   two).  A track whose image velocity changes across frames it missed by more than a walker's velocity can
+   (:func:`split_reversals`: the tracker carried it on with someone walking the other way) is split there.
+   Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
    tried, and at their ends a head or tail moved from one to the other (:func:`repair_swaps`): a walker moves
    on a straight line at constant speed, which the image column (projected: curved near the camera) and the
    frames' centre depths follow, so the exchange is made when it fits the two tracks to such walks clearly
@@ -942,7 +944,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                                   ranges if config.lidar_identity else None, claimed, others)
                     projections.update({(obs.frame, side): v for side, v in views.items()})
         out.append(track)
-    return repair_swaps(out, calib, config)
+    return repair_swaps(split_reversals(out, calib, config), calib, config)
 
 
 def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
@@ -1159,6 +1161,55 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         _, a, b, new_a, new_b = best
         tracks[a], tracks[b] = new_a, new_b
     return tracks
+
+
+def _velocity(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+    """Slope of the weighted line through ``(frames, u)`` (``sigma`` (n,) each) and its standard error."""
+    w = 1.0 / sigma ** 2
+    fm = float((w * frames).sum() / w.sum())
+    sxx = float((w * (frames - fm) ** 2).sum())
+    slope = float((w * (frames - fm) * (u - (w * u).sum() / w.sum())).sum() / sxx)
+    return slope, float(1.0 / np.sqrt(sxx))
+
+
+def split_reversals(tracks: list[list[Observation]], calib: StereoCalibration,
+                    config: AssociationConfig) -> list[list[Observation]]:
+    """Split a pair's track where, across frames it missed, its image velocity changes more than a walker can
+    (the tracker carried it on with someone walking the other way, the two crossing while missed).
+
+    Per gap of a track (consecutive frames more than one apart), in the image that saw it most
+    (:func:`_image_track`): the velocities of the line through its last up to four columns before the gap and
+    of the line through its first up to four after it (at least two each), each with its standard error; the
+    track is split there when they differ by more than ``gate_sigmas`` times those errors and a walker's
+    velocity change over the gap (``tracker.accel_sigma_mps`` over the gap's time, at the track's scale) in
+    quadrature.  Checked again on the part after a split."""
+    gate = config.gate_sigmas
+    dt = config.tracker.frame_interval_s
+    out = []
+    pending = [list(t) for t in tracks]
+    while pending:
+        track = pending.pop(0)
+        side = max(("left", "right"), key=lambda sd: len(_image_track(track, calib, config, sd)[0]))
+        frames, u, sigma, _, _, px_per_m = _image_track(track, calib, config, side)
+        split_at = None
+        for i in range(1, len(frames) - 2):
+            gap = frames[i + 1] - frames[i]
+            if gap <= 1:
+                continue
+            head = slice(max(i - 3, 0), i + 1)
+            tail = slice(i + 1, min(i + 5, len(frames)))
+            v_head, se_head = _velocity(frames[head], u[head], sigma[head])
+            v_tail, se_tail = _velocity(frames[tail], u[tail], sigma[tail])
+            change = config.tracker.accel_sigma_mps * gap * dt * dt * (px_per_m or 0.0)
+            if abs(v_tail - v_head) > gate * float(np.sqrt(se_head ** 2 + se_tail ** 2 + change ** 2)):
+                split_at = frames[i + 1]
+                break
+        if split_at is None:
+            out.append(track)
+            continue
+        out.append([o for o in track if o.frame < split_at])
+        pending.insert(0, [o for o in track if o.frame >= split_at])
+    return out
 
 
 def _agrees_with_stereo(obs: Observation, stereo: list[Observation], calib: StereoCalibration,
