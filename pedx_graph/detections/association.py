@@ -1189,8 +1189,8 @@ def split_reversals(tracks: list[list[Observation]], calib: StereoCalibration,
     pending = [list(t) for t in tracks]
     while pending:
         track = pending.pop(0)
-        side = max(("left", "right"), key=lambda sd: len(_image_track(track, calib, config, sd)[0]))
-        frames, u, sigma, _, _, px_per_m = _image_track(track, calib, config, side)
+        series = {sd: _image_track(track, calib, config, sd) for sd in ("left", "right")}
+        frames, u, sigma, _, _, px_per_m = max(series.values(), key=lambda item: len(item[0]))
         split_at = None
         for i in range(1, len(frames) - 2):
             gap = frames[i + 1] - frames[i]
