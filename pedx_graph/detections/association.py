@@ -1182,7 +1182,8 @@ def split_reversals(tracks: list[list[Observation]], calib: StereoCalibration,
     of the line through its first up to four after it (at least two each), each with its standard error; the
     track is split there when they differ by more than ``gate_sigmas`` times those errors and a walker's
     velocity change over the gap (``tracker.accel_sigma_mps`` over the gap's time, at the track's scale) in
-    quadrature.  Checked again on the part after a split."""
+    quadrature.  Checked again on the part after a split.  Both parts are kept, however short (the track
+    passed ``tracker.min_track_frames`` whole: its detections are a person's, not clutter)."""
     gate = config.gate_sigmas
     dt = config.tracker.frame_interval_s
     out = []
