@@ -1694,9 +1694,8 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
             return level_xy(obs.world_p), float(obs.depth_sigma_m)
         if set(obs.uv) != {"left", "right"}:
             return None
-        both = np.all(np.isfinite(obs.uv["left"]), axis=1) & np.all(np.isfinite(obs.uv["right"]), axis=1)
-        if both.sum() < config.min_shared_keypoints or \
-                np.median(obs.uv["left"][both, 0] - obs.uv["right"][both, 0]) <= 0:
+        disparity = _disparity_of(obs.uv["left"], obs.uv["right"], config)
+        if disparity is None or disparity[0] <= 0:
             return None
         world_p, sigma = triangulate_centre(obs.uv["left"], obs.uv["right"], calibrations[pair_of[id(obs)]],
                                             ground, config.keypoint_sigma_px * np.sqrt(2.0))
