@@ -17,7 +17,7 @@ frame's detections belong to (``truth/detections``; frames of a bystander's or a
 detections, of clutter or fragments, are not scored; a frame fitted farther than 1 m from that person in the
 ground plane is counted as *misplaced*, without an MPJPE).  A body placed on a neighbour is the error of the
 person whose detections it was fitted to, not a good fit of the neighbour.  Reported per input and distance bin (horizontal distance of the true pelvis from the LiDAR): global
-MPJPE and root-relative MPJPE (13 evaluation joints, after similarity alignment for the latter), mean keypoint NEES / 3 dof and the 95 % ellipsoid coverage of the 18 fitted
+MPJPE and root-relative MPJPE (13 evaluation joints, after similarity alignment for the latter; the global one also per joint), mean keypoint NEES / 3 dof and the 95 % ellipsoid coverage of the 18 fitted
 keypoints (covariance status ``ok``).
 
 Association (per detector format, run as the import runs it, scored against ``truth/detections``,
@@ -66,6 +66,7 @@ from pedx_graph.detections.importer import import_detections  # noqa: E402
 from pedx_graph.detections.openpose import read_openpose  # noqa: E402
 from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin, eval_joints, joint_errors  # noqa: E402
+from pedx_graph.keypoints import EVAL_JOINTS  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
 from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig  # noqa: E402
 from pedx_graph.sim.detections import coco_paths  # noqa: E402
@@ -227,7 +228,8 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
                 cov = np.asarray(extra["cov_keypoints_3d"], dtype=float)
                 nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
             rows.append({"distance_m": labelled[tid][frame], "mpjpe_mm": 1000 * float(np.mean(glob)),
-                         "rel_mpjpe_mm": 1000 * float(np.mean(rel)), "nees": nees})
+                         "rel_mpjpe_mm": 1000 * float(np.mean(rel)), "nees": nees,
+                         "joint_mm": 1000 * np.asarray(glob, dtype=float).reshape(-1)})
     return rows, failures
 
 
@@ -241,7 +243,8 @@ def _stats(rows: list[dict]) -> dict:
             "mpjpe_mm": float(np.mean([r["mpjpe_mm"] for r in rows])),
             "rel_mpjpe_mm": float(np.mean([r["rel_mpjpe_mm"] for r in rows])),
             "keypoint_nees_over_dof": float(nees.mean() / 3) if len(nees) else None,
-            "keypoint_coverage95": float(np.mean(nees <= CHI2_3_95)) if len(nees) else None}
+            "keypoint_coverage95": float(np.mean(nees <= CHI2_3_95)) if len(nees) else None,
+            "joint_mpjpe_mm": dict(zip(EVAL_JOINTS, np.mean([r["joint_mm"] for r in rows], axis=0).tolist()))}
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -365,6 +368,12 @@ def markdown(result: dict, command: str) -> str:
             lines.append(f"| {source} | {label} | {st['frames']} | {st.get('misplaced_frames', 0)} | "
                          f"{st['mpjpe_mm']:.1f} | {st['rel_mpjpe_mm']:.1f} | "
                          f"{cell(st['keypoint_nees_over_dof'], '.2f')} | {cell(st['keypoint_coverage95'], '.3f')} |")
+    lines += ["", f"## Global MPJPE per joint at {key} m (mm, both scenes)", "",
+              "| input | " + " | ".join(EVAL_JOINTS) + " |", "|---|" + "---:|" * len(EVAL_JOINTS)]
+    for source, summary in result["accuracy"].items():
+        joints = summary[key].get("joint_mpjpe_mm")
+        if joints:
+            lines.append(f"| {source} | " + " | ".join(f"{joints[j]:.1f}" for j in EVAL_JOINTS) + " |")
     lines += ["", f"Frames are scored against their labelled person (detector tracks: the person most of the frame's "
               f"detections belong to); the {key} m row is the goal's range.  A detector track's frame fitted farther "
               f"than {MATCH_RADIUS_M:g} m from that person is counted as misplaced and left out of the MPJPE (a body "

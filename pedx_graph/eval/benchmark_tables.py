@@ -127,7 +127,36 @@ def detections_section(runs: list[dict]) -> str:
               f"{len(met)} of {total}.  Commands: " + "; ".join(f"`{run['command']}`" + (
                   f" (written to `benchmarks/results/seed{run['seed']}`)" if run["seed"] else "")
                   for run in runs) + "."]
+    lines += _joint_table(runs)
     return "\n".join(lines)
+
+
+def _joint_table(runs: list[dict]) -> list[str]:
+    """Markdown lines: the global MPJPE of each evaluated joint at 5-25 m per input, over the seeds (each
+    seed's mean weighted by its frames); empty when no run reports per-joint errors."""
+    sums: dict[str, dict[str, float]] = {}
+    frames: dict[str, int] = {}
+    joints: list[str] = []
+    for run in runs:
+        for source, summary in run["accuracy"].items():
+            st = summary.get("5-25") or {}
+            per_joint = st.get("joint_mpjpe_mm")
+            if not per_joint:
+                continue
+            joints = joints or list(per_joint)
+            acc = sums.setdefault(source, dict.fromkeys(joints, 0.0))
+            for joint in joints:
+                acc[joint] += per_joint[joint] * st["frames"]
+            frames[source] = frames.get(source, 0) + st["frames"]
+    if not sums:
+        return []
+    seeds = ", ".join(str(run["seed"]) for run in runs)
+    lines = ["", f"Global MPJPE per joint at 5-25 m (mm; seeds {seeds}, each seed's mean weighted by its frames):",
+             "", "| input | frames | " + " | ".join(joints) + " |", "|---|---:|" + "---:|" * len(joints)]
+    for source, acc in sums.items():
+        lines.append(f"| {source} | {frames[source]} | "
+                     + " | ".join(_f(acc[j] / frames[source]) for j in joints) + " |")
+    return lines
 
 
 def detections_block(results_dir: str | os.PathLike) -> str:
