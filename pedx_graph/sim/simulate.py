@@ -407,7 +407,10 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     returning a MotionClip (default from ``config.motion``).  An ``out_dir`` that already holds a simulation
     is refused (FileExistsError) unless ``overwrite`` (then :data:`OUTPUT_ENTRIES` are removed first).
     ``workers`` > 1 simulates frames in worker processes (spawned); every frame has its own random streams
-    (:func:`frame_rngs`), so the files are the same for any worker count.  Returns a summary dict.
+    (:func:`frame_rngs`), so the files are the same for any worker count; spawned workers import the calling
+    script again, so a script calling this with ``workers`` > 1 needs an ``if __name__ == "__main__":`` guard
+    (without one the call never returns: the parent waits on workers that failed to start).  Returns a
+    summary dict.
     """
     t_start = time.perf_counter()
     config = (config or SimConfig()).validate()
