@@ -16,9 +16,10 @@ simulator's SMPL truth: manual tracks by their tracking id; detector tracks agai
 frame's detections belong to (``truth/detections``; frames of a bystander's or an unlabelled instance's
 detections, of clutter or fragments, are not scored; a frame fitted farther than 1 m from that person in the
 ground plane is counted as *misplaced*, without an MPJPE).  A body placed on a neighbour is the error of the
-person whose detections it was fitted to, not a good fit of the neighbour.  Reported per input and distance bin (horizontal distance of the true pelvis from the LiDAR): global
-MPJPE and root-relative MPJPE (13 evaluation joints, after similarity alignment for the latter; the global one also per joint), mean keypoint NEES / 3 dof and the 95 % ellipsoid coverage of the 18 fitted
-keypoints (covariance status ``ok``).
+person whose detections it was fitted to, not a good fit of the neighbour.  Reported per input and distance bin
+(horizontal distance of the true pelvis from the LiDAR): global MPJPE and root-relative MPJPE (13 evaluation joints,
+after similarity alignment for the latter; the global one also per joint), mean keypoint NEES / 3 dof and the 95 %
+ellipsoid coverage of the 18 fitted keypoints (covariance status ``ok``).
 
 Association (per detector format, run as the import runs it, scored against ``truth/detections``,
 :mod:`pedx_graph.detections.evaluate`): tracks, false tracks (made of clutter / fragments or of several

@@ -37,22 +37,23 @@ def test_detections_table_matches_the_json():
 
 
 def test_joint_table_pools_the_seeds_by_frames():
-    """The per-joint table weights each seed's per-joint mean by its frames and lists every input that reports
-    per-joint errors; runs without them add no table."""
+    """The per-joint table and the pooled ratio weight each seed's means by its frames; the table lists every
+    input that reports per-joint errors; runs without them add no table."""
     from pedx_graph.eval.benchmark_tables import detections_section
 
-    def run(seed, frames, knee, joints=True):
-        def stats():
-            out = {"frames": frames, "mpjpe_mm": 30.0, "rel_mpjpe_mm": 20.0}
+    def run(seed, frames, knee, joints=True, coco_mm=30.0):
+        def stats(mpjpe=30.0):
+            out = {"frames": frames, "mpjpe_mm": mpjpe, "rel_mpjpe_mm": 20.0}
             if joints:
                 out["joint_mpjpe_mm"] = {"rknee": knee, "hip": 2 * knee}
             return out
         goal = {"mpjpe_ratio_5_25": 1.0, "within_1.5x": True, "crossing_id_switches": 0, "false_tracks": 0}
         scene = {"association": {"coco": {"recovered": 1, "labelled_people": 1}}}
-        return {"seed": seed, "command": f"bench --seed {seed}", "goals": {"coco": goal},
-                "scenes": {"crossing": scene}, "accuracy": {"manual": {"5-25": stats()}, "coco": {"5-25": stats()}}}
+        return {"seed": seed, "command": f"bench --seed {seed}", "goals": {"coco": goal}, "scenes": {"crossing": scene},
+                "accuracy": {"manual": {"5-25": stats()}, "coco": {"5-25": stats(coco_mm)}}}
 
-    text = detections_section([run(0, 1, 10.0), run(1, 3, 40.0)])
+    text = detections_section([run(0, 1, 10.0, coco_mm=60.0), run(1, 3, 40.0)])
+    assert "ratio to the manual labels: coco 1.25." in text       # (60 * 1 + 30 * 3) / 4 over 30
     assert [line for line in text.splitlines() if line.startswith("| coco | 4 |")] == ["| coco | 4 | 32.5 | 65.0 |"]
     assert "| input | frames | rknee | hip |" in text and "seeds 0, 1" in text
     assert "per joint" not in detections_section([run(0, 1, 10.0, joints=False)])

@@ -127,8 +127,33 @@ def detections_section(runs: list[dict]) -> str:
               f"{len(met)} of {total}.  Commands: " + "; ".join(f"`{run['command']}`" + (
                   f" (written to `benchmarks/results/seed{run['seed']}`)" if run["seed"] else "")
                   for run in runs) + "."]
+    pooled = _pooled_ratios(runs)
+    if pooled:
+        lines += ["", "Over the seeds together (each seed's 5-25 m MPJPE weighted by its frames), ratio to the manual "
+                  "labels: " + ", ".join(f"{fmt} {_f(ratio, 2)}" for fmt, ratio in pooled.items()) + "."]
     lines += _joint_table(runs)
     return "\n".join(lines)
+
+
+def _pooled_ratios(runs: list[dict]) -> dict[str, float]:
+    """Detector format -> its 5-25 m MPJPE over all ``runs`` (frame-weighted) over the manual labels' likewise;
+    empty with fewer than two runs."""
+    if len(runs) < 2:
+        return {}
+
+    def pooled(source: str) -> float | None:
+        stats = [run["accuracy"][source]["5-25"] for run in runs]
+        frames = sum(st.get("frames", 0) for st in stats if st.get("mpjpe_mm") is not None)
+        total = sum(st["mpjpe_mm"] * st["frames"] for st in stats if st.get("mpjpe_mm") is not None)
+        return total / frames if frames else None
+
+    manual = pooled("manual")
+    out = {}
+    for fmt in runs[0]["goals"]:
+        detector = pooled(fmt)
+        if manual and detector is not None:
+            out[fmt] = detector / manual
+    return out
 
 
 def _joint_table(runs: list[dict]) -> list[str]:
