@@ -172,3 +172,113 @@ def test_exclusive_cuts_give_each_point_to_one_person():
     # a wide centre (sigma above claim_sigma_m) claims nothing by radius
     out = exclusive_cuts(cuts, points, centres, [0.5, 0.5, np.inf, np.inf], ground, config)
     np.testing.assert_array_equal(out[1], [1, 2])
+
+
+def _limb_cloud(rng, xy, n=300):
+    """(n, 3) LiDAR points along the limbs and torso of a stick walker at ``xy`` facing the rig's rays' side."""
+    stick = _person_points(xy, 0.0, 0.0)
+    limbs = [(5, 7), (7, 9), (6, 8), (8, 10), (11, 13), (13, 15), (12, 14), (14, 16), (5, 11), (6, 12), (5, 6),
+             (11, 12)]
+    pick = rng.integers(len(limbs), size=n)
+    along = rng.random((n, 1))
+    return (stick[[limbs[i][0] for i in pick]] * (1 - along) + stick[[limbs[i][1] for i in pick]] * along
+            + 0.02 * rng.normal(size=(n, 3)))
+
+
+def test_a_person_cut_off_by_the_image_border_keeps_its_points_beyond_it():
+    """A walker at 6 m whose right half lies past the left image's right border: the detector reports the
+    keypoints inside the image only, yet the LiDAR sees the whole body.  With the walker's centre known, the
+    cut takes the body's points past the border too (they connect to the seen half), not those of a second
+    walker standing 1.2 m farther out, nor the far part of a wall the walker passes 0.3 m behind it (which
+    touches it); without a centre, or with ``beyond_border_m`` 0, only the seen half is cut."""
+    calib = make_calibration(SimConfig().cameras.forward)
+    rng = np.random.default_rng(5)
+    width = calib.image_size[0]
+    depth_axis_m = 6.0
+    # the walker's lateral position whose centre projects onto the right border of the left image
+    ys = np.linspace(-4.0, 0.0, 401)
+    centre_u = [calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys]
+    y_border = float(ys[np.argmin(np.abs(np.array(centre_u) - width))])
+    person = _limb_cloud(rng, (depth_axis_m, y_border))
+    other = _limb_cloud(rng, (depth_axis_m, y_border - 1.2))
+    wall = np.column_stack([np.full(400, depth_axis_m + 0.3), y_border + rng.uniform(-2.0, 0.5, 400),
+                            rng.uniform(GROUND_Z, GROUND_Z + 1.5, 400)])
+    cloud = np.concatenate([person, other, wall])
+    labels = np.repeat(["person", "other", "wall"], [len(person), len(other), len(wall)])
+    centre = np.array([depth_axis_m, y_border, GROUND_Z + 1.0])
+    uv = calib.project(_person_points((depth_axis_m, y_border), 0.0, 0.0))[0]
+    seen = uv[:, 0] < width - 1
+    assert 4 <= seen.sum() <= 13                               # the border cuts the walker
+    uv[~seen] = np.nan
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    depth = float(calib.world_to_rect(np.array([depth_axis_m, y_border, GROUND_Z + 1.0]))[2])
+    person_u = calib.project(person)[0][:, 0]
+    config = LidarCutConfig()
+    index = cut_indices(uv, calib, "left", cloud, ground, config, depth_m=depth, world_centre=centre)
+    cut = labels[index]
+    above = (person[:, 2] >= GROUND_Z + config.ground_clearance_m).sum()      # the feet's points are ground
+    assert (cut == "person").sum() > 0.95 * above and (cut == "other").sum() == 0
+    assert (person_u > width).sum() > 0.3 * len(person)      # a good share of the body lies past the border
+    wall_u = calib.project(cloud[index][cut == "wall"])[0][:, 0]
+    far_wall = np.abs(cloud[index][cut == "wall"][:, 1] - y_border) > config.body_radius_m
+    assert not np.any(far_wall & (wall_u > width))           # past the border: only within the body's radius
+    for seen_only in (cut_indices(uv, calib, "left", cloud, ground, config, depth_m=depth),
+                      cut_indices(uv, calib, "left", cloud, ground, LidarCutConfig(beyond_border_m=0.0),
+                                  depth_m=depth, world_centre=centre)):
+        assert (labels[seen_only] == "person").sum() <= (person_u <= width + 40).sum()
+
+
+def test_a_frame_cut_completes_one_image_with_the_other(tmp_path):
+    """The left image's detector saw only the walker's head and shoulders, the right one the whole body: the
+    frame's segment holds the legs' points too (the left keypoints completed by the right ones at the
+    walker's disparity)."""
+    calib = make_calibration(SimConfig().cameras.forward)
+    rng = np.random.default_rng(6)
+    xy = (10.0, 0.5)
+    cloud = _limb_cloud(rng, xy)
+    world_kp = _person_points(xy, 0.0, 0.0)
+    left_uv, right_uv = calib.project(world_kp)
+    left_name, right_name = calib.name.split("-")
+    head_only = np.where(np.arange(17) < 7, 0.9, 0.0)
+    left = Detection(camera=left_name, frame=3, keypoint_set="coco17", image_uv=left_uv, confidence=head_only,
+                     score=0.9, source="test#l")
+    right = Detection(camera=right_name, frame=3, keypoint_set="coco17", image_uv=right_uv,
+                      confidence=np.full(17, 0.9), score=0.9, source="test#r")
+    frame = DetectedTrackFrame(frame=3, detections={left_name: left, right_name: right},
+                               world_p=np.array([*xy, GROUND_Z + 0.9]), depth_sigma_m=0.1)
+    track = DetectedTrack(track_id="det000001", frames=[frame], pairs=(calib.name,))
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    write_track_segments(tmp_path, "20991231T1200", [track], {calib.name: calib}, ground, lambda f: cloud)
+    points = read_ply_points(segment_path(tmp_path, "20991231T1200", 3, "det000001"))
+    legs = (cloud[:, 2] < GROUND_Z + 0.8) & (cloud[:, 2] >= GROUND_Z + LidarCutConfig().ground_clearance_m)
+    assert (points[:, 2] < GROUND_Z + 0.8).sum() > 0.9 * legs.sum()
+
+
+def test_a_centre_at_the_image_border_is_the_whole_bodys():
+    """A walker at 6 m half past the left image's right border: the median of the LiDAR cut of its seen half
+    lies ~0.14 m off the body's centre toward the image; completed past the border around that median, and
+    again around the new one (``border_centre_steps``), the association's LiDAR centre lands on the body."""
+    from pedx_graph.detections.association import AssociationConfig, _lidar_centre, pixel_at_depth
+    from pedx_graph.detections.tracker import Observation
+
+    calib = make_calibration(SimConfig().cameras.forward)
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    width = calib.image_size[0]
+    depth_axis_m = 6.0
+    ys = np.linspace(-4.0, 0.0, 401)
+    centre_u = np.array([calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys])
+    y_border = float(ys[np.argmin(np.abs(centre_u - width))])
+    cloud = _limb_cloud(np.random.default_rng(7), (depth_axis_m, y_border))
+    uv = calib.project(_person_points((depth_axis_m, y_border), 0.0, 0.0))[0]
+    uv[uv[:, 0] >= width - 1] = np.nan
+    depth = float(calib.world_to_rect(np.array([depth_axis_m, y_border, GROUND_Z + 1.0]))[2])
+
+    def lateral_error(config):
+        obs = Observation(frame=3, uv={"left": uv}, score=0.9, depth_sigma_m=0.3,
+                          world_p=pixel_at_depth(calib, "left", np.nanmedian(uv, axis=0), depth),
+                          world_p_camera=calib.camera_centre("left"))
+        _lidar_centre(obs, calib, cloud, ground, config, {})
+        return abs(float(obs.world_p[1]) - y_border)
+
+    assert lateral_error(AssociationConfig()) < 0.05
+    assert lateral_error(AssociationConfig(border_centre_steps=0)) > 0.1

@@ -9,7 +9,8 @@ no ids needed; ids in the files are ignored); ``calibrations``: pair name -> :cl
 (with the raw K/D when the detections were made on raw images); ``clouds``: optional ``{frame: (N, 3)}`` full
 LiDAR scenes (world frame) — a stereo-matched person's centre then comes from its LiDAR cut
 (:mod:`pedx_graph.detections.lidar_cut`) when the cut holds ``lidar_min_points`` and agrees with the stereo
-centre (far more precise in depth than stereo at range); ``ground``: the sequence's
+centre (far more precise in depth than stereo at range; for a person cut off by the image's border, the cut
+completed past the border around its own median, ``border_centre_steps`` times); ``ground``: the sequence's
 :class:`~pedx_graph.data.ground.GroundFrame` (derived from the calibrations when None — and from the clouds
 when they are given and it has no ground height, :func:`~pedx_graph.detections.lidar_cut.ground_with_plane`;
 distances are measured in its ground plane).  Returns :class:`DetectedTrack` s with ids ``"det000001"``, ... in order of first frame, each holding per frame the detections of every camera
@@ -174,6 +175,9 @@ class AssociationConfig:
     beyond the labelled range)."""
     lidar_min_points: int = 8
     """A LiDAR cut with at least this many points replaces the stereo centre (when clouds are given) ..."""
+    border_centre_steps: int = 3
+    """A person cut off by the image's border: its LiDAR cut is completed past the border around the median of
+    the cut so far, up to this many times (:func:`_lidar_centre`; each median nearer the whole body's)."""
     lidar_agreement_m: float = 0.3
     """... when its median lies within ``gate_sigmas`` stereo depth sigmas plus this of the stereo centre, in
     the ground plane, metres."""
@@ -1299,7 +1303,7 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     of that image (``others``: side -> those detections' rectified keypoints): a cut of someone hidden
     behind a neighbour holds the neighbour."""
     from pedx_graph.data.segment_cut import points_in_polygon
-    from pedx_graph.detections.lidar_cut import cut_indices, hull_polygon, project_cloud
+    from pedx_graph.detections.lidar_cut import cut_indices, hull_polygon, project_cloud, reaches_border
 
     side = "left" if "left" in obs.uv else "right"
     own_range = None
@@ -1313,6 +1317,17 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
         projections[side] = project_cloud(calib, side, cloud)
     index = cut_indices(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                         projection=projections[side])
+    if reaches_border(obs.uv[side], calib, config.lidar_cut):
+        # cut off by the image's border: the seen part's median lies off the body's centre; the cut goes on
+        # past the border around that median, then around the new one (each nearer the whole body's centre)
+        for _ in range(config.border_centre_steps):
+            if len(index) < config.lidar_min_points:
+                break
+            grown = cut_indices(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
+                                projection=projections[side], world_centre=ground.median_point(cloud[index]))
+            if np.array_equal(grown, index):
+                break
+            index = grown
     points = cloud[index]
     centre, sigma = None, config.lidar_sigma_m
     if own_range is None and others and len(index):

@@ -13,19 +13,28 @@ polygon is the detection's *hull*:
   depth's uncertainty when that is known and large: a stereo centre at range), and of those the depth
   cluster (depths sorted, split at gaps over ``cluster_gap_m``) whose median is nearest ``Z`` (an occluder just in front, a wall just
   behind are clusters of their own); without a depth, the nearest cluster with ``min_cluster_points``;
+* **past the image's border**: where the hull reaches within its own dilation of a border, the person may go on
+  where the camera does not see it, but the LiDAR does: the scene points in a band past that border
+  (``beyond_border_m`` at the person's depth) that pass the same gates, lie within ``body_radius_m`` of the
+  person's centre (when it is known to ``claim_sigma_m``) and connect to the cut through points closer than
+  ``beyond_border_gap_m`` (3D) join it, so a walker entering or leaving the view keeps its whole body's points
+  while a neighbour standing apart, or a wall the walker passes, stays out;
 * **ground**: points less than ``ground_clearance_m`` above the ground plane of the sequence's
   :class:`~pedx_graph.data.ground.GroundFrame` are removed (kept when its ground height is unknown);
 * non-finite points (the release's ``inf`` dropouts) never enter.
 
 :func:`write_track_segments` writes the cuts of :class:`~pedx_graph.detections.association.DetectedTrack` s in
 the release layout (``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply``), one file per track and frame
-with points (union over the images that saw the person: the left images, else the right ones), each point
+with points (union over the pairs that saw the person, each pair's left keypoints completed by its right
+image's at the person's disparity: where the detector found only part of the body in one image, the other
+image's detection adds the rest), each point
 given to one person only (:func:`exclusive_cuts`: the nearest centre among those claiming it).
 """
 from __future__ import annotations
 
 import logging
 import os
+from itertools import chain
 from dataclasses import dataclass
 from typing import Callable, Mapping
 
@@ -73,6 +82,16 @@ class LidarCutConfig:
     distance of it, metres (a body's LiDAR points lie within ~0.3 m of its centre)."""
     claim_sigma_m: float = 0.3
     """A centre known to within this (its depth uncertainty) claims points by :attr:`body_radius_m`, metres."""
+    beyond_border_m: float = 1.0
+    """A person cut off by the image's border goes on beyond it, where the LiDAR (which sees all around) still
+    sees it: where the dilated hull reaches within its own dilation of a border, the scene points in a band
+    from there to ``f * beyond_border_m / Z`` pixels past the border (``Z`` the person's depth), along the
+    hull's extent grown by as much (:func:`past_border_mask`), that pass the same gates, lie within
+    :attr:`body_radius_m` of the person's centre (known to :attr:`claim_sigma_m`; else nothing is added) and
+    connect to the cut (:attr:`beyond_border_gap_m`) join it, metres; 0 = off."""
+    beyond_border_gap_m: float = 0.3
+    """... a point past the border joins the cut when it lies within this of a cut point (3D, repeatedly: a
+    body's scan lines stay much closer; a neighbour standing apart does not join), metres."""
 
 
 def ground_with_plane(ground: GroundFrame, calibrations: Mapping[str, StereoCalibration],
@@ -114,6 +133,68 @@ def hull_polygon(rect_uv: np.ndarray, config: LidarCutConfig) -> np.ndarray | No
         grown = np.array([[lo[0] - pad, lo[1] - pad], [hi[0] + pad, lo[1] - pad], [hi[0] + pad, hi[1] + pad],
                           [lo[0] - pad, hi[1] + pad]])
     return grown
+
+
+def past_border_mask(uv: np.ndarray, polygon: np.ndarray, image_size: tuple[int, int], margin_px: float,
+                     extend_px: float) -> np.ndarray:
+    """(N,) bool: the pixels ``uv`` (N, 2) where a person whose hull ``polygon`` (H, 2) reaches within
+    ``margin_px`` of an image border (``image_size`` = width, height) may go on past it: for each such border,
+    the band from ``margin_px`` inside it to ``extend_px`` past it, along the hull's extent grown by
+    ``extend_px`` (all False when the hull reaches no border)."""
+    width, height = float(image_size[0]), float(image_size[1])
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    u, v = uv[:, 0], uv[:, 1]
+    along_u = (u >= lo[0] - extend_px) & (u <= hi[0] + extend_px)
+    along_v = (v >= lo[1] - extend_px) & (v <= hi[1] + extend_px)
+    mask = np.zeros(len(uv), dtype=bool)
+    if lo[0] < margin_px:
+        mask |= along_v & (u >= -extend_px) & (u <= margin_px)
+    if hi[0] > width - margin_px:
+        mask |= along_v & (u >= width - margin_px) & (u <= width + extend_px)
+    if lo[1] < margin_px:
+        mask |= along_u & (v >= -extend_px) & (v <= margin_px)
+    if hi[1] > height - margin_px:
+        mask |= along_u & (v >= height - margin_px) & (v <= height + extend_px)
+    return mask
+
+
+def border_margin_px(rect_uv: np.ndarray, config: LidarCutConfig) -> float:
+    """How near an image border a detection's hull must reach for the person to be taken as cut off by it:
+    the hull's own dilation (``dilate_frac`` of the keypoints' height plus ``dilate_px``), pixels."""
+    present = np.asarray(rect_uv, dtype=float)
+    present = present[np.all(np.isfinite(present), axis=1)]
+    return config.dilate_frac * (float(np.ptp(present[:, 1])) if len(present) else 0.0) + config.dilate_px
+
+
+def reaches_border(rect_uv: np.ndarray, calib: StereoCalibration, config: LidarCutConfig) -> bool:
+    """Whether a detection's dilated hull reaches within :func:`border_margin_px` of its image's border."""
+    polygon = hull_polygon(np.asarray(rect_uv, dtype=float), config)
+    if polygon is None:
+        return False
+    margin = border_margin_px(rect_uv, config)
+    width, height = calib.image_size
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    return bool(lo[0] < margin or lo[1] < margin or hi[0] > width - margin or hi[1] > height - margin)
+
+
+def _grown_past_border(index: np.ndarray, outside: np.ndarray, world_points: np.ndarray,
+                       gap_m: float) -> np.ndarray:
+    """``index`` (rows of ``world_points``) plus the rows of ``outside`` connected to them by chains of points
+    closer than ``gap_m`` (3D)."""
+    from scipy.spatial import cKDTree
+
+    outside = np.setdiff1d(outside, index)
+    if not len(index) or not len(outside):
+        return index
+    tree = cKDTree(world_points[outside])
+    joined = np.zeros(len(outside), dtype=bool)
+    front = world_points[index]
+    while len(front):
+        near = np.unique(np.fromiter(chain.from_iterable(tree.query_ball_point(front, gap_m)), dtype=np.int64))
+        new = near[~joined[near]]
+        joined[new] = True
+        front = world_points[outside[new]]
+    return np.union1d(index, outside[joined])
 
 
 def _nearest_cluster(depth: np.ndarray, config: LidarCutConfig) -> np.ndarray:
@@ -177,61 +258,107 @@ def project_cloud(calib: StereoCalibration, side: str, world_points: np.ndarray)
 def cut_indices(rect_uv: np.ndarray, calib: StereoCalibration, side: str, world_points: np.ndarray,
                 ground: GroundFrame, config: LidarCutConfig, depth_m: float | None = None,
                 projection: tuple[np.ndarray, np.ndarray] | None = None,
-                depth_sigma_m: float | None = None) -> np.ndarray:
+                depth_sigma_m: float | None = None, world_centre: np.ndarray | None = None) -> np.ndarray:
     """Sorted row indices into ``world_points`` of :func:`cut_person`'s points (``depth_sigma_m``: the
-    uncertainty of ``depth_m``, widening the gates to ``depth_gate_sigmas`` of it)."""
+    uncertainty of ``depth_m``, widening the gates to ``depth_gate_sigmas`` of it).  ``world_centre``: the
+    person's (3,) centre when known to within ``claim_sigma_m``: only then does a cut reaching the image's
+    border go on past it, with the points within ``body_radius_m`` of that centre on the ground plane (a
+    wall or a parked car the person walks along stays out)."""
     polygon = hull_polygon(np.asarray(rect_uv, dtype=float), config)
     if polygon is None or len(world_points) == 0:
         return np.zeros(0, dtype=np.int64)
     uv, depth = projection if projection is not None else project_cloud(calib, side, world_points)
     safe_depth = np.where(np.isfinite(depth), depth, -1.0)
-    index = segment_indices_from_projection(np.where(np.isfinite(uv), uv, -1e9), safe_depth, polygon,
-                                            config.min_depth_m)
-    if len(index) == 0:
-        return index
-    if ground.ground_offset_m is not None:
-        index = index[ground.height(world_points[index]) >= config.ground_clearance_m]
+    safe_uv = np.where(np.isfinite(uv), uv, -1e9)
+    index = segment_indices_from_projection(safe_uv, safe_depth, polygon, config.min_depth_m)
+    # past the image's border: the person may go on where the camera does not see it
+    outside = np.zeros(0, dtype=np.int64)
+    known_depth = depth_m is not None and np.isfinite(depth_m) and depth_m > 0
+    if config.beyond_border_m > 0 and known_depth and world_centre is not None:
+        extend_px = calib.focal_px * config.beyond_border_m / depth_m
+        margin = border_margin_px(rect_uv, config)
+        near_border = past_border_mask(safe_uv, polygon, calib.image_size, margin, extend_px)
+        outside = np.setdiff1d(np.flatnonzero(near_border & (safe_depth > config.min_depth_m)), index)
+        centre_xy = ground.to_level(np.asarray(world_centre, dtype=float)[None])[0, :2]
+        outside = outside[np.linalg.norm(ground.to_level(world_points[outside])[:, :2] - centre_xy, axis=1)
+                          <= config.body_radius_m]
+    index, outside = (_gated(idx, depth, world_points, ground, config, depth_m, depth_sigma_m)
+                      for idx in (index, outside))
     if len(index) == 0:
         return index
     z = depth[index]
     if depth_m is not None and np.isfinite(depth_m):
+        index = index[_cluster_nearest_depth(z, depth_m, config)]
+    else:
+        index = index[_nearest_cluster(z, config)]
+    if len(outside):
+        index = _grown_past_border(index, outside, world_points, config.beyond_border_gap_m)
+    return np.sort(index)
+
+
+def _gated(index: np.ndarray, depth: np.ndarray, world_points: np.ndarray, ground: GroundFrame,
+           config: LidarCutConfig, depth_m: float | None, depth_sigma_m: float | None) -> np.ndarray:
+    """The rows of ``index`` above the ground clearance and, with a person's depth ``depth_m``, within the
+    depth gate about it (module docstring)."""
+    if len(index) and ground.ground_offset_m is not None:
+        index = index[ground.height(world_points[index]) >= config.ground_clearance_m]
+    if len(index) and depth_m is not None and np.isfinite(depth_m):
         spread = config.depth_gate_sigmas * float(depth_sigma_m) if depth_sigma_m is not None and \
             np.isfinite(depth_sigma_m) else 0.0
         front, back = max(config.gate_front_m, spread), max(config.gate_back_m, spread)
+        z = depth[index]
         index = index[(z >= depth_m - front) & (z <= depth_m + back)]
-        index = index[_cluster_nearest_depth(depth[index], depth_m, config)]
-    else:
-        index = index[_nearest_cluster(z, config)]
-    return np.sort(index)
+    return index
 
 
 def track_frame_indices(frame, calibrations: Mapping[str, StereoCalibration], world_points: np.ndarray,
                         ground: GroundFrame, config: LidarCutConfig | None = None,
                         rectify: Callable | None = None) -> np.ndarray:
     """Sorted row indices into ``world_points`` of one
-    :class:`~pedx_graph.detections.association.DetectedTrackFrame`'s points: the union of the cuts of its
-    left-image detections (else its right-image ones), gated around its centre's depth."""
+    :class:`~pedx_graph.detections.association.DetectedTrackFrame`'s points: the union over the pairs that saw
+    it of one cut per pair, gated around its centre's depth — where both images of a pair saw the person, the
+    left image's keypoints completed by the right image's at the person's disparity (a detection that found
+    only the head and shoulders in one image is completed by the other's; the right one's silhouette alone
+    would add its own fringe of background); else the one image's."""
     from pedx_graph.detections.undistort import find_camera, rectified
 
     config = config or LidarCutConfig()
     rectify = rectify or rectified
-    views = []
+    pairs: dict[str, dict] = {}
     for camera, det in sorted(frame.detections.items()):
         calib, side = find_camera(calibrations, camera)
-        views.append((side, camera, calib, det))
-    chosen = [v for v in views if v[0] == "left"] or views
-    index = []
-    for side, _, calib, det in chosen:
         uv = rectify(det, calibrations)
-        uv = np.where((np.asarray(det.confidence) > 0)[:, None], uv, np.nan)
-        depth = None
+        pairs.setdefault(calib.name, {"calib": calib})[side] = np.where((np.asarray(det.confidence) > 0)[:, None],
+                                                                         uv, np.nan)
+    sigma = getattr(frame, "depth_sigma_m", None)
+    index = []
+    for views in pairs.values():
+        calib = views["calib"]
+        depth, centre = None, None
         if frame.world_p is not None:
             depth = float(calib.world_to_rect(np.asarray(frame.world_p, dtype=float))[2])
-        index.append(cut_indices(uv, calib, side, world_points, ground, config, depth,
-                                 depth_sigma_m=getattr(frame, "depth_sigma_m", None)))
+            if sigma is not None and sigma <= config.claim_sigma_m:
+                centre = frame.world_p
+        if "left" in views and "right" in views and depth is not None and depth > 0:
+            # one silhouette: the left keypoints, those the left image lacks taken from the right one at the
+            # person's disparity (past the left image's border, if that is where they fall)
+            left_c, right_c = calib.project(np.asarray(frame.world_p, dtype=float))
+            shift = np.array([left_c[0] - right_c[0], 0.0])
+            cuts = [("left", _completed(views["left"], views["right"] + shift))]
+        else:
+            cuts = [(side, views[side]) for side in ("left", "right") if side in views]
+        for side, uv in cuts:
+            index.append(cut_indices(uv, calib, side, world_points, ground, config, depth, depth_sigma_m=sigma,
+                                     world_centre=centre))
     if not index:
         return np.zeros(0, dtype=np.int64)
     return np.unique(np.concatenate(index))
+
+
+def _completed(uv: np.ndarray, other_uv: np.ndarray) -> np.ndarray:
+    """(K, 2) ``uv`` with its missing keypoints (NaN rows) taken from ``other_uv`` (K, 2)."""
+    missing = ~np.all(np.isfinite(uv), axis=1)
+    return np.where(missing[:, None], other_uv, uv)
 
 
 def exclusive_cuts(cuts: list[np.ndarray], world_points: np.ndarray, centres: list, sigmas: list,
