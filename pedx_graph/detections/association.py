@@ -175,14 +175,14 @@ class AssociationConfig:
     beyond the labelled range)."""
     lidar_min_points: int = 8
     """A LiDAR cut with at least this many points replaces the stereo centre (when clouds are given) ..."""
-    border_centre_steps: int = 3
-    """A person cut off by the image's border: its LiDAR cut is completed past the border around the median of
-    the cut so far, up to this many times (:func:`_lidar_centre`; each median nearer the whole body's)."""
     lidar_agreement_m: float = 0.3
     """... when its median lies within ``gate_sigmas`` stereo depth sigmas plus this of the stereo centre, in
     the ground plane, metres."""
     lidar_sigma_m: float = 0.1
     """Uncertainty of a LiDAR centre along the ray (the median of a person's points vs its centre), metres."""
+    border_centre_steps: int = 3
+    """A person cut off by the image's border: its LiDAR cut is completed past the border around the median of
+    the cut so far, up to this many times (:func:`_lidar_centre`; each median nearer the whole body's)."""
     disparity_smooth_px: float = 1.0
     """How far a person's per-frame disparity may leave a straight line over the frames two tracklets share
     (depth is smooth, disparity ~ 1/depth is not exactly linear), pixels; added to the disparity's standard
