@@ -143,19 +143,28 @@ def past_border_mask(uv: np.ndarray, polygon: np.ndarray, image_size: tuple[int,
     ``extend_px`` (all False when the hull reaches no border)."""
     width, height = float(image_size[0]), float(image_size[1])
     lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    left, right, top, bottom = _borders_reached(polygon, image_size, margin_px)
     u, v = uv[:, 0], uv[:, 1]
     along_u = (u >= lo[0] - extend_px) & (u <= hi[0] + extend_px)
     along_v = (v >= lo[1] - extend_px) & (v <= hi[1] + extend_px)
     mask = np.zeros(len(uv), dtype=bool)
-    if lo[0] < margin_px:
+    if left:
         mask |= along_v & (u >= -extend_px) & (u <= margin_px)
-    if hi[0] > width - margin_px:
+    if right:
         mask |= along_v & (u >= width - margin_px) & (u <= width + extend_px)
-    if lo[1] < margin_px:
+    if top:
         mask |= along_u & (v >= -extend_px) & (v <= margin_px)
-    if hi[1] > height - margin_px:
+    if bottom:
         mask |= along_u & (v >= height - margin_px) & (v <= height + extend_px)
     return mask
+
+
+def _borders_reached(polygon: np.ndarray, image_size: tuple[int, int], margin_px: float) -> tuple[bool, ...]:
+    """Whether the hull ``polygon`` (H, 2) reaches within ``margin_px`` of the image's left, right, top and
+    bottom border (``image_size`` = width, height)."""
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    return (bool(lo[0] < margin_px), bool(hi[0] > image_size[0] - margin_px), bool(lo[1] < margin_px),
+            bool(hi[1] > image_size[1] - margin_px))
 
 
 def border_margin_px(rect_uv: np.ndarray, config: LidarCutConfig) -> float:
@@ -171,10 +180,7 @@ def reaches_border(rect_uv: np.ndarray, calib: StereoCalibration, config: LidarC
     polygon = hull_polygon(np.asarray(rect_uv, dtype=float), config)
     if polygon is None:
         return False
-    margin = border_margin_px(rect_uv, config)
-    width, height = calib.image_size
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    return bool(lo[0] < margin or lo[1] < margin or hi[0] > width - margin or hi[1] > height - margin)
+    return any(_borders_reached(polygon, calib.image_size, border_margin_px(rect_uv, config)))
 
 
 def _grown_past_border(index: np.ndarray, outside: np.ndarray, world_points: np.ndarray,
