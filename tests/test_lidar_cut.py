@@ -282,3 +282,37 @@ def test_a_centre_at_the_image_border_is_the_whole_bodys():
 
     assert lateral_error(AssociationConfig()) < 0.05
     assert lateral_error(AssociationConfig(border_centre_steps=0)) > 0.1
+
+
+def test_a_centre_takes_the_keypoints_one_image_lacks_from_the_other():
+    """A walker at 6 m on the left image's right border, found there with only the three keypoints well inside
+    the image (80 px from the border: the hull does not reach it), and whole in the right image: the LiDAR
+    centre of the stereo observation (left keypoints completed by the right ones at its disparity) lands on
+    the body; from the left keypoints alone it stays ~0.24 m off toward the image."""
+    from pedx_graph.detections.association import AssociationConfig, _lidar_centre, pixel_at_depth
+    from pedx_graph.detections.tracker import Observation
+
+    calib = make_calibration(SimConfig().cameras.forward)
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    width = calib.image_size[0]
+    depth_axis_m = 6.0
+    ys = np.linspace(-4.0, 0.0, 401)
+    centre_u = np.array([calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys])
+    y_border = float(ys[np.argmin(np.abs(centre_u - width))])
+    cloud = _limb_cloud(np.random.default_rng(7), (depth_axis_m, y_border))
+    left, right = calib.project(_person_points((depth_axis_m, y_border), 0.0, 0.0))
+    left[left[:, 0] >= width - 80] = np.nan
+    assert np.isfinite(left[:, 0]).sum() == 3 and np.all(right[:, 0] < width)
+    depth = float(calib.world_to_rect(np.array([depth_axis_m, y_border, GROUND_Z + 1.0]))[2])
+
+    def lateral_error(uv):
+        obs = Observation(frame=3, uv=uv, score=0.9, depth_sigma_m=0.1,
+                          world_p=pixel_at_depth(calib, "left", np.nanmedian(left, axis=0), depth),
+                          world_p_camera=calib.camera_centre("left"))
+        if "right" in uv:
+            obs.disparity_px = float(np.nanmedian(left[:, 0] - right[:, 0]))
+        _lidar_centre(obs, calib, cloud, ground, AssociationConfig(), {})
+        return abs(float(obs.world_p[1]) - y_border)
+
+    assert lateral_error({"left": left, "right": right}) < 0.05
+    assert lateral_error({"left": left}) > 0.15

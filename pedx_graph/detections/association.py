@@ -1292,7 +1292,10 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
                   claimed: Mapping[str, list[float]] | None = None,
                   others: Mapping[str, list[np.ndarray]] | None = None) -> None:
     """Replace the observation's centre by the median of its LiDAR cut when the cut is large enough
-    (``projections``: side -> the cloud projected into that image, filled on first use).  With ``ranges``
+    (``projections``: side -> the cloud projected into that image, filled on first use).  Where both images
+    saw the person, the cut's keypoints are the left ones completed by the right ones at the observation's
+    disparity (:func:`~pedx_graph.detections.lidar_cut.completed_keypoints`, as for the segments); a person
+    cut off by the image's border has its cut completed past it (``border_centre_steps``).  With ``ranges``
     (:func:`detection_ranges`: each image's clusters given one to one to its detections), the cut must lie
     at the range of the detection's own cluster (within ``lidar_range_sigma_m``) when it has one; a detection
     without one keeps its stereo centre when the cut lies at a range another detection of that image holds
@@ -1303,9 +1306,14 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     of that image (``others``: side -> those detections' rectified keypoints): a cut of someone hidden
     behind a neighbour holds the neighbour."""
     from pedx_graph.data.segment_cut import points_in_polygon
-    from pedx_graph.detections.lidar_cut import cut_indices, hull_polygon, project_cloud, reaches_border
+    from pedx_graph.detections.lidar_cut import (completed_keypoints, cut_indices, hull_polygon, project_cloud,
+                                                 reaches_border)
 
     side = "left" if "left" in obs.uv else "right"
+    seen_uv = obs.uv[side]
+    if side == "left" and "right" in obs.uv and obs.disparity_px is not None:
+        # one silhouette, as for the segments: the left keypoints, the missing ones from the right image
+        seen_uv = completed_keypoints(obs.uv["left"], obs.uv["right"] + np.array([obs.disparity_px, 0.0]))
     own_range = None
     if ranges is not None and isinstance(obs.payload, dict):
         own_range = ranges.get(id(obs.payload[side]))
@@ -1315,15 +1323,15 @@ def _lidar_centre(obs: Observation, calib: StereoCalibration, cloud: np.ndarray,
     cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
     if projections.get(side) is None:
         projections[side] = project_cloud(calib, side, cloud)
-    index = cut_indices(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
+    index = cut_indices(seen_uv, calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                         projection=projections[side])
-    if reaches_border(obs.uv[side], calib, config.lidar_cut):
+    if reaches_border(seen_uv, calib, config.lidar_cut):
         # cut off by the image's border: the seen part's median lies off the body's centre; the cut goes on
         # past the border around that median, then around the new one (each nearer the whole body's centre)
         for _ in range(config.border_centre_steps):
             if len(index) < config.lidar_min_points:
                 break
-            grown = cut_indices(obs.uv[side], calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
+            grown = cut_indices(seen_uv, calib, side, cloud, ground, config.lidar_cut, depth_m=depth,
                                 projection=projections[side], world_centre=ground.median_point(cloud[index]))
             if np.array_equal(grown, index):
                 break

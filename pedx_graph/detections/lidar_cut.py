@@ -350,7 +350,7 @@ def track_frame_indices(frame, calibrations: Mapping[str, StereoCalibration], wo
             # person's disparity (past the left image's border, if that is where they fall)
             left_c, right_c = calib.project(np.asarray(frame.world_p, dtype=float))
             shift = np.array([left_c[0] - right_c[0], 0.0])
-            cuts = [("left", _completed(views["left"], views["right"] + shift))]
+            cuts = [("left", completed_keypoints(views["left"], views["right"] + shift))]
         else:
             cuts = [(side, views[side]) for side in ("left", "right") if side in views]
         for side, uv in cuts:
@@ -361,7 +361,7 @@ def track_frame_indices(frame, calibrations: Mapping[str, StereoCalibration], wo
     return np.unique(np.concatenate(index))
 
 
-def _completed(uv: np.ndarray, other_uv: np.ndarray) -> np.ndarray:
+def completed_keypoints(uv: np.ndarray, other_uv: np.ndarray) -> np.ndarray:
     """(K, 2) ``uv`` with its missing keypoints (NaN rows) taken from ``other_uv`` (K, 2)."""
     missing = ~np.all(np.isfinite(uv), axis=1)
     return np.where(missing[:, None], other_uv, uv)
