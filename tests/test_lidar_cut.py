@@ -185,20 +185,26 @@ def _limb_cloud(rng, xy, n=300):
             + 0.02 * rng.normal(size=(n, 3)))
 
 
+def _walker_on_the_border(depth_axis_m: float = 6.0):
+    """The forward rig, its ground, the left image's width and the lateral position (m) of a walker at
+    ``depth_axis_m`` whose centre projects onto the left image's right border."""
+    calib = make_calibration(SimConfig().cameras.forward)
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    width = calib.image_size[0]
+    ys = np.linspace(-4.0, 0.0, 401)
+    centre_u = np.array([calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys])
+    return calib, ground, width, float(ys[np.argmin(np.abs(centre_u - width))])
+
+
 def test_a_person_cut_off_by_the_image_border_keeps_its_points_beyond_it():
     """A walker at 6 m whose right half lies past the left image's right border: the detector reports the
     keypoints inside the image only, yet the LiDAR sees the whole body.  With the walker's centre known, the
     cut takes the body's points past the border too (they connect to the seen half), not those of a second
     walker standing 1.2 m farther out, nor the far part of a wall the walker passes 0.3 m behind it (which
     touches it); without a centre, or with ``beyond_border_m`` 0, only the seen half is cut."""
-    calib = make_calibration(SimConfig().cameras.forward)
     rng = np.random.default_rng(5)
-    width = calib.image_size[0]
     depth_axis_m = 6.0
-    # the walker's lateral position whose centre projects onto the right border of the left image
-    ys = np.linspace(-4.0, 0.0, 401)
-    centre_u = [calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys]
-    y_border = float(ys[np.argmin(np.abs(np.array(centre_u) - width))])
+    calib, ground, width, y_border = _walker_on_the_border(depth_axis_m)
     person = _limb_cloud(rng, (depth_axis_m, y_border))
     other = _limb_cloud(rng, (depth_axis_m, y_border - 1.2))
     wall = np.column_stack([np.full(400, depth_axis_m + 0.3), y_border + rng.uniform(-2.0, 0.5, 400),
@@ -210,7 +216,6 @@ def test_a_person_cut_off_by_the_image_border_keeps_its_points_beyond_it():
     seen = uv[:, 0] < width - 1
     assert 4 <= seen.sum() <= 13                               # the border cuts the walker
     uv[~seen] = np.nan
-    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
     depth = float(calib.world_to_rect(np.array([depth_axis_m, y_border, GROUND_Z + 1.0]))[2])
     person_u = calib.project(person)[0][:, 0]
     config = LidarCutConfig()
@@ -261,13 +266,8 @@ def test_a_centre_at_the_image_border_is_the_whole_bodys():
     from pedx_graph.detections.association import AssociationConfig, _lidar_centre, pixel_at_depth
     from pedx_graph.detections.tracker import Observation
 
-    calib = make_calibration(SimConfig().cameras.forward)
-    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
-    width = calib.image_size[0]
     depth_axis_m = 6.0
-    ys = np.linspace(-4.0, 0.0, 401)
-    centre_u = np.array([calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys])
-    y_border = float(ys[np.argmin(np.abs(centre_u - width))])
+    calib, ground, width, y_border = _walker_on_the_border(depth_axis_m)
     cloud = _limb_cloud(np.random.default_rng(7), (depth_axis_m, y_border))
     uv = calib.project(_person_points((depth_axis_m, y_border), 0.0, 0.0))[0]
     uv[uv[:, 0] >= width - 1] = np.nan
@@ -292,13 +292,8 @@ def test_a_centre_takes_the_keypoints_one_image_lacks_from_the_other():
     from pedx_graph.detections.association import AssociationConfig, _lidar_centre, pixel_at_depth
     from pedx_graph.detections.tracker import Observation
 
-    calib = make_calibration(SimConfig().cameras.forward)
-    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
-    width = calib.image_size[0]
     depth_axis_m = 6.0
-    ys = np.linspace(-4.0, 0.0, 401)
-    centre_u = np.array([calib.project(np.array([[depth_axis_m, y, GROUND_Z + 1.0]]))[0][0, 0] for y in ys])
-    y_border = float(ys[np.argmin(np.abs(centre_u - width))])
+    calib, ground, width, y_border = _walker_on_the_border(depth_axis_m)
     cloud = _limb_cloud(np.random.default_rng(7), (depth_axis_m, y_border))
     left, right = calib.project(_person_points((depth_axis_m, y_border), 0.0, 0.0))
     left[left[:, 0] >= width - 80] = np.nan
