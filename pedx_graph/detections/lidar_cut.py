@@ -144,10 +144,12 @@ def past_border_mask(uv: np.ndarray, polygon: np.ndarray, image_size: tuple[int,
     width, height = float(image_size[0]), float(image_size[1])
     lo, hi = polygon.min(axis=0), polygon.max(axis=0)
     left, right, top, bottom = _borders_reached(polygon, image_size, margin_px)
+    mask = np.zeros(len(uv), dtype=bool)
+    if not (left or right or top or bottom):           # most detections: nothing to test point by point
+        return mask
     u, v = uv[:, 0], uv[:, 1]
     along_u = (u >= lo[0] - extend_px) & (u <= hi[0] + extend_px)
     along_v = (v >= lo[1] - extend_px) & (v <= hi[1] + extend_px)
-    mask = np.zeros(len(uv), dtype=bool)
     if left:
         mask |= along_v & (u >= -extend_px) & (u <= margin_px)
     if right:
