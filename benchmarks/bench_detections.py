@@ -13,7 +13,8 @@ that are never labelled but detected).  Inputs compared on it:
 
 Every track is fitted with batch LM (``fit_track``, covariances on).  Accuracy per frame against the
 simulator's SMPL truth: manual tracks by their tracking id; detector tracks against the person most of the
-frame's detections belong to (``truth/detections``; frames of a bystander's or an unlabelled instance's
+frame's detections belong to (``truth/detections``; a tie, e.g. one image each of two people, goes to the track's
+person of the frame before, as in the switch count; frames of a bystander's or an unlabelled instance's
 detections, of clutter or fragments, are not scored; a frame fitted farther than 1 m from that person in the
 ground plane is counted as *misplaced*, without an MPJPE).  A body placed on a neighbour is the error of the
 person whose detections it was fitted to, not a good fit of the neighbour.  Reported per input and distance bin
@@ -47,7 +48,7 @@ import json
 import sys
 import tempfile
 import time
-from collections import Counter, defaultdict
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -62,7 +63,8 @@ from pedx_graph.data.ply import read_ply_points  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.coco import read_coco  # noqa: E402
-from pedx_graph.detections.evaluate import detection_truth, read_detection_truth, score_tracks  # noqa: E402
+from pedx_graph.detections.evaluate import (read_detection_truth, score_tracks,  # noqa: E402
+                                          frame_owners as track_frame_owners)
 from pedx_graph.detections.importer import import_detections  # noqa: E402
 from pedx_graph.detections.openpose import read_openpose  # noqa: E402
 from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
@@ -175,16 +177,11 @@ def _truth_frames(scene: Path, frames: list[int]) -> dict[int, list]:
 
 def frame_owners(tracks, records: list[dict]) -> dict[tuple[str, int], str]:
     """``(track id, frame) -> the person most of that frame's detections belong to`` (truth records), for the
-    detector tracks of :func:`~pedx_graph.detections.association.associate` (the ids the import writes)."""
+    detector tracks of :func:`~pedx_graph.detections.association.associate` (the ids the import writes); a
+    tie is resolved as the association's scoring does (:func:`pedx_graph.detections.evaluate.frame_owners`)."""
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
-    out = {}
-    for track in tracks:
-        for fr in track.frames:
-            votes = Counter(detection_truth(det, records, index).get("tracking_id") for det in fr.detections.values())
-            votes.pop(None, None)
-            if votes:
-                out[track.track_id, fr.frame] = sorted(votes.items(), key=lambda kv: (-kv[1], str(kv[0])))[0][0]
-    return out
+    return {(track.track_id, frame): owner for track in tracks
+            for frame, owner in track_frame_owners(track, records, index).items()}
 
 
 def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dict, ground, by_id: bool,

@@ -217,6 +217,33 @@ def test_scoring_counts_switches_fragments_and_false_tracks():
     assert score["fragmentations"] == 2                   # a in t1 and t3, b in t1 and t2
 
 
+def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():
+    """A frame holding one detection of the track's person and one of a neighbour (two images, a tie) is the
+    track's person's — the same for :func:`score_tracks`' switches and for :func:`frame_owners`, which a
+    benchmark scores the frame's fit against — whatever the ids' sorted order; a tie at the first frame
+    goes to the first id in sorted order."""
+    from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+    from pedx_graph.detections.evaluate import frame_owners, score_tracks
+
+    records = []
+
+    def det(frame, camera, tid):
+        records.append({"camera": camera, "frame": frame, "index": len(records), "kind": "person",
+                        "tracking_id": tid})
+        return Detection(camera=camera, frame=frame, keypoint_set="coco17", image_uv=np.zeros((17, 2)),
+                         confidence=np.ones(17), score=1.0, source=f"x.json#[{len(records) - 1}]")
+
+    def frame(f, left, right):
+        return DetectedTrackFrame(frame=f, detections={"left": det(f, "left", left), "right": det(f, "right", right)})
+
+    track = DetectedTrack(track_id="t1", pairs=("left-right",), frames=[
+        frame(0, "z", "a"), frame(1, "z", "z"), frame(2, "z", "a"), frame(3, "z", "z")])
+    assert frame_owners(track, records) == {0: "a", 1: "z", 2: "z", 3: "z"}
+    score = score_tracks([track], records, {"z": {f: 10.0 for f in range(4)}})
+    assert score["id_switches"] == 1 and score["switches"] == [("t1", 1, "a", "z")]
+    assert score["mixed_frames"] == 2
+
+
 def test_two_people_crossing_at_20_m_on_the_pedx_rig_keep_their_ids():
     """The real rig's forward pair (0.33 m baseline: ~53 px disparity at 20 m, a 0.6 m depth step is ~1.6 px):
     two walkers cross each other at 20 and 20.6 m with detector-like noise (1.5 % of their height); while they

@@ -54,6 +54,25 @@ def _who(record: dict) -> str | None:
     return record["tracking_id"] if record["kind"] == "person" else None
 
 
+def frame_owners(track, records: list[dict], index: dict | None = None) -> dict[int, str]:
+    """``frame -> the person holding most of the frame's detections`` for one output track (frames holding only
+    clutter or fragments are absent).  A tie keeps the previous frame's person when it is among the tied (the
+    track going on with its walker), else the first tied id in sorted order — the rule of
+    :func:`score_tracks`' identity switches, and the person a benchmark scores the frame's fit against."""
+    index = index if index is not None else {(r["camera"], r["frame"], r["index"]): r for r in records}
+    out: dict[int, str] = {}
+    previous = None
+    for fr in track.frames:
+        frame_votes = Counter(who for who in (_who(detection_truth(det, records, index))
+                                              for det in fr.detections.values()) if who is not None)
+        if not frame_votes:
+            continue
+        best = max(frame_votes.values())
+        tied = sorted(tid for tid, n in frame_votes.items() if n == best)
+        previous = out[fr.frame] = previous if previous in tied else tied[0]
+    return out
+
+
 def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int, float]],
                  min_purity: float = 0.5, min_frames: int = 3) -> dict:
     """Counts of :func:`score_tracks` (module docstring).
@@ -72,25 +91,21 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     tracks_of: dict[str, set] = defaultdict(set)
     for track in tracks:
         votes = Counter()
-        previous = None
         for fr in track.frames:
-            frame_votes = Counter()
+            people = set()
             for det in fr.detections.values():
                 who = _who(detection_truth(det, records, index))
                 votes[who] += 1
                 if who is not None:
-                    frame_votes[who] += 1
+                    people.add(who)
                     tracks_of[who].add(track.track_id)
-            if not frame_votes:
-                continue
-            if len(frame_votes) > 1:
+            if len(people) > 1:
                 mixed_frames += 1               # two people's detections in one frame of one track
-            best = max(frame_votes.values())
-            tied = sorted(tid for tid, n in frame_votes.items() if n == best)
-            current = previous if previous in tied else tied[0]
+        previous = None
+        for frame, current in frame_owners(track, records, index).items():
             if previous is not None and current != previous:
                 switches += 1                   # the track went on with another person
-                switch_list.append((track.track_id, fr.frame, previous, current))
+                switch_list.append((track.track_id, frame, previous, current))
                 for tid in (previous, current):
                     by_person[tid] = by_person.get(tid, 0) + 1
             previous = current
