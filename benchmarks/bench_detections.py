@@ -178,7 +178,8 @@ def _truth_frames(scene: Path, frames: list[int]) -> dict[int, list]:
 def frame_owners(tracks, records: list[dict]) -> dict[tuple[str, int], str]:
     """``(track id, frame) -> the person most of that frame's detections belong to`` (truth records), for the
     detector tracks of :func:`~pedx_graph.detections.association.associate` (the ids the import writes); a
-    tie is resolved as the association's scoring does (:func:`pedx_graph.detections.evaluate.frame_owners`)."""
+    tie is resolved as the association's scoring does, and fragments and clutter are nobody's
+    (:func:`pedx_graph.detections.evaluate.frame_owners`)."""
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     return {(track.track_id, frame): owner for track in tracks
             for frame, owner in track_frame_owners(track, records, index).items()}

@@ -221,14 +221,15 @@ def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():
     """A frame holding one detection of the track's person and one of a neighbour (two images, a tie) is the
     track's person's — the same for :func:`score_tracks`' switches and for :func:`frame_owners`, which a
     benchmark scores the frame's fit against — whatever the ids' sorted order; a tie at the first frame
-    goes to the first id in sorted order."""
+    goes to the first id in sorted order; a frame holding only fragments (a detector's partial second
+    reading of someone) belongs to nobody."""
     from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
     from pedx_graph.detections.evaluate import frame_owners, score_tracks
 
     records = []
 
-    def det(frame, camera, tid):
-        records.append({"camera": camera, "frame": frame, "index": len(records), "kind": "person",
+    def det(frame, camera, tid, kind="person"):
+        records.append({"camera": camera, "frame": frame, "index": len(records), "kind": kind,
                         "tracking_id": tid})
         return Detection(camera=camera, frame=frame, keypoint_set="coco17", image_uv=np.zeros((17, 2)),
                          confidence=np.ones(17), score=1.0, source=f"x.json#[{len(records) - 1}]")
@@ -237,7 +238,8 @@ def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():
         return DetectedTrackFrame(frame=f, detections={"left": det(f, "left", left), "right": det(f, "right", right)})
 
     track = DetectedTrack(track_id="t1", pairs=("left-right",), frames=[
-        frame(0, "z", "a"), frame(1, "z", "z"), frame(2, "z", "a"), frame(3, "z", "z")])
+        frame(0, "z", "a"), frame(1, "z", "z"), frame(2, "z", "a"), frame(3, "z", "z"),
+        DetectedTrackFrame(frame=4, detections={"left": det(4, "left", "a", kind="fragment")})])
     assert frame_owners(track, records) == {0: "a", 1: "z", 2: "z", 3: "z"}
     score = score_tracks([track], records, {"z": {f: 10.0 for f in range(4)}})
     assert score["id_switches"] == 1 and score["switches"] == [("t1", 1, "a", "z")]
