@@ -102,11 +102,13 @@ def detections_section(runs: list[dict]) -> str:
     """Markdown: per seed and detector format, the issue's goals (MPJPE at 5-25 m against the manual labels,
     identity switches among crossing people, false tracks) with root-relative error, the frames fitted more
     than the match radius from the person whose detections they hold (misplaced: not in the MPJPE; absent
-    from older runs), people recovered and the keypoint NEES."""
+    from older runs), people recovered, the keypoint NEES and the 95 % ellipsoids' coverage (manual / detector:
+    the mean NEES follows its tail — a few frames far off with a confident covariance —, the coverage its bulk)."""
     lines = ["| seed | input | manual MPJPE 5-25 m, global / root-rel. (mm) | detector MPJPE 5-25 m (mm) | "
              "ratio (goal <= 1.5) | id switches, crossing people (goal 0) | false tracks (goal 0) | "
-             "misplaced frames 5-25 m / scored | recovered / labelled people | keypoint NEES / dof |",
-             "|---|---|---|---|---:|---:|---:|---:|---|---:|"]
+             "misplaced frames 5-25 m / scored | recovered / labelled people | keypoint NEES / dof | "
+             "keypoints in their 95 % ellipsoid, manual / detector |",
+             "|---|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
     for run in runs:
         manual = run["accuracy"]["manual"]["5-25"]
         for fmt, goal in run["goals"].items():
@@ -118,7 +120,8 @@ def detections_section(runs: list[dict]) -> str:
                          f"{_f(goal['mpjpe_ratio_5_25'], 2)} | {goal['crossing_id_switches']} | "
                          f"{goal['false_tracks']} | {acc.get('misplaced_frames', '-')} / {acc.get('frames', 0)} | "
                          f"{recovered} / {labelled} | "
-                         f"{_f(acc.get('keypoint_nees_over_dof'), 2)} |")
+                         f"{_f(acc.get('keypoint_nees_over_dof'), 2)} | "
+                         f"{_f(manual.get('keypoint_coverage95'), 3)} / {_f(acc.get('keypoint_coverage95'), 3)} |")
     met = [(run["seed"], fmt) for run in runs for fmt, g in run["goals"].items()
            if g["within_1.5x"] and g["crossing_id_switches"] == 0 and g["false_tracks"] == 0]
     within = sum(g["within_1.5x"] for run in runs for g in run["goals"].values())
