@@ -163,6 +163,9 @@ def test_confidence_noise_and_curve_fit():
     config.keypoint_scale = {}
     sigma = config.sigma("coco17", np.ones(2), occluded=np.array([False, True]), annotation=True)
     np.testing.assert_allclose(sigma, [3.0, 7.5])
+    # an annotation's keypoints get the set's per-keypoint factors too (a surface hip vs an eye)
+    config.keypoint_scale = {"coco17": (2.0, 0.5)}
+    np.testing.assert_allclose(config.sigma("coco17", np.ones(2), annotation=True), [6.0, 1.5])
     with pytest.raises(ValueError):
         SigmaCurve((0.5, 0.3), (1.0, 2.0))
     # Fit: residuals drawn with a known sigma per confidence come back.

@@ -233,3 +233,40 @@ def test_a_detector_track_not_laid_out_is_refused_by_name(scene, model):
     with pytest.raises(ValueError, match=r"'coco17' keypoints; lay the track out .*fit_layout") as err:
         build_track_graph(track, estimator_context(config), config)
     assert base.tracking_id in str(err.value) and "\n" not in str(err.value)
+
+
+def _row_sigmas(factor) -> np.ndarray:
+    """The per-row sigmas of a factor's noise model (inside its robust kernel)."""
+    noise = factor.noiseModel()
+    return np.asarray((noise.noise() if isinstance(noise, gtsam.noiseModel.Robust) else noise).sigmas())
+
+
+def test_a_detector_tracks_hips_keep_their_own_sigma_pedx_hips_get_the_hip_factor(scene, model):
+    """``hip_sigma_factor`` stands for PedX's hip rows projecting the model's hip joints while the labels mark
+    the surface.  A detector set's hip rows project its own surface hips and their labels carry their own
+    sigma (with the hips' ambiguity in it): in the fit layout every row keeps the label's sigma (combined
+    with the model error), the hips too; PedX labels still get the factor on the hips."""
+    tracks, truth = scene
+    base = tracks[0]
+    config = FitConfig()
+    assert config.noise.hip_sigma_factor == 2.0
+    hips = [PEDX_KEYPOINTS.index("lhip"), PEDX_KEYPOINTS.index("rhip")]
+    for set_name in ("coco17", "body25"):
+        track = relabel(base, truth[(base.sequence, base.tracking_id)], model, set_name, seed=6)
+        laid, laid_ctx, laid_config = fit_layout(track, estimator_context(config), config)
+        assert laid_config.noise.hip_sigma_factor == 1.0 and config.noise.hip_sigma_factor == 2.0
+        problem = build_track_graph(laid, laid_ctx, laid_config)
+        view = laid.frames[0].labelled_views()[0][2]
+        assert view.labelled[hips].all()
+        sigmas = _row_sigmas(_reprojection(problem, 0))
+        want = view.sigma_px[view.labelled]          # the label's sigma, the model error already combined in
+        np.testing.assert_allclose(sigmas[:2 * len(want)], np.repeat(want, 2), rtol=1e-9)
+    # PedX labels: the hips' rows are the factor times the others'
+    problem = build_track_graph(base, estimator_context(config), config)
+    view = base.frames[0].labelled_views()[0][2]
+    labelled = np.flatnonzero(view.labelled)
+    sigmas = _row_sigmas(_reprojection(problem, 0))[:2 * len(labelled):2]
+    on_hips = np.isin(labelled, hips)
+    assert on_hips.any()
+    ratio = sigmas[on_hips] / np.median(sigmas[~on_hips])
+    assert np.all(ratio > 1.5 * config.noise.hip_sigma_factor / 2.0)

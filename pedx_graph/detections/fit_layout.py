@@ -26,7 +26,11 @@ travel with the laid-out views, combined in quadrature with the config's body-mo
 (``NoiseConfig.keypoint_model_sigma_px``, as the config combines click noise and model error); the
 reprojection term uses them instead of the configured sigma for those rows
 (``factors.stereo_reprojection.ImageKeypoints.sigma_px``).  Rows without one keep the config's (the extra
-rows: ``NoiseConfig.keypoint_sigma_px``, the whole-figure sigma).
+rows: ``NoiseConfig.keypoint_sigma_px``, the whole-figure sigma).  ``NoiseConfig.hip_sigma_factor`` is not
+applied to a laid-out track (:func:`fit_layout` sets it to 1): it stands for PedX's hip rows projecting the
+model's hip *joints* while the labels mark the hip surface, and here those rows project the set's own surface
+hips, whose ambiguity is already in their ``sigma_px`` (the import's per-keypoint factors,
+``DetectionNoiseConfig.keypoint_scale``) — applying it too would count the hips' noise twice.
 
 Results are reported with the original model: the world keypoints of a result (and their covariances) are
 always PedX's 18 (the layout model's ``report_model``).
@@ -144,11 +148,15 @@ def layout_track(track: Track, model_sigma_px: float = 0.0) -> Track:
 
 def fit_layout(track: Track, ctx, config):
     """``(track, ctx, config)`` to fit a track of another keypoint set through the 18 + E row layout (module
-    docstring); the same objects for a ``pedx18`` track."""
+    docstring): the laid-out track, a context with the layout's body model and ``config`` with
+    ``noise.hip_sigma_factor`` 1 (the hip rows are the set's own surface hips); the same objects for a
+    ``pedx18`` track."""
     set_name = track.keypoint_set
     if set_name == "pedx18":
         return track, ctx, config
     laid = layout_track(track, model_sigma_px=float(getattr(config.noise, "keypoint_model_sigma_px", 0.0)))
+    if getattr(config.noise, "hip_sigma_factor", 1.0) != 1.0:
+        config = dataclasses.replace(config, noise=dataclasses.replace(config.noise, hip_sigma_factor=1.0))
     return laid, dataclasses.replace(ctx, model=layout_model(ctx.model, set_name)), config
 
 

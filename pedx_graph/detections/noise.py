@@ -100,8 +100,10 @@ class DetectionNoiseConfig:
     an entry uses 1 for every keypoint.  Default: measured per set
     (benchmarks/results/bench_detection_noise.md)."""
     annotation_sigma_px: float = 3.0
-    """Sigma of a keypoint from a manual annotation file (COCO annotations: confidence 1 by visibility, no
-    detector score), pixels per axis."""
+    """Sigma of a keypoint of median difficulty from a manual annotation file (COCO annotations: confidence 1
+    by visibility, no detector score), pixels per axis; each keypoint gets it times its set's
+    :attr:`keypoint_scale` factor (surface hips and wrists are clicked less precisely than eyes, as in the
+    PedX click noise the simulator's factors come from)."""
     occluded_sigma_factor: float = 2.5
     """An annotation's keypoint marked labelled-but-not-visible (COCO ``v = 1``) gets this many times the
     sigma (the clicks land on a guessed position)."""
@@ -136,12 +138,12 @@ class DetectionNoiseConfig:
 
         ``height_px``: the person's image height measured on the detection (:func:`detection_height_px`);
         None = the reference height.  ``annotation``: the keypoints are a manual annotation (sigma
-        :attr:`annotation_sigma_px`, times :attr:`occluded_sigma_factor` where ``occluded``), not detector
-        output.
+        :attr:`annotation_sigma_px` times the keypoint's :attr:`keypoint_scale` factor, times
+        :attr:`occluded_sigma_factor` where ``occluded``), not detector output.
         """
         confidence = np.asarray(confidence, dtype=float)
         if annotation:
-            out = np.full(confidence.shape, float(self.annotation_sigma_px))
+            out = float(self.annotation_sigma_px) * self.scale(keypoint_set, confidence.shape[-1])
         else:
             height = self.reference_height_px if height_px is None else max(float(height_px), 0.0)
             relative = self.curve(keypoint_set)(confidence) * height / self.reference_height_px

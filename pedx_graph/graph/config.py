@@ -74,7 +74,9 @@ class NoiseConfig:
     reprojection_loss_scale: float = 3.0
     """Scale of the robust reprojection loss in whitened units (multiples of the per-row sigma)."""
     hip_sigma_factor: float = 2.0
-    """Hip keypoints get ``hip_sigma_factor`` times the sigma: the model's hip joints sit inside the pelvis."""
+    """Hip keypoints get ``hip_sigma_factor`` times the sigma: the model's hip joints sit inside the pelvis.
+    PedX-format labels only: a detector track's hip rows project its keypoint set's own surface hips, whose
+    noise is in their imported ``sigma_px`` (``pedx_graph.detections.fit_layout``)."""
     lidar_sigma_m: float = 0.04
     """Point-to-surface noise of the LiDAR chamfer term, metres (range noise + model/clothing mismatch in one
     figure): used when the range noise is not known (``lidar_range_sigma_m`` unset, no estimate)."""
