@@ -11,32 +11,41 @@ from pedx_graph.config import load_config, to_dict
 from pedx_graph.data.calib import read_calibrations, write_stereo_calibration
 from pedx_graph.data.reader import read_dataset, read_smpl_labels
 from pedx_graph.data.types import RawCamera
-from pedx_graph.detections.importer import ImportConfig
+from pedx_graph.detections.importer import ImportConfig, import_detections
+from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
+from pedx_graph.detections.openpose import read_openpose
 from pedx_graph.detections.undistort import distort
 from scene_fixtures import small_scene
 
 
-def test_import_openpose_with_file_ids(tmp_path):
-    root = small_scene(tmp_path / "scene", pedestrians=2, frames=4, seed=1)
-    calibs = read_calibrations(root / "calib")
-    # Give every camera a distorted raw image model and write it into the calibration files.
+def distorted_rig(root):
+    """The scene's pairs, each camera given a distorted raw image model (written into the calibration files)."""
     raw_calibs = {}
-    for name, calib in calibs.items():
+    for name, calib in read_calibrations(root / "calib").items():
         raws = [RawCamera(raw_K=P[:, :3].copy(), raw_D=np.array([-0.2, 0.08, 0.001, -0.001, 0.0]),
                           rect_R_cam=calib.rect_R_cam, P_rect=P) for P in (calib.left_P_rect, calib.right_P_rect)]
         raw_calibs[name] = dataclasses.replace(calib, left_raw=raws[0], right_raw=raws[1])
         write_stereo_calibration(root / "calib", raw_calibs[name])
+    return raw_calibs
+
+
+def write_openpose_truth(root, raw_calibs, files, noise_px=None) -> dict:
+    """OpenPose BODY_25 files (confidence 0.9, ``person_id`` = the person's number) of every labelled person of
+    the scene, on the raw images; ``noise_px(calib, side, rect_uv) -> (25,) sigma`` adds Gaussian noise to the
+    rectified pixels before distortion (None: exact).  Returns ``(camera, frame, number) -> rectified pixels``
+    (noise-free) of every detection written."""
     model = BodyModel.load().for_keypoint_set("body25")
-    truth = read_smpl_labels(root)
-    files = tmp_path / "openpose"
+    rng = np.random.default_rng(0)
     expected = {}
-    for number, ((seq, tid), labels) in enumerate(sorted(truth.items())):
+    for number, ((seq, tid), labels) in enumerate(sorted(read_smpl_labels(root).items())):
         for lab in labels:
             world = model.keypoints(lab.pose, lab.betas, lab.trans)
             for name, calib in raw_calibs.items():
                 for side, cam in zip(("left", "right"), name.split("-")):
                     rect = calib.project(world)[0 if side == "left" else 1]
-                    raw_uv = distort(rect, calib.left_raw if side == "left" else calib.right_raw)
+                    noisy = rect if noise_px is None else \
+                        rect + rng.normal(size=rect.shape) * noise_px(calib, side, rect)[:, None]
+                    raw_uv = distort(noisy, calib.left_raw if side == "left" else calib.right_raw)
                     w, h = calib.image_size
                     if not np.all((raw_uv > 0) & (raw_uv < [w, h])):
                         continue
@@ -47,6 +56,15 @@ def test_import_openpose_with_file_ids(tmp_path):
                     path.parent.mkdir(parents=True, exist_ok=True)
                     path.write_text(json.dumps(doc))
                     expected[(cam, lab.frame, str(number))] = rect
+    return expected
+
+
+def test_import_openpose_with_file_ids(tmp_path):
+    root = small_scene(tmp_path / "scene", pedestrians=2, frames=4, seed=1)
+    raw_calibs = distorted_rig(root)
+    truth = read_smpl_labels(root)
+    files = tmp_path / "openpose"
+    expected = write_openpose_truth(root, raw_calibs, files)
     assert expected
     out = tmp_path / "imported"
     assert main(["import", "openpose", str(files), "--calib", str(root), "--out", str(out), "--use-file-ids"]) == 0
@@ -113,3 +131,56 @@ def test_import_simulated_detector_output_then_fit(tmp_path):
         # 0.04 and 0.08 m; the detector's noise, misses and one-image frames cost the rest).  A broken reader,
         # undistortion or keypoint definition, or a track mixing two people, is off by far more.
         assert max(track_errors) < 0.45 and np.mean(track_errors) < 0.35, (set_name, track_errors)
+
+
+def test_stereo_row_scale_bounds_the_noise_from_below():
+    """Row differences of known spread: the scale comes back, each pair's offset is removed; a scale below 1
+    is reported but never applied (the rows only bound the noise from below); too few samples: no check."""
+    rng = np.random.default_rng(2)
+    sd = rng.uniform(2.0, 9.0, 4000)
+    rows = {"a-b": (1.3 + 2.0 * sd[:2000] * rng.normal(size=2000), sd[:2000]),
+            "c-d": (-0.8 + 2.0 * sd[2000:] * rng.normal(size=2000), sd[2000:])}
+    check = stereo_row_scale(rows)
+    assert check.samples == 4000 and abs(check.scale - 2.0) < 0.1 and check.applied == check.scale
+    assert abs(check.pair_offsets_px["a-b"] - 1.3) < 0.3 and abs(check.pair_offsets_px["c-d"] + 0.8) < 0.3
+    calm = stereo_row_scale({"a-b": (0.5 * sd * rng.normal(size=4000), sd)})
+    assert abs(calm.scale - 0.5) < 0.05 and calm.applied == 1.0
+    few = stereo_row_scale({"a-b": (rows["a-b"][0][:50], rows["a-b"][1][:50])}, min_samples=200)
+    assert few.scale is None and few.applied == 1.0 and few.samples == 50
+
+
+def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path):
+    """Detections three times as noisy as the noise model says (independent in the two images): the import's
+    stereo-row check finds about 3 and multiplies every written sigma by it; exact detections change
+    nothing."""
+    root = small_scene(tmp_path / "scene", pedestrians=3, frames=6, seed=4)
+    raw_calibs = distorted_rig(root)
+    noise = DetectionNoiseConfig()
+
+    def three_times_the_model(calib, side, rect_uv):
+        return 3.0 * noise.sigma("body25", np.full(25, 0.9), height_px=detection_height_px(rect_uv))
+
+    files = tmp_path / "noisy"
+    write_openpose_truth(root, raw_calibs, files, noise_px=three_times_the_model)
+    sigmas = {}
+    for check in (True, False):
+        out = tmp_path / f"imported_{check}"
+        config = ImportConfig(use_file_ids=True, stereo_noise_check=check)
+        summary = import_detections(read_openpose(files), root, out, config=config)
+        (record,) = summary["sequences"].values()
+        sigmas[check] = {(t.tracking_id, fr.frame, pair, side): view.sigma_px for t in read_dataset(out)
+                         for fr in t.frames for pair, side, view in fr.labelled_views()}
+        if check:
+            found = record["stereo_noise_check"]
+            assert found["samples"] >= 200 and 2.6 < found["scale"] < 3.4 and found["applied"] == found["scale"]
+        else:
+            assert record["stereo_noise_check"] is None
+    assert sigmas[True].keys() == sigmas[False].keys() and sigmas[True]
+    for key, sigma in sigmas[True].items():
+        np.testing.assert_allclose(sigma, found["applied"] * sigmas[False][key], rtol=1e-3)
+    exact = tmp_path / "exact"
+    write_openpose_truth(root, raw_calibs, exact)
+    summary = import_detections(read_openpose(exact), root, tmp_path / "imported_exact",
+                                config=ImportConfig(use_file_ids=True))
+    (record,) = summary["sequences"].values()
+    assert record["stereo_noise_check"]["applied"] == 1.0

@@ -15,6 +15,7 @@ goes to ``<out>/import_summary.json``, the resolved config to ``<out>/import_con
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import shutil
@@ -31,9 +32,9 @@ from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.lidar_cut import LidarCutConfig
-from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px
+from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.types import Detection
-from pedx_graph.detections.undistort import rectified
+from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.utils import atomic_write_json
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,14 @@ class ImportConfig:
     """Who is who when the files carry no ids (stereo matching, tracking, merging across pairs)."""
     lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
     """How each person's LiDAR points are cut from the scene clouds."""
+    stereo_noise_check: bool = True
+    """Check the noise model against the data's own stereo rows (keypoints seen in both images of a pair
+    lie on one rectified row; :func:`pedx_graph.detections.noise.stereo_row_scale`) and, where the data show
+    more noise than the model (a detector noisier than the simulated one the curves were measured on),
+    multiply every sigma of the sequence by that factor.  Never lowers them: the rows only bound the noise
+    from below.  The factor goes to ``import_summary.json`` (``sequences.<seq>.stereo_noise_check``)."""
+    min_stereo_samples: int = 200
+    """Fewer keypoints seen in both images of a pair than this: no check (the model's sigmas as they are)."""
 
 
 def calibration_dir(source: str | os.PathLike) -> Path:
@@ -104,6 +113,27 @@ def detection_view(det: Detection, calibrations, noise: DetectionNoiseConfig) ->
     visible = keep & (~det.occluded if det.occluded is not None else True)
     return View2D(keypoints=uv, visible=visible, keypoint_set=det.keypoint_set,
                   sigma_px=np.where(keep, sigma, np.nan), confidence=np.where(keep, det.confidence, np.nan))
+
+
+def stereo_rows(views: Mapping[tuple, View2D], calibrations) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Pair name -> ``(d, sd)`` over every person and frame seen in both images of a pair: for each keypoint
+    kept in both, the rectified row difference ``d = v_left - v_right`` (pixels) and its predicted standard
+    deviation ``sqrt(sigma_left^2 + sigma_right^2)`` from the views' ``sigma_px``
+    (:func:`pedx_graph.detections.noise.stereo_row_scale`).  ``views``: ``(person, frame, camera) ->``
+    :func:`detection_view`."""
+    sides: dict[tuple, dict[str, View2D]] = defaultdict(dict)
+    for (person, frame, camera), view in views.items():
+        calib, side = find_camera(calibrations, camera)
+        sides[(calib.name, person, frame)][side] = view
+    rows: dict[str, tuple[list, list]] = defaultdict(lambda: ([], []))
+    for (pair, _, _), both in sorted(sides.items(), key=lambda kv: tuple(map(str, kv[0]))):
+        left, right = both.get("left"), both.get("right")
+        if left is None or right is None or left.sigma_px is None or right.sigma_px is None:
+            continue
+        keep = left.labelled & right.labelled
+        rows[pair][0].append(left.keypoints[keep, 1] - right.keypoints[keep, 1])
+        rows[pair][1].append(np.hypot(left.sigma_px[keep], right.sigma_px[keep]))
+    return {pair: (np.concatenate(d), np.concatenate(sd)) for pair, (d, sd) in rows.items()}
 
 
 def _group_by_file_ids(detections: list[Detection]) -> dict[str, list[Detection]]:
@@ -187,18 +217,29 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground)
         for track in tracks:
             people[track.track_id] = {fr.frame: dict(fr.detections) for fr in track.frames}
+    views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
+             for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
+    check = stereo_row_scale(stereo_rows(views, calibrations), config.min_stereo_samples) \
+        if config.stereo_noise_check else None
+    factor = check.applied if check is not None else 1.0
+    if factor > 1.0:
+        log.warning("%s: the detections' stereo rows show %.2fx the noise model's keypoint noise (%d keypoints); "
+                    "every sigma scaled by %.2f", seq, check.scale, check.samples, factor)
     written = 0
     for tid, frames in people.items():
         for frame, cams in sorted(frames.items()):
-            for camera, det in sorted(cams.items()):
-                view = detection_view(det, calibrations, config.noise)
+            for camera in sorted(cams):
+                view = views[(tid, frame, camera)]
                 if int(view.labelled.sum()) < config.min_keypoints:
                     continue
+                if factor != 1.0:
+                    view = dataclasses.replace(view, sigma_px=view.sigma_px * factor)
                 write_label2d(out, Label2D(sequence=seq, camera=camera, frame=frame, tracking_id=tid,
                                            category="pedestrian", view=view, subtype="detection"))
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
-              "uncalibrated_cameras": uncalibrated}
+              "uncalibrated_cameras": uncalibrated,
+              "stereo_noise_check": check.record() if check is not None else None}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,

@@ -14,7 +14,9 @@ shoulders, like OKS's per-keypoint sigmas; 1 where none is given) and ``floor_px
 part.  Keypoints below ``min_confidence`` are dropped (treated as absent, never invented).  Everything is
 *measured*, not chosen: :func:`fit_noise_model` fits it from residuals of simulated detections against the
 true projections (``benchmarks/bench_detection_noise.py`` runs it on the simulator's detector output and
-writes the numbers that are shipped here as defaults).
+writes the numbers that are shipped here as defaults).  A real detector is not the simulated one:
+:func:`stereo_row_scale` checks the model against a dataset's own stereo rows (no truth needed) and gives
+the factor by which the data show it too confident, which the import applies.
 """
 from __future__ import annotations
 
@@ -295,3 +297,65 @@ def _non_increasing(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
             v1, w1, n1 = merged.pop()
             merged.append([(v1 * w1 + v2 * w2) / (w1 + w2), w1 + w2, n1 + n2])
     return np.concatenate([[v] * int(n) for v, _, n in merged])
+
+
+@dataclass
+class StereoRowCheck:
+    """The data's own lower bound of the detector noise (:func:`stereo_row_scale`), for one sequence."""
+
+    scale: float | None
+    """Robust spread (1.4826 MAD) of the row differences in units of their predicted standard deviation;
+    None when there were fewer than the minimum samples."""
+    samples: int
+    """Keypoints seen in both images of a pair (after the confidence threshold)."""
+    applied: float
+    """The factor every sigma of the sequence was multiplied by: ``max(1, scale)`` (1 without an estimate)."""
+    pair_offsets_px: dict[str, float] = field(default_factory=dict)
+    """Per stereo pair, the rows' common offset: the median of ``v_left - v_right`` weighted by the inverse
+    predicted variance (the rectification's own offset), pixels."""
+
+    def record(self) -> dict:
+        return {"scale": None if self.scale is None else round(self.scale, 4), "samples": self.samples,
+                "applied": round(self.applied, 4),
+                "pair_offsets_px": {k: round(v, 3) for k, v in sorted(self.pair_offsets_px.items())}}
+
+
+def _weighted_median(x: np.ndarray, weights: np.ndarray) -> float:
+    """The value where the cumulative weight of the sorted ``x`` reaches half the total."""
+    order = np.argsort(x)
+    cumulative = np.cumsum(weights[order])
+    return float(x[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
+def stereo_row_scale(rows: dict[str, tuple[np.ndarray, np.ndarray]], min_samples: int = 200) -> StereoRowCheck:
+    """How far the keypoint noise the data show exceeds the noise model, from rectified rows alone (no truth).
+
+    In a rectified pair a body point lies on one image row in both images, so for a keypoint detected in the
+    left and the right image of a pair, ``d = v_left - v_right = o_p + n_left - n_right`` (pixels): the two
+    detections' vertical errors plus the pair's rectification offset ``o_p``.  With the noise model's sigmas
+    ``s_left``, ``s_right`` (:meth:`DetectionNoiseConfig.sigma`, per keypoint, confidence and size) the
+    normalised differences ``z = (d - o_p) / sqrt(s_left^2 + s_right^2)`` have a spread of 1 if the model
+    is right and the two images' errors are independent.  ``rows``: pair name -> ``(d (N,), predicted sd
+    (N,))``; ``o_p`` is each pair's median ``d`` weighted by ``1 / sd^2``; the spread is ``1.4826 MAD`` of ``z`` (the estimator the
+    curves are fitted with, so 1 means agreement in the sense they were fitted).  The same row principle
+    gives manual labels their click noise (:mod:`pedx_graph.data.noise_estimate`, absolute per keypoint);
+    here it checks a model whose shape (confidence, size, keypoint) is given, so one factor is estimated.
+
+    A *lower* bound only: an error the detector makes alike in both images (a keypoint definition that differs
+    from ours, a hidden wrist guessed the same way twice) cancels in ``d``, and only the vertical axis is
+    seen.  So the data can show the model too confident (scale > 1: a noisier detector than the one the
+    curves were measured on) but never prove it too cautious; ``applied`` is ``max(1, scale)``.
+    """
+    offsets, z = {}, []
+    for pair, (d, sd) in sorted(rows.items()):
+        d, sd = np.asarray(d, dtype=float).reshape(-1), np.asarray(sd, dtype=float).reshape(-1)
+        ok = np.isfinite(d) & np.isfinite(sd) & (sd > 0)
+        if not ok.any():
+            continue
+        offsets[pair] = _weighted_median(d[ok], 1.0 / sd[ok] ** 2)
+        z.append((d[ok] - offsets[pair]) / sd[ok])
+    z = np.concatenate(z) if z else np.zeros(0)
+    if len(z) < max(int(min_samples), 2):
+        return StereoRowCheck(scale=None, samples=int(len(z)), applied=1.0, pair_offsets_px=offsets)
+    scale = float(MAD_TO_SIGMA * np.median(np.abs(z)))
+    return StereoRowCheck(scale=scale, samples=int(len(z)), applied=max(1.0, scale), pair_offsets_px=offsets)
