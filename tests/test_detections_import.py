@@ -149,7 +149,7 @@ def test_stereo_row_scale_bounds_the_noise_from_below():
     assert few.scale is None and few.applied == 1.0 and few.samples == 50
 
 
-def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path):
+def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path, capsys):
     """Detections three times as noisy as the noise model says (independent in the two images): the import's
     stereo-row check finds about 3 and multiplies every written sigma by it; exact detections change
     nothing."""
@@ -178,6 +178,12 @@ def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path):
     assert sigmas[True].keys() == sigmas[False].keys() and sigmas[True]
     for key, sigma in sigmas[True].items():
         np.testing.assert_allclose(sigma, found["applied"] * sigmas[False][key], rtol=1e-3)
+    # the command line says so
+    assert main(["import", "openpose", str(files), "--calib", str(root), "--out", str(tmp_path / "cli"),
+                 "--use-file-ids"]) == 0
+    printed = capsys.readouterr().out
+    assert f"stereo rows show {found['scale']:.2f}x the noise model's keypoint noise" in printed
+    assert f"sigmas x{found['applied']:.2f}" in printed
     exact = tmp_path / "exact"
     write_openpose_truth(root, raw_calibs, exact)
     summary = import_detections(read_openpose(exact), root, tmp_path / "imported_exact",

@@ -72,4 +72,9 @@ def _run_import(args: argparse.Namespace) -> int:
     tracks = sum(s["tracks"] for s in summary["sequences"].values())
     labels = sum(s["labels_written"] for s in summary["sequences"].values())
     print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")
+    for seq, record in sorted(summary["sequences"].items()):
+        check = record.get("stereo_noise_check")
+        if check and check.get("scale") is not None:
+            print(f"  {seq}: stereo rows show {check['scale']:.2f}x the noise model's keypoint noise "
+                  f"({check['samples']} keypoints); sigmas x{check['applied']:.2f}")
     return 0
