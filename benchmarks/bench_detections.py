@@ -35,7 +35,13 @@ front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair tu
 0.93 m beside the first as on the real rig, the simulator's walkway mix with groups, labelled at 5-45 m).
 
     python benchmarks/bench_detections.py [--seed 0] [--pedestrians 10] [--frames 20] [--workers 2]
-                                          [--out benchmarks/results]
+                                          [--out benchmarks/results] [--detector-noise-scale 1]
+                                          [--no-stereo-noise-check]
+
+``--detector-noise-scale F`` makes the simulated detector F times as noisy as the one the shipped
+confidence -> noise curves were measured on (a real detector is not ours); ``--no-stereo-noise-check``
+imports without the import's check of those curves against the stereo rows
+(``ImportConfig.stereo_noise_check``), to measure what that check does.
 
 Writes ``bench_detections.json`` and ``bench_detections.md`` into ``--out``.  Goals (issue 15): detector input
 within 1.5x the manual-label MPJPE at 5-25 m, no identity switch on crossing pedestrians at that range, no
@@ -65,7 +71,7 @@ from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.coco import read_coco  # noqa: E402
 from pedx_graph.detections.evaluate import (read_detection_truth, score_tracks,  # noqa: E402
                                           frame_owners as track_frame_owners)
-from pedx_graph.detections.importer import import_detections  # noqa: E402
+from pedx_graph.detections.importer import ImportConfig, import_detections  # noqa: E402
 from pedx_graph.detections.openpose import read_openpose  # noqa: E402
 from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin, eval_joints, joint_errors  # noqa: E402
@@ -88,8 +94,9 @@ MATCH_RADIUS_M = 1.0
 GOAL_RANGE_M = (5.0, 25.0)
 
 
-def scene_configs(pedestrians: int, frames: int) -> dict[str, SimConfig]:
-    """The two scenes (module docstring), detector output on."""
+def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1.0) -> dict[str, SimConfig]:
+    """The two scenes (module docstring), detector output on; the simulated detector's keypoint noise
+    (``sigma_px`` and ``sigma_height_frac``) times ``detector_noise_scale``."""
     out = {}
     crossing = SimConfig()
     crossing.scene.crosswalk_prob = 1.0
@@ -108,6 +115,8 @@ def scene_configs(pedestrians: int, frames: int) -> dict[str, SimConfig]:
         cfg.scene.n_frames = frames
         cfg.labels.unlabelled_prob = 0.15
         cfg.detections.formats = FORMATS
+        cfg.detections.keypoint_noise.sigma_px *= detector_noise_scale
+        cfg.detections.keypoint_noise.sigma_height_frac *= detector_noise_scale
         if SHARED_CMU.is_dir():
             cfg.motion.motion_dir = str(SHARED_CMU)
             cfg.motion.split = "holdout"
@@ -256,7 +265,8 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
-def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fit_config: FitConfig, ctx) -> dict:
+def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fit_config: FitConfig, ctx,
+              import_config: ImportConfig | None = None) -> dict:
     scene = work / name
     t0 = time.perf_counter()
     sim_summary = simulate(scene, cfg, seed=seed, workers=workers)
@@ -290,8 +300,9 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
         score.pop("owners")
         result["association"][fmt] = score
         imported = work / f"{name}_{fmt}"
-        summary = import_detections(detections, scene, imported)
+        summary = import_detections(detections, scene, imported, config=import_config)
         score["import_tracks"] = summary["sequences"][seq]["tracks"]
+        score["stereo_noise_check"] = summary["sequences"][seq].get("stereo_noise_check")
         dataset = read_dataset(imported) if (imported / "labels").is_dir() else []      # no track found
         t0 = time.perf_counter()
         rows, failures = fit_rows(dataset, fit_config, workers, truth, labelled, ground, by_id=False,
@@ -303,14 +314,16 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
     return result
 
 
-def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path) -> dict:
+def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, detector_noise_scale: float = 1.0,
+        stereo_noise_check: bool = True) -> dict:
     fit_config = FitConfig()
     fit_config.diagnostics = False
     fit_config.covariances = True
     ctx = _context(fit_config)
     scenes = {}
-    for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames).items()):
-        scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx)
+    import_config = ImportConfig(stereo_noise_check=stereo_noise_check)
+    for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, detector_noise_scale).items()):
+        scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx, import_config)
     accuracy = {}
     for source in INPUTS:
         rows = [r for sc in scenes.values() for r in sc["accuracy"][source]]
@@ -336,7 +349,8 @@ def markdown(result: dict, command: str) -> str:
     key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
     lines = ["# bench_detections: manual labels vs detector keypoints", "", f"Command: `{command}`", "",
              f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene, "
-             f"{result['motion']}.  Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and "
+             f"{result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g}, "
+             f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}.  Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and "
              "COCO files on distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
              "imported with `pedx-graph import` (association, undistortion, confidence -> noise, LiDAR cut) and "
              "fitted with batch LM; manual = the simulated annotators' labels and segments).", "",
@@ -349,14 +363,17 @@ def markdown(result: dict, command: str) -> str:
                      f"{g['crossing_id_switches']} | {g['false_tracks']} | {g.get('misplaced_frames_5_25', 0)} |")
     lines += ["", "## Association (per scene and format)", "",
               "| scene | format | tracks | false | bystander | recovered / labelled people | id switches "
-              "(crossing) | mixed frames | fragmentations | crossing people (events) |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "(crossing) | mixed frames | fragmentations | crossing people (events) | stereo-row noise scale "
+              "(applied) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, sc in result["scenes"].items():
         for fmt, a in sc["association"].items():
+            check = a.get("stereo_noise_check") or {}
             lines.append(f"| {name} | {fmt} | {a['tracks']} | {a['false_tracks']} | {a['bystander_tracks']} | "
                          f"{a['recovered']} / {a['labelled_people']} | {a['id_switches']} "
                          f"({a['crossing_id_switches']}) | {a['mixed_frames']} | {a['fragmentations']} | "
-                         f"{sc['crossing_people']} ({sc['crossing_events']}) |")
+                         f"{sc['crossing_people']} ({sc['crossing_events']}) | "
+                         f"{cell(check.get('scale'), '.2f')} ({cell(check.get('applied'), '.2f')}) |")
     lines += ["", "## Accuracy (both scenes)", "",
               "| input | bin (m) | frames | misplaced frames | MPJPE (mm) | root-rel. MPJPE (mm) | "
               "keypoint NEES / dof | 95 % coverage |", "|---|---|---|---|---|---|---|---|"]
@@ -394,11 +411,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--workers", type=int, default=2, help="processes for simulating and fitting")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    parser.add_argument("--detector-noise-scale", type=float, default=1.0,
+                        help="multiply the simulated detector's keypoint noise (a detector unlike the one the "
+                             "shipped noise curves were measured on)")
+    parser.add_argument("--no-stereo-noise-check", action="store_true",
+                        help="import without checking the noise model against the stereo rows")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_detections_") as tmp:
-        result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp))
+        result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp), args.detector_noise_scale,
+                     not args.no_stereo_noise_check)
     result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
+                  detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
                   total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command
