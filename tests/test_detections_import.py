@@ -147,6 +147,13 @@ def test_stereo_row_scale_bounds_the_noise_from_below():
     assert abs(calm.scale - 0.5) < 0.05 and calm.applied == 1.0
     few = stereo_row_scale({"a-b": (rows["a-b"][0][:50], rows["a-b"][1][:50])}, min_samples=200)
     assert few.scale is None and few.applied == 1.0 and few.samples == 50
+    # per confidence: a curve whose low-confidence end is three times too confident shows there
+    confidence = np.where(np.arange(4000) % 2 == 0, 0.31, 0.79)
+    shaped = np.where(confidence < 0.5, 3.0, 1.0) * sd * rng.normal(size=4000)
+    check = stereo_row_scale({"a-b": (shaped, sd, confidence)}, knots=(0.1, 0.3, 0.5, 0.8))
+    (low, high) = check.by_confidence
+    assert (low["knot"], high["knot"]) == (0.3, 0.8) and low["count"] == high["count"] == 2000
+    assert abs(low["scale"] - 3.0) < 0.2 and abs(high["scale"] - 1.0) < 0.07
 
 
 def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path, capsys):

@@ -77,4 +77,7 @@ def _run_import(args: argparse.Namespace) -> int:
         if check and check.get("scale") is not None:
             print(f"  {seq}: stereo rows show {check['scale']:.2f}x the noise model's keypoint noise "
                   f"({check['samples']} keypoints); sigmas x{check['applied']:.2f}")
+            if check.get("by_confidence"):
+                print("    by confidence: " + ", ".join(f"{b['knot']:g}: {b['scale']:.2f} (n {b['count']})"
+                                                        for b in check["by_confidence"]))
     return 0

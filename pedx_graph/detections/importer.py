@@ -115,17 +115,17 @@ def detection_view(det: Detection, calibrations, noise: DetectionNoiseConfig) ->
                   sigma_px=np.where(keep, sigma, np.nan), confidence=np.where(keep, det.confidence, np.nan))
 
 
-def stereo_rows(views: Mapping[tuple, View2D], calibrations) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Pair name -> ``(d, sd)`` over every person and frame seen in both images of a pair: for each keypoint
-    kept in both, the rectified row difference ``d = v_left - v_right`` (pixels) and its predicted standard
-    deviation ``sqrt(sigma_left^2 + sigma_right^2)`` from the views' ``sigma_px``
-    (:func:`pedx_graph.detections.noise.stereo_row_scale`).  ``views``: ``(person, frame, camera) ->``
-    :func:`detection_view`."""
+def stereo_rows(views: Mapping[tuple, View2D], calibrations) -> dict[str, tuple[np.ndarray, ...]]:
+    """Pair name -> ``(d, sd, confidence)`` over every person and frame seen in both images of a pair: for
+    each keypoint kept in both, the rectified row difference ``d = v_left - v_right`` (pixels), its predicted
+    standard deviation ``sqrt(sigma_left^2 + sigma_right^2)`` from the views' ``sigma_px`` and the lower of
+    the two confidences (:func:`pedx_graph.detections.noise.stereo_row_scale`).  ``views``: ``(person, frame,
+    camera) ->`` :func:`detection_view`."""
     sides: dict[tuple, dict[str, View2D]] = defaultdict(dict)
     for (person, frame, camera), view in views.items():
         calib, side = find_camera(calibrations, camera)
         sides[(calib.name, person, frame)][side] = view
-    rows: dict[str, tuple[list, list]] = defaultdict(lambda: ([], []))
+    rows: dict[str, tuple[list, list, list]] = defaultdict(lambda: ([], [], []))
     for (pair, _, _), both in sorted(sides.items(), key=lambda kv: tuple(map(str, kv[0]))):
         left, right = both.get("left"), both.get("right")
         if left is None or right is None or left.sigma_px is None or right.sigma_px is None:
@@ -133,7 +133,9 @@ def stereo_rows(views: Mapping[tuple, View2D], calibrations) -> dict[str, tuple[
         keep = left.labelled & right.labelled
         rows[pair][0].append(left.keypoints[keep, 1] - right.keypoints[keep, 1])
         rows[pair][1].append(np.hypot(left.sigma_px[keep], right.sigma_px[keep]))
-    return {pair: (np.concatenate(d), np.concatenate(sd)) for pair, (d, sd) in rows.items()}
+        confidence = [np.ones(len(keep)) if v.confidence is None else v.confidence for v in (left, right)]
+        rows[pair][2].append(np.minimum(confidence[0][keep], confidence[1][keep]))
+    return {pair: tuple(np.concatenate(part) for part in parts) for pair, parts in rows.items()}
 
 
 def _group_by_file_ids(detections: list[Detection]) -> dict[str, list[Detection]]:
@@ -219,8 +221,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
             people[track.track_id] = {fr.frame: dict(fr.detections) for fr in track.frames}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
-    check = stereo_row_scale(stereo_rows(views, calibrations), config.min_stereo_samples) \
-        if config.stereo_noise_check else None
+    check = stereo_row_scale(stereo_rows(views, calibrations), config.min_stereo_samples,
+                             knots=config.noise.default.confidence_knots) if config.stereo_noise_check else None
     factor = check.applied if check is not None else 1.0
     if factor > 1.0:
         log.warning("%s: the detections' stereo rows show %.2fx the noise model's keypoint noise (%d keypoints); "

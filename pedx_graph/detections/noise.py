@@ -313,11 +313,16 @@ class StereoRowCheck:
     pair_offsets_px: dict[str, float] = field(default_factory=dict)
     """Per stereo pair, the rows' common offset: the median of ``v_left - v_right`` weighted by the inverse
     predicted variance (the rectification's own offset), pixels."""
+    by_confidence: list[dict] = field(default_factory=list)
+    """The same scale per confidence knot (``knot``, ``count``, ``scale``) over the keypoints whose less
+    confident image is nearest that knot (knots with fewer than ``min_bin_samples`` left out): whether the
+    curve's *shape* fits the data, not only its level.  A diagnostic: only :attr:`applied` is used."""
 
     def record(self) -> dict:
         return {"scale": None if self.scale is None else round(self.scale, 4), "samples": self.samples,
                 "applied": round(self.applied, 4),
-                "pair_offsets_px": {k: round(v, 3) for k, v in sorted(self.pair_offsets_px.items())}}
+                "pair_offsets_px": {k: round(v, 3) for k, v in sorted(self.pair_offsets_px.items())},
+                "by_confidence": [dict(b, scale=round(b["scale"], 4)) for b in self.by_confidence]}
 
 
 def _weighted_median(x: np.ndarray, weights: np.ndarray) -> float:
@@ -327,7 +332,8 @@ def _weighted_median(x: np.ndarray, weights: np.ndarray) -> float:
     return float(x[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
-def stereo_row_scale(rows: dict[str, tuple[np.ndarray, np.ndarray]], min_samples: int = 200) -> StereoRowCheck:
+def stereo_row_scale(rows: dict[str, tuple[np.ndarray, ...]], min_samples: int = 200,
+                     knots: tuple[float, ...] | None = None, min_bin_samples: int = 50) -> StereoRowCheck:
     """How far the keypoint noise the data show exceeds the noise model, from rectified rows alone (no truth).
 
     In a rectified pair a body point lies on one image row in both images, so for a keypoint detected in the
@@ -336,7 +342,8 @@ def stereo_row_scale(rows: dict[str, tuple[np.ndarray, np.ndarray]], min_samples
     ``s_left``, ``s_right`` (:meth:`DetectionNoiseConfig.sigma`, per keypoint, confidence and size) the
     normalised differences ``z = (d - o_p) / sqrt(s_left^2 + s_right^2)`` have a spread of 1 if the model
     is right and the two images' errors are independent.  ``rows``: pair name -> ``(d (N,), predicted sd
-    (N,))``; ``o_p`` is each pair's median ``d`` weighted by ``1 / sd^2``; the spread is ``1.4826 MAD`` of ``z`` (the estimator the
+    (N,))`` or ``(d, sd, confidence (N,))`` (the lower of the two images' confidences: with ``knots``, the
+    scale is also given per knot, :attr:`StereoRowCheck.by_confidence`); ``o_p`` is each pair's median ``d`` weighted by ``1 / sd^2``; the spread is ``1.4826 MAD`` of ``z`` (the estimator the
     curves are fitted with, so 1 means agreement in the sense they were fitted).  The same row principle
     gives manual labels their click noise (:mod:`pedx_graph.data.noise_estimate`, absolute per keypoint);
     here it checks a model whose shape (confidence, size, keypoint) is given, so one factor is estimated.
@@ -346,16 +353,29 @@ def stereo_row_scale(rows: dict[str, tuple[np.ndarray, np.ndarray]], min_samples
     seen.  So the data can show the model too confident (scale > 1: a noisier detector than the one the
     curves were measured on) but never prove it too cautious; ``applied`` is ``max(1, scale)``.
     """
-    offsets, z = {}, []
-    for pair, (d, sd) in sorted(rows.items()):
+    offsets, z, conf = {}, [], []
+    for pair, (d, sd, *more) in sorted(rows.items()):
         d, sd = np.asarray(d, dtype=float).reshape(-1), np.asarray(sd, dtype=float).reshape(-1)
+        c = np.asarray(more[0], dtype=float).reshape(-1) if more else np.full(d.shape, np.nan)
         ok = np.isfinite(d) & np.isfinite(sd) & (sd > 0)
         if not ok.any():
             continue
         offsets[pair] = _weighted_median(d[ok], 1.0 / sd[ok] ** 2)
         z.append((d[ok] - offsets[pair]) / sd[ok])
+        conf.append(c[ok])
     z = np.concatenate(z) if z else np.zeros(0)
+    conf = np.concatenate(conf) if conf else np.zeros(0)
     if len(z) < max(int(min_samples), 2):
         return StereoRowCheck(scale=None, samples=int(len(z)), applied=1.0, pair_offsets_px=offsets)
     scale = float(MAD_TO_SIGMA * np.median(np.abs(z)))
-    return StereoRowCheck(scale=scale, samples=int(len(z)), applied=max(1.0, scale), pair_offsets_px=offsets)
+    bins = []
+    if knots is not None and np.isfinite(conf).any():
+        knots = np.asarray(knots, dtype=float)
+        nearest = np.argmin(np.abs(conf[:, None] - knots[None, :]), axis=1)
+        for i, knot in enumerate(knots):
+            sel = (nearest == i) & np.isfinite(conf)
+            if sel.sum() >= max(int(min_bin_samples), 2):
+                bins.append({"knot": float(knot), "count": int(sel.sum()),
+                             "scale": float(MAD_TO_SIGMA * np.median(np.abs(z[sel])))})
+    return StereoRowCheck(scale=scale, samples=int(len(z)), applied=max(1.0, scale), pair_offsets_px=offsets,
+                          by_confidence=bins)
