@@ -350,6 +350,7 @@ RULES: dict[str, Range | Choice] = {
     "LidarCutConfig.claim_sigma_m": NON_NEGATIVE,
     # pedx_graph.detections.importer.ImportConfig, noise.DetectionNoiseConfig (SigmaCurve checks itself)
     "ImportConfig.min_keypoints": COUNT,
+    "ImportConfig.min_stereo_samples": COUNT,
     "DetectionNoiseConfig.min_confidence": FRACTION,
     "DetectionNoiseConfig.annotation_sigma_px": POSITIVE,
     "DetectionNoiseConfig.occluded_sigma_factor": POSITIVE,

@@ -343,8 +343,9 @@ def stereo_row_scale(rows: dict[str, tuple[np.ndarray, ...]], min_samples: int =
     normalised differences ``z = (d - o_p) / sqrt(s_left^2 + s_right^2)`` have a spread of 1 if the model
     is right and the two images' errors are independent.  ``rows``: pair name -> ``(d (N,), predicted sd
     (N,))`` or ``(d, sd, confidence (N,))`` (the lower of the two images' confidences: with ``knots``, the
-    scale is also given per knot, :attr:`StereoRowCheck.by_confidence`); ``o_p`` is each pair's median ``d`` weighted by ``1 / sd^2``; the spread is ``1.4826 MAD`` of ``z`` (the estimator the
-    curves are fitted with, so 1 means agreement in the sense they were fitted).  The same row principle
+    scale is also given per knot, :attr:`StereoRowCheck.by_confidence`); ``o_p`` is each pair's median
+    ``d`` weighted by ``1 / sd^2``; the spread is ``1.4826 MAD`` of ``z`` (the estimator the curves are
+    fitted with, so 1 means agreement in the sense they were fitted).  The same row principle
     gives manual labels their click noise (:mod:`pedx_graph.data.noise_estimate`, absolute per keypoint);
     here it checks a model whose shape (confidence, size, keypoint) is given, so one factor is estimated.
 
