@@ -351,7 +351,8 @@ def markdown(result: dict, command: str) -> str:
              f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene, "
              f"{result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g}, "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}.  "
-             "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
+             "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
+             "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
              "imported with `pedx-graph import` (association, undistortion, confidence -> noise, LiDAR cut) and "
              "fitted with batch LM; manual = the simulated annotators' labels and segments).", "",
              "## Goals (issue 15)", "",
