@@ -368,7 +368,10 @@ def stereo_row_scale(rows: dict[str, tuple[np.ndarray, ...]], min_samples: int =
     conf = np.concatenate(conf) if conf else np.zeros(0)
     if len(z) < max(int(min_samples), 2):
         return StereoRowCheck(scale=None, samples=int(len(z)), applied=1.0, pair_offsets_px=offsets)
-    scale = float(MAD_TO_SIGMA * np.median(np.abs(z)))
+    def spread(values: np.ndarray) -> float:            # about 0: each pair's offset is already removed
+        return float(MAD_TO_SIGMA * np.median(np.abs(values)))
+
+    scale = spread(z)
     bins = []
     if knots is not None and np.isfinite(conf).any():
         knots = np.asarray(knots, dtype=float)
@@ -376,7 +379,6 @@ def stereo_row_scale(rows: dict[str, tuple[np.ndarray, ...]], min_samples: int =
         for i, knot in enumerate(knots):
             sel = (nearest == i) & np.isfinite(conf)
             if sel.sum() >= max(int(min_bin_samples), 2):
-                bins.append({"knot": float(knot), "count": int(sel.sum()),
-                             "scale": float(MAD_TO_SIGMA * np.median(np.abs(z[sel])))})
+                bins.append({"knot": float(knot), "count": int(sel.sum()), "scale": spread(z[sel])})
     return StereoRowCheck(scale=scale, samples=int(len(z)), applied=max(1.0, scale), pair_offsets_px=offsets,
                           by_confidence=bins)
