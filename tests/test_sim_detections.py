@@ -117,3 +117,49 @@ def test_same_seed_same_bytes_and_off_by_default(tmp_path, scene):
     plain = small_scene(tmp_path / "plain", pedestrians=2, frames=2, seed=5)
     assert not (plain / "detections").exists()
     assert all(c.left_raw is None for c in read_calibrations(plain / "calib").values())
+
+
+def _row_errors(root) -> tuple[np.ndarray, np.ndarray]:
+    """Rectified row errors (detection - true projection) of every keypoint a labelled person's detections
+    hold in both images of a pair at one frame (confidence > 0.5): (left, right)."""
+    seq = json.loads((root / "truth" / "meta.json").read_text())["sequence"]
+    calibs = read_calibrations(root / "calib")
+    truth = read_smpl_labels(root)
+    model = BodyModel.load().for_keypoint_set("body25")
+    dets = _read(root, "openpose_body25", seq)
+    records = read_detection_truth(root, seq, "openpose_body25")
+    errors = {}
+    for det in dets:
+        record = detection_truth(det, records)
+        labels = {lab.frame: lab for lab in truth.get((seq, record.get("tracking_id")), [])}
+        if record["kind"] != "person" or det.frame not in labels:
+            continue
+        lab = labels[det.frame]
+        calib, side = find_camera(calibs, det.camera)
+        expected = calib.project(model.keypoints(lab.pose, lab.betas, lab.trans))[0 if side == "left" else 1]
+        err = np.where(det.confidence > 0.5, rectified(det, calibs)[:, 1] - expected[:, 1], np.nan)
+        errors[(calib.name, det.frame, record["tracking_id"], side)] = err
+    left, right = [], []
+    for (pair, frame, tid, side), err in errors.items():
+        if side == "left" and (pair, frame, tid, "right") in errors:
+            both = np.isfinite(err) & np.isfinite(errors[(pair, frame, tid, "right")])
+            left.append(err[both])
+            right.append(errors[(pair, frame, tid, "right")][both])
+    return np.concatenate(left), np.concatenate(right)
+
+
+def test_a_detector_error_shared_by_the_cameras_cancels_in_the_stereo_rows(tmp_path, scene):
+    """``stereo_shared_noise`` 1: a keypoint's noise is the same offset in both images, so its row errors
+    agree between left and right (what the import's stereo-row noise check cannot see); by default the two
+    images' errors are independent."""
+    cfg = _config()
+    cfg.detections.formats = ("openpose_body25",)
+    cfg.detections.stereo_shared_noise = 1.0
+    cfg.detections.keypoint_noise.outlier_prob = 0.0
+    cfg.detections.keypoint_noise.swap_prob = 0.0
+    shared = small_scene(tmp_path / "shared", pedestrians=6, frames=8, seed=5, config=cfg)
+    for root, correlated in ((shared, True), (scene, False)):
+        left, right = _row_errors(root)
+        assert len(left) > 60, (root, len(left))
+        r = np.corrcoef(left, right)[0, 1]
+        assert (r > 0.8) if correlated else (abs(r) < 0.3), (root, r)

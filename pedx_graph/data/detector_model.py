@@ -81,19 +81,25 @@ def corrupt_keypoints(uv0: np.ndarray, labelled: np.ndarray, visible: np.ndarray
                       box: tuple[np.ndarray, np.ndarray], config: DetectorNoiseConfig,
                       rng: np.random.Generator, image_size: tuple[int, int],
                       swap_index: tuple[tuple[int, int], ...] | None = None,
-                      sigma_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      sigma_scale: np.ndarray | None = None, shared_unit: np.ndarray | None = None,
+                      shared_fraction: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Detector keypoints of one instance in one image.
 
     ``uv0`` (K, 2) noise-free (or clean) pixels, ``labelled`` / ``visible`` (K,) bool, ``box`` (lo, hi)
     the instance's pixel box.  Returns ((K, 2) pixels with NaN = not detected, (K,) visible flags).
     K = 18 (PEDX_KEYPOINTS) unless another keypoint set is given by ``swap_index`` (its left/right index
-    pairs) and ``sigma_scale`` ((K,) factor on each keypoint's noise; None = 1).
+    pairs) and ``sigma_scale`` ((K,) factor on each keypoint's noise; None = 1).  ``shared_unit`` (K, 2)
+    standard-normal draws common to several images of the instance, of which ``shared_fraction`` of the
+    noise variance is made (the same offset in every image that uses them: an error a detector makes alike
+    from several viewpoints); None or 0: each image's own draws only.
     Draws are made for every joint in a fixed order whatever the flags (reproducible from the seed).
     """
     n = len(uv0)
     if swap_index is None:
         swap_index = tuple((_IDX[a], _IDX[b]) for a, b in SWAP_PAIRS)
     unit = rng.normal(size=(n, 2))
+    if shared_unit is not None and shared_fraction > 0:
+        unit = np.sqrt(1.0 - shared_fraction) * unit + np.sqrt(shared_fraction) * np.asarray(shared_unit)
     miss_draw = rng.random(n)
     swap_draw = rng.random(len(swap_index))
     outlier_draw = rng.random(n)

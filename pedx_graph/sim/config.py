@@ -338,6 +338,11 @@ class DetectorOutputConfig:
     """Confidence is scaled by ``h / (h + this)``, ``h`` the person's image height in pixels."""
     confidence_noise: float = 0.06
     """Std. dev. of the noise added to every confidence."""
+    stereo_shared_noise: float = 0.0
+    """Fraction of a keypoint's noise variance that is the same offset in every image of the person at that
+    frame (a detector placing a point alike from several cameras: its own idea of a hip, a hidden wrist guessed
+    the same way); 0 = each image's noise its own.  Such an error cancels in the stereo rows the import checks
+    its noise model against (``pedx_graph.detections.noise.stereo_row_scale``)."""
     distortion_k1: tuple[float, float] = (-0.12, -0.03)
     """Range of the first radial coefficient ``k1`` drawn per camera (barrel distortion)."""
     distortion_k2: tuple[float, float] = (0.0, 0.04)
@@ -430,6 +435,7 @@ class SimConfig:
             ("detections.confidence_error_sigmas", det.confidence_error_sigmas > 0),
             ("detections.confidence_half_height_px", det.confidence_half_height_px >= 0),
             ("detections.confidence_noise", 0 <= det.confidence_noise <= 1),
+            ("detections.stereo_shared_noise", 0 <= det.stereo_shared_noise <= 1),
             ("detections.distortion_k1", len(det.distortion_k1) == 2 and -0.5 <= min(det.distortion_k1)
              and max(det.distortion_k1) <= 0.5 and det.distortion_k1[0] <= det.distortion_k1[1]),
             ("detections.distortion_k2", len(det.distortion_k2) == 2 and -0.5 <= min(det.distortion_k2)

@@ -14,8 +14,9 @@ the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are
   renamed PedX point), projected exactly into the rectified image, distorted into the raw image
   (:func:`pedx_graph.detections.undistort.distort`), then corrupted by the detector model of
   :mod:`pedx_graph.eval.detector_noise` (:func:`~pedx_graph.eval.detector_noise.corrupt_keypoints`: noise
-  growing with the person's image height, per-keypoint factors, misses, left/right swaps, outliers); points
-  outside the raw image are absent;
+  growing with the person's image height, per-keypoint factors, misses, left/right swaps, outliers; with
+  ``stereo_shared_noise`` part of the noise is one offset in every camera, as an error a real detector makes
+  alike from several viewpoints); points outside the raw image are absent;
 * confidence per keypoint: ``c = c0 * h / (h + h_half) * exp(-e^2 / 2) + N(0, s^2)`` clipped to [0.02, 1],
   ``c0`` = ``confidence_visible`` or ``confidence_occluded``, ``e`` = the keypoint's pixel error divided by
   ``confidence_error_sigmas`` times its noise sigma — confidence falls with the error and with occlusion;
@@ -177,8 +178,10 @@ def _confidence(error_px: np.ndarray, sigma_px: np.ndarray, visible: np.ndarray,
 
 def _person_detection(raw_uv: np.ndarray, visible: np.ndarray, present: np.ndarray, raw: RawCamera,
                       image_size: tuple[int, int], set_name: str, config: DetectorOutputConfig,
-                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(K, 2) raw pixels (NaN = absent) and (K,) confidences of one detected person."""
+                      rng: np.random.Generator, shared_unit: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 2) raw pixels (NaN = absent) and (K,) confidences of one detected person; ``shared_unit``: the
+    person's draws common to every camera (``DetectorOutputConfig.stereo_shared_noise``)."""
     noise = config.keypoint_noise
     ok = present & np.all(np.isfinite(raw_uv), axis=1)
     pts = raw_uv[ok]
@@ -187,7 +190,8 @@ def _person_detection(raw_uv: np.ndarray, visible: np.ndarray, present: np.ndarr
     scale = sigma_scale(set_name)
     uv0 = np.where(ok[:, None], raw_uv, 0.0)
     uv, _ = corrupt_keypoints(uv0, ok, visible & ok, height, box, noise, rng, image_size,
-                              swap_index=mirror_index(load_keypoint_set(set_name).keypoints), sigma_scale=scale)
+                              swap_index=mirror_index(load_keypoint_set(set_name).keypoints), sigma_scale=scale,
+                              shared_unit=shared_unit, shared_fraction=config.stereo_shared_noise)
     sigma = np.hypot(noise.sigma_px, noise.sigma_height_frac * height) * scale
     sigma = np.where(visible, sigma, sigma * noise.occluded_sigma_factor)
     error = np.linalg.norm(np.where(np.isfinite(uv), uv - uv0, 0.0), axis=1)
@@ -251,7 +255,7 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                 raw = calib.left_raw if view.side == "left" else calib.right_raw
                 size = calib.image_size
                 people_uv = []
-                for person in present_people:
+                for p_index, person in enumerate(present_people):
                     tid = person.tracking_id
                     rect_uv, depth = view.project(set_points[tid])
                     in_image = view.in_image(rect_uv) & (depth > 0.5)
@@ -266,7 +270,12 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                     if draws[0] < det_cfg.person_miss_prob + det_cfg.occluded_miss_prob * occluded_frac:
                         continue
                     raw_uv = _distort(rect_uv, raw)
-                    uv, conf = _person_detection(raw_uv, visible, in_image, raw, size, set_name, det_cfg, rng)
+                    shared = None
+                    if det_cfg.stereo_shared_noise > 0:      # the same draws in every camera (own generator)
+                        shared = np.random.default_rng([int(ctx.seed), 7, int(k), f_index, p_index]).normal(
+                            size=(len(raw_uv), 2))
+                    uv, conf = _person_detection(raw_uv, visible, in_image, raw, size, set_name, det_cfg, rng,
+                                                 shared)
                     if not (conf > 0).any():
                         continue
                     people_uv.append((uv, conf, {"kind": "person", "tracking_id": tid, "labelled": tid in labelled}))
