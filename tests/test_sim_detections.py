@@ -75,25 +75,33 @@ def test_calibration_has_a_raw_model_per_camera(scene):
     assert all(c[0] < 0 for c in coefficients)
 
 
-def test_undistorted_keypoints_land_on_the_rectified_projection(scene):
-    """Raw pixels differ from the rectified projection of the format's own body points (distortion); once
-    undistorted and rectified they agree to the detector noise."""
-    seq = json.loads((scene / "truth" / "meta.json").read_text())["sequence"]
-    calibs = read_calibrations(scene / "calib")
-    truth = read_smpl_labels(scene)
+def _labelled_detections(root):
+    """``(detection, its truth record, pair calibration, side, (K, 2) rectified true projection)`` of every
+    OpenPose BODY_25 detection of a labelled person at a labelled frame, and the pairs' calibrations."""
+    seq = json.loads((root / "truth" / "meta.json").read_text())["sequence"]
+    calibs = read_calibrations(root / "calib")
+    truth = read_smpl_labels(root)
     model = BodyModel.load().for_keypoint_set("body25")
-    dets = _read(scene, "openpose_body25", seq)
-    records = read_detection_truth(scene, seq, "openpose_body25")
-    raw_err, rect_err = [], []
-    for det in dets:
+    records = read_detection_truth(root, seq, "openpose_body25")
+    out = []
+    for det in _read(root, "openpose_body25", seq):
         record = detection_truth(det, records)
         labels = {lab.frame: lab for lab in truth.get((seq, record.get("tracking_id")), [])}
         if record["kind"] != "person" or det.frame not in labels:
             continue
         lab = labels[det.frame]
         calib, side = find_camera(calibs, det.camera)
-        left_uv, right_uv = calib.project(model.keypoints(lab.pose, lab.betas, lab.trans))
-        expected = left_uv if side == "left" else right_uv
+        expected = calib.project(model.keypoints(lab.pose, lab.betas, lab.trans))[0 if side == "left" else 1]
+        out.append((det, record, calib, side, expected))
+    return out, calibs
+
+
+def test_undistorted_keypoints_land_on_the_rectified_projection(scene):
+    """Raw pixels differ from the rectified projection of the format's own body points (distortion); once
+    undistorted and rectified they agree to the detector noise."""
+    found, calibs = _labelled_detections(scene)
+    raw_err, rect_err = [], []
+    for det, _, _, _, expected in found:
         ok = det.confidence > 0.5
         raw_err.append(np.linalg.norm(det.image_uv[ok] - expected[ok], axis=1))
         rect_err.append(np.linalg.norm(rectified(det, calibs)[ok] - expected[ok], axis=1))
@@ -122,21 +130,9 @@ def test_same_seed_same_bytes_and_off_by_default(tmp_path, scene):
 def _row_errors(root) -> tuple[np.ndarray, np.ndarray]:
     """Rectified row errors (detection - true projection) of every keypoint a labelled person's detections
     hold in both images of a pair at one frame (confidence > 0.5): (left, right)."""
-    seq = json.loads((root / "truth" / "meta.json").read_text())["sequence"]
-    calibs = read_calibrations(root / "calib")
-    truth = read_smpl_labels(root)
-    model = BodyModel.load().for_keypoint_set("body25")
-    dets = _read(root, "openpose_body25", seq)
-    records = read_detection_truth(root, seq, "openpose_body25")
+    found, calibs = _labelled_detections(root)
     errors = {}
-    for det in dets:
-        record = detection_truth(det, records)
-        labels = {lab.frame: lab for lab in truth.get((seq, record.get("tracking_id")), [])}
-        if record["kind"] != "person" or det.frame not in labels:
-            continue
-        lab = labels[det.frame]
-        calib, side = find_camera(calibs, det.camera)
-        expected = calib.project(model.keypoints(lab.pose, lab.betas, lab.trans))[0 if side == "left" else 1]
+    for det, record, calib, side, expected in found:
         err = np.where(det.confidence > 0.5, rectified(det, calibs)[:, 1] - expected[:, 1], np.nan)
         errors[(calib.name, det.frame, record["tracking_id"], side)] = err
     left, right = [], []
