@@ -1121,49 +1121,66 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
-    ``gate_sigmas^2``; repeated until no exchange helps.  Returns the tracks (each in frame order)."""
+    ``gate_sigmas^2``; repeated until no exchange helps (a pair's best exchange depends on its two tracks
+    only: it is searched again only when one of them changed).  Returns the tracks (each in frame order)."""
     gate = config.gate_sigmas
     tracks = [list(t) for t in tracks]
     memo: dict = {}
+    series: dict[str, dict[int, tuple]] = {"left": {}, "right": {}}
+    offers: dict[tuple[int, int], tuple | None] = {}    # (a, b) -> the pair's best exchange, while both are unchanged
+
+    def best_exchange(a: int, b: int) -> tuple | None:
+        """The exchange of tracks ``a`` and ``b`` with the largest gain above ``gate^2`` (the first such
+        ``tau`` on ties), as ``(gain, new_a, new_b)``, or None: depends on the two tracks only."""
+        # compared in the image where both are seen most
+        side = max(("left", "right"), key=lambda sd: min(len(series[sd][a][0]), len(series[sd][b][0])))
+        fa, ua = series[side][a][:2]
+        fb, ub = series[side][b][:2]
+        if len(fa) < 2 or len(fb) < 2:
+            return None
+        heights = [o.height_px(side) for o in tracks[a] + tracks[b] for side in o.uv]
+        near = (np.abs(fa[:, None] - fb[None, :]) <= 2) & \
+            (np.abs(ua[:, None] - ub[None, :]) <= 0.5 * max(np.median(heights), 1.0))
+        if not near.any():
+            return None
+        lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
+        hidden = _overlapping_frames(tracks[a], tracks[b])
+
+        def cost_of(track):
+            frames, u, sigma, depth, depth_sigma, px_per_m = _image_track(track, calib, config, side, hidden, memo)
+            return _walk_cost(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)
+
+        now = cost_of(tracks[a]) + cost_of(tracks[b])
+        found = None
+        for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1}):
+            new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
+            new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
+            if not new_a or not new_b:          # tracks apart in time: that would join them
+                continue
+            gain = now - (cost_of(new_a) + cost_of(new_b))
+            if gain > gate ** 2 and (found is None or gain > found[0]):
+                found = (gain, new_a, new_b)
+        return found
+
+    changed = set(range(len(tracks)))
     for _ in range(2 * len(tracks)):
-        best = None
-        series = {side: [_image_track(t, calib, config, side, memo=memo) for t in tracks] for side in ("left", "right")}
+        for side in ("left", "right"):
+            for k in changed:
+                series[side][k] = _image_track(tracks[k], calib, config, side, memo=memo)
         for a in range(len(tracks)):
             for b in range(a + 1, len(tracks)):
-                # compared in the image where both are seen most
-                side = max(("left", "right"), key=lambda sd: min(len(series[sd][a][0]), len(series[sd][b][0])))
-                fa, ua = series[side][a][:2]
-                fb, ub = series[side][b][:2]
-                if len(fa) < 2 or len(fb) < 2:
-                    continue
-                heights = [o.height_px(side) for o in tracks[a] + tracks[b] for side in o.uv]
-                near = (np.abs(fa[:, None] - fb[None, :]) <= 2) & \
-                    (np.abs(ua[:, None] - ub[None, :]) <= 0.5 * max(np.median(heights), 1.0))
-                if not near.any():
-                    continue
-                lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
-                hidden = _overlapping_frames(tracks[a], tracks[b])
-
-                def cost_of(track):
-                    frames, u, sigma, depth, depth_sigma, px_per_m = _image_track(track, calib, config, side,
-                                                                                  hidden, memo)
-                    return _walk_cost(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth,
-                                      depth_sigma)
-
-                now = cost_of(tracks[a]) + cost_of(tracks[b])
-                for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1}):
-                    new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
-                    new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
-                    if not new_a or not new_b:          # tracks apart in time: that would join them
-                        continue
-                    cost = cost_of(new_a) + cost_of(new_b)
-                    gain = now - cost
-                    if gain > gate ** 2 and (best is None or gain > best[0]):
-                        best = (gain, a, b, new_a, new_b)
+                if a in changed or b in changed:
+                    offers[(a, b)] = best_exchange(a, b)
+        best = None                         # the largest gain; the first pair in (a, b) order on ties
+        for key in sorted(offers):
+            offer = offers[key]
+            if offer is not None and (best is None or offer[0] > best[0][0]):
+                best = (offer, key)
         if best is None:
             break
-        _, a, b, new_a, new_b = best
+        (_, new_a, new_b), (a, b) = best
         tracks[a], tracks[b] = new_a, new_b
+        changed = {a, b}
     return tracks
 
 
