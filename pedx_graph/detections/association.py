@@ -1027,6 +1027,23 @@ def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: 
             float(np.hypot(centre_sigma, config.swap_motion_m)))
 
 
+def _normal_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(m, k) least-squares coefficients of ``b`` (n,) by the columns of each of ``a`` (m, n, k), from the
+    normal equations (regularised by 1e-12): written out for one and two columns (the walk's fits), which
+    is where the association spends its time."""
+    k = a.shape[2]
+    if k == 1:
+        return (np.sum(a[:, :, 0] * b, axis=1) / (np.sum(a[:, :, 0] ** 2, axis=1) + 1e-12))[:, None]
+    if k == 2:
+        a0, a1 = a[:, :, 0], a[:, :, 1]
+        s00, s01, s11 = np.sum(a0 * a0, axis=1) + 1e-12, np.sum(a0 * a1, axis=1), np.sum(a1 * a1, axis=1) + 1e-12
+        r0, r1 = a0 @ b, a1 @ b
+        det = s00 * s11 - s01 * s01
+        return np.stack([(s11 * r0 - s01 * r1) / det, (s00 * r1 - s01 * r0) / det], axis=1)
+    normal = np.einsum("mni,mnj->mij", a, a) + 1e-12 * np.eye(k)
+    return np.linalg.solve(normal, np.einsum("mni,n->mi", a, b)[:, :, None])[:, :, 0]
+
+
 def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float) -> np.ndarray:
     """Sums of ``min(z^2, gate^2)`` of the normalised residuals of weighted least-squares fits of ``y`` (n,)
     with standard deviations ``sigma`` (n,) by the columns of each of ``design`` (m, n, k) (one fit per model),
@@ -1038,8 +1055,7 @@ def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: floa
     z = np.zeros(design.shape[:2])
     for _ in range(3):
         ak = a * keep[:, :, None]
-        normal = np.einsum("mni,mnj->mij", ak, ak) + 1e-12 * np.eye(design.shape[2])
-        coef = np.linalg.solve(normal, np.einsum("mni,n->mi", ak, b)[:, :, None])[:, :, 0]
+        coef = _normal_solve(ak, b)
         z = b[None, :] - np.einsum("mni,mi->mn", a, coef)
         new_keep = np.abs(z) <= gate
         enough = new_keep.sum(axis=1) >= design.shape[2]
