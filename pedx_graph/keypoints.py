@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 #: The 18 PedX keypoint names, in the order used everywhere in this package (pedx-format notes).
 PEDX_KEYPOINTS: tuple[str, ...] = (
     "nose", "leye", "reye", "head", "mouth", "neck",
@@ -85,3 +87,18 @@ def load_keypoint_set(name: str) -> KeypointSet:
     return KeypointSet(name=doc["name"], keypoints=tuple(doc["keypoints"]),
                        pedx_equivalent=dict(doc["pedx_equivalent"]), definitions=doc["definitions"],
                        description=doc.get("description", ""))
+
+
+#: Parts of keypoint names that belong to the hips and legs (every shipped set's naming).
+_LOWER_BODY_NAMES = ("hip", "knee", "ank", "toe", "heel")
+
+
+@lru_cache(maxsize=None)
+def _lower_body_tuple(name: str) -> tuple[bool, ...]:
+    return tuple(any(part in k.lower() for part in _LOWER_BODY_NAMES) for k in load_keypoint_set(name).keypoints)
+
+
+def lower_body_mask(name: str) -> np.ndarray:
+    """(K,) bool: the keypoints of set ``name`` on the hips and legs (hips, knees, ankles, heels, toes); the
+    others are the upper body (head, neck, shoulders, arms)."""
+    return np.array(_lower_body_tuple(name), dtype=bool)

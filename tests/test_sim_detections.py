@@ -16,6 +16,7 @@ from pedx_graph.detections.coco import read_coco
 from pedx_graph.detections.evaluate import detection_truth, read_detection_truth
 from pedx_graph.detections.openpose import read_openpose
 from pedx_graph.detections.undistort import find_camera, rectified
+from pedx_graph.keypoints import lower_body_mask
 from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig
 from pedx_graph.sim.detections import coco_paths, mirror_index
 from scene_fixtures import small_scene, tree_digest
@@ -159,3 +160,43 @@ def test_a_detector_error_shared_by_the_cameras_cancels_in_the_stereo_rows(tmp_p
         assert len(left) > 60, (root, len(left))
         r = np.corrcoef(left, right)[0, 1]
         assert (r > 0.8) if correlated else (abs(r) < 0.3), (root, r)
+
+
+def _people_by_image(root, fmt, seq) -> dict[tuple, list[tuple[str, np.ndarray]]]:
+    """(camera, frame, tracking id) -> [(truth kind, (K, 2) raw pixels)] of the person and part records."""
+    records = read_detection_truth(root, seq, fmt)
+    out: dict[tuple, list] = {}
+    for det in _read(root, fmt, seq):
+        record = detection_truth(det, records)
+        if record["kind"] in ("person", "part"):
+            out.setdefault((det.camera, det.frame, record["tracking_id"]), []).append((record["kind"], det.image_uv))
+    return out
+
+
+def test_a_split_person_is_its_upper_body_and_its_legs_in_the_openpose_files_only(tmp_path, scene):
+    """``split_prob`` 1: every OpenPose person becomes two people, the upper body and the hips and legs, whose
+    keypoints together are exactly the whole detection of the same seed without splits; COCO files (top-down
+    detectors) are unchanged."""
+    cfg = _config()
+    cfg.detections.split_prob = 1.0
+    split = small_scene(tmp_path / "split", pedestrians=6, frames=4, seed=5, config=cfg)
+    seq = json.loads((scene / "truth" / "meta.json").read_text())["sequence"]
+    for fmt in ("openpose_body25", "openpose_body25b"):
+        lower = lower_body_mask(DETECTOR_FORMATS[fmt])
+        whole, parts = _people_by_image(scene, fmt, seq), _people_by_image(split, fmt, seq)
+        assert set(whole) == set(parts) and len(whole) > 10
+        for key, [(kind, uv)] in whole.items():
+            assert kind == "person"
+            assert {k for k, _ in parts[key]} == {"part"} and 1 <= len(parts[key]) <= 2
+            joined = np.full_like(uv, np.nan)
+            for _, part_uv in parts[key]:
+                present = np.all(np.isfinite(part_uv), axis=1)
+                assert present.sum() >= 2 and (np.all(lower[present]) or not np.any(lower[present]))
+                assert not np.any(np.isfinite(joined[present]))       # the parts share no keypoint
+                joined[present] = part_uv[present]
+            present = np.all(np.isfinite(uv), axis=1)
+            missing = present & ~np.all(np.isfinite(joined), axis=1)  # only a part with < 2 keypoints is left out
+            assert missing.sum() <= 1
+            np.testing.assert_array_equal(joined[present & ~missing], uv[present & ~missing])
+    digest = {k: v for k, v in tree_digest(scene).items() if k.startswith("detections/coco")}
+    assert digest == {k: v for k, v in tree_digest(split).items() if k.startswith("detections/coco")}

@@ -206,3 +206,21 @@ def _build_named(names: tuple[str, ...], entries: dict, num_joints: int, source:
             joint_coeffs[k, j] += c
     return KeypointMap(names=tuple(names), vertex_ids=np.array(used, dtype=np.int64),
                        vertex_coeffs=vertex_coeffs, joint_coeffs=joint_coeffs, source=source)
+
+
+#: Shoulder joints' rotations (axis-angle, SMPL joints 16 / 17) that bring the rest pose's arms down.
+_ARMS_DOWN = {16: (0.0, 0.0, -1.1), 17: (0.0, 0.0, 1.1)}
+
+
+def standing_keypoints_2d(body_model, set_name: str) -> np.ndarray:
+    """(K, 2) the keypoints of set ``set_name`` on ``body_model`` standing with its arms down (mean shape),
+    seen from the front: image-like coordinates (``v`` down), ``u`` centred, unit height (``v`` from 0 at
+    the top keypoint to 1 at the bottom one)."""
+    pose = np.zeros(72)
+    for joint, rotvec in _ARMS_DOWN.items():
+        pose[3 * joint:3 * joint + 3] = rotvec
+    model = body_model.for_keypoint_set(set_name)
+    body_p = np.asarray(model.forward(pose, np.zeros(model.num_betas)).keypoints, dtype=float)
+    uv = np.stack([-body_p[:, 0], -body_p[:, 1]], axis=1)
+    uv -= [uv[:, 0].mean(), uv[:, 1].min()]
+    return uv / max(np.ptp(uv[:, 1]), 1e-6)

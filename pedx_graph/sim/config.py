@@ -327,6 +327,10 @@ class DetectorOutputConfig:
     fragment_prob: float = 0.05
     """Probability that a detected person also yields a second, partial detection (its legs or its upper
     body, slightly off): the bystander-like clutter of bottom-up detectors."""
+    split_prob: float = 0.0
+    """OpenPose formats only: probability that a detected person's skeleton is broken in two by the
+    bottom-up grouping, written as two people — the upper body (head, neck, arms) and the hips and legs
+    (truth kind ``part``); 0 = never (top-down detectors, COCO, crop one box per person and do not split)."""
     confidence_visible: float = 0.9
     """Confidence of a visible keypoint detected exactly on a large person."""
     confidence_occluded: float = 0.45

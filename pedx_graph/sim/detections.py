@@ -22,6 +22,8 @@ the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are
   ``confidence_error_sigmas`` times its noise sigma — confidence falls with the error and with occlusion;
 * false positives: a Poisson number (mean ``clutter_per_image``) of skeletons at random places and sizes, and
   with probability ``fragment_prob`` per detected person a partial duplicate of it (legs or upper body);
+* OpenPose formats, with ``split_prob`` > 0: a person's skeleton broken in two by the bottom-up grouping, its
+  upper body and its hips and legs written as two people (no whole detection of it in that image);
 * the detection score is the mean confidence of its present keypoints.
 
 Written files (``<image>`` = ``<seq>_<cam>_<frame:07d>``, the release's image name)::
@@ -32,7 +34,8 @@ Written files (``<image>`` = ``<seq>_<cam>_<frame:07d>``, the release's image na
     truth/detections/<seq>/<format>.json                            per image, per written person: what it is
 
 The truth record of each written detection: ``{"camera", "frame", "index", "kind"}`` with kind ``person``
-(plus ``tracking_id`` and ``labelled``: the person has 2D labels at that frame), ``fragment`` (plus the
+(plus ``tracking_id`` and ``labelled``: the person has 2D labels at that frame), ``part`` (one of the two
+pieces of a split person: the same fields), ``fragment`` (plus the
 ``tracking_id`` it came from) or ``clutter``.  Every draw comes from a generator seeded by ``(seed, frame,
 format)`` (distortion: ``(seed, camera)``): files are byte-identical for a seed, whatever the worker count.
 """
@@ -40,11 +43,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import zlib
 from pathlib import Path
 
 import numpy as np
 
-from pedx_graph.body.keypoint_defs import load_keypoint_set
+from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
+from pedx_graph.keypoints import lower_body_mask
 from pedx_graph.data.detector_model import corrupt_keypoints
 from pedx_graph.data.types import RawCamera, StereoCalibration
 from pedx_graph.sim import cameras
@@ -57,10 +62,6 @@ from pedx_graph.utils import atomic_write_bytes
 #: in hair.
 EXTRA_SIGMA_SCALE: dict[str, float] = {"hip": 5.9 / 3.0, "neck": 1.0, "ear": 0.7, "toe": 1.0, "heel": 1.0,
                                        "head": 1.3}
-
-#: SMPL pose of the clutter template: shoulders (joints 16, 17) turned down about the body's forward axis.
-_ARMS_DOWN = {16: (0.0, 0.0, -1.1), 17: (0.0, 0.0, 1.1)}
-
 
 def image_name(sequence: str, camera: str, frame: int) -> str:
     """The release's image name ``<seq>_<cam>_<frame:07d>`` (no extension)."""
@@ -145,15 +146,9 @@ def sigma_scale(set_name: str) -> np.ndarray:
 
 
 def clutter_template(body_model, set_name: str) -> np.ndarray:
-    """(K, 2) a standing person's keypoints of the set, front view, unit height (v down, u centred)."""
-    pose = np.zeros(72)
-    for joint, rotvec in _ARMS_DOWN.items():
-        pose[3 * joint:3 * joint + 3] = rotvec
-    model = body_model.for_keypoint_set(set_name)
-    body_p = np.asarray(model.forward(pose, np.zeros(model.num_betas)).keypoints, dtype=float)
-    uv = np.stack([-body_p[:, 0], -body_p[:, 1]], axis=1)
-    uv -= [uv[:, 0].mean(), uv[:, 1].min()]
-    return uv / max(np.ptp(uv[:, 1]), 1e-6)
+    """(K, 2) a standing person's keypoints of the set, front view, unit height (v down, u centred):
+    :func:`~pedx_graph.body.keypoint_defs.standing_keypoints_2d`."""
+    return standing_keypoints_2d(body_model, set_name)
 
 
 # ---------------------------------------------------------------------------------------------- one frame
@@ -219,6 +214,19 @@ def _fragment(uv: np.ndarray, conf: np.ndarray, rng: np.random.Generator) -> tup
     return out_uv, out_conf
 
 
+def _split(uv: np.ndarray, conf: np.ndarray, set_name: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A person's detection broken in two by a bottom-up detector's grouping: the upper body (head, neck,
+    arms) and the hips and legs (:func:`~pedx_graph.keypoints.lower_body_mask`), each a detection
+    of its own; a part with fewer than two keypoints is not written."""
+    lower = lower_body_mask(set_name)
+    out = []
+    for mask in (~lower, lower):
+        part_uv, part_conf = np.where(mask[:, None], uv, np.nan), np.where(mask, conf, 0.0)
+        if (part_conf > 0).sum() >= 2:
+            out.append((part_uv, part_conf))
+    return out
+
+
 def _clutter(template: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator
              ) -> tuple[np.ndarray, np.ndarray]:
     """A false detection: the template at a random place and size, heavily jittered, a random subset kept."""
@@ -278,7 +286,14 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                                                  shared)
                     if not (conf > 0).any():
                         continue
-                    people_uv.append((uv, conf, {"kind": "person", "tracking_id": tid, "labelled": tid in labelled}))
+                    record = {"kind": "person", "tracking_id": tid, "labelled": tid in labelled}
+                    if det_cfg.split_prob > 0 and fmt.startswith("openpose_") and np.random.default_rng(
+                            [int(ctx.seed), 8, int(k), f_index, p_index, zlib.crc32(view.camera.encode())]).random() < det_cfg.split_prob:
+                        # own generator: the other draws (and so the files at split_prob 0) are unchanged
+                        people_uv += [(part_uv, part_conf, {**record, "kind": "part"})
+                                      for part_uv, part_conf in _split(uv, conf, set_name)]
+                    else:
+                        people_uv.append((uv, conf, record))
                     if draws[1] < det_cfg.fragment_prob:
                         f_uv, f_conf = _fragment(uv, conf, rng)
                         if (f_conf > 0).sum() >= 2:
