@@ -63,6 +63,7 @@ from pedx_graph.utils import atomic_write_bytes
 EXTRA_SIGMA_SCALE: dict[str, float] = {"hip": 5.9 / 3.0, "neck": 1.0, "ear": 0.7, "toe": 1.0, "heel": 1.0,
                                        "head": 1.3}
 
+
 def image_name(sequence: str, camera: str, frame: int) -> str:
     """The release's image name ``<seq>_<cam>_<frame:07d>`` (no extension)."""
     return f"{sequence}_{camera}_{int(frame):07d}"
