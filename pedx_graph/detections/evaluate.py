@@ -37,21 +37,34 @@ def read_detection_truth(root: str | Path, sequence: str, fmt: str) -> list[dict
     return json.loads((Path(root) / "truth" / "detections" / sequence / f"{fmt}.json").read_text())
 
 
+def detection_records(det, records: list[dict], index: dict | None = None) -> list[dict]:
+    """The truth records of a detection: one, or one per part of a person the association joined from two
+    (source ``"<upper> + <lower>"``, :func:`pedx_graph.detections.association.join_split_parts`)."""
+    return [_record(det.camera, det.frame, source, records, index) for source in det.source.split(" + ")]
+
+
 def detection_truth(det, records: list[dict], index: dict | None = None) -> dict:
-    """The truth record of a read detection (module docstring); KeyError when it has none."""
-    match = _OPENPOSE_SOURCE.search(det.source)
+    """The truth record of a read detection (module docstring; of a joined one, its upper part's); KeyError
+    when it has none."""
+    return _record(det.camera, det.frame, det.source.split(" + ")[0], records, index)
+
+
+def _record(camera: str, frame: int, source: str, records: list[dict], index: dict | None) -> dict:
+    match = _OPENPOSE_SOURCE.search(source)
     if match:
         if index is None:
             index = {(r["camera"], r["frame"], r["index"]): r for r in records}
-        return index[(det.camera, det.frame, int(match.group(1)))]
-    match = _COCO_SOURCE.search(det.source)
+        return index[(camera, frame, int(match.group(1)))]
+    match = _COCO_SOURCE.search(source)
     if match:
         return records[int(match.group(1))]
-    raise KeyError(f"{det.source}: no truth index in the source")
+    raise KeyError(f"{source}: no truth index in the source")
 
 
 def _who(record: dict) -> str | None:
-    return record["tracking_id"] if record["kind"] == "person" else None
+    """The person a detection is of: a whole detection or one of the two parts of a split one (``part``);
+    None for clutter and fragments."""
+    return record["tracking_id"] if record["kind"] in ("person", "part") else None
 
 
 def frame_owners(track, records: list[dict], index: dict | None = None) -> dict[int, str]:
@@ -63,8 +76,9 @@ def frame_owners(track, records: list[dict], index: dict | None = None) -> dict[
     out: dict[int, str] = {}
     previous = None
     for fr in track.frames:
-        frame_votes = Counter(who for who in (_who(detection_truth(det, records, index))
-                                              for det in fr.detections.values()) if who is not None)
+        frame_votes = Counter(who for who in (_who(record) for det in fr.detections.values()
+                                              for record in detection_records(det, records, index))
+                              if who is not None)
         if not frame_votes:
             continue
         best = max(frame_votes.values())
@@ -94,11 +108,12 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
         for fr in track.frames:
             people = set()
             for det in fr.detections.values():
-                who = _who(detection_truth(det, records, index))
-                votes[who] += 1
-                if who is not None:
-                    people.add(who)
-                    tracks_of[who].add(track.track_id)
+                for record in detection_records(det, records, index):
+                    who = _who(record)
+                    votes[who] += 1
+                    if who is not None:
+                        people.add(who)
+                        tracks_of[who].add(track.track_id)
             if len(people) > 1:
                 mixed_frames += 1               # two people's detections in one frame of one track
         previous = None
