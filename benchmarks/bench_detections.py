@@ -37,12 +37,17 @@ front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair tu
     python benchmarks/bench_detections.py [--seed 0] [--pedestrians 10] [--frames 20] [--workers 2]
                                           [--out benchmarks/results] [--detector-noise-scale 1]
                                           [--no-stereo-noise-check] [--detector-shared-noise 0]
+                                          [--detector-split-prob 0] [--no-join-split-parts]
 
 ``--detector-noise-scale F`` makes the simulated detector F times as noisy as the one the shipped
 confidence -> noise curves were measured on (a real detector is not ours); ``--no-stereo-noise-check``
 imports without the import's check of those curves against the stereo rows
 (``ImportConfig.stereo_noise_check``), to measure what that check does; ``--detector-shared-noise R``
-makes R of the detector's noise variance one offset in every camera, which that check cannot see.
+makes R of the detector's noise variance one offset in every camera, which that check cannot see;
+``--detector-split-prob P`` has the simulated OpenPose detector break a person's skeleton in two (upper body,
+hips and legs: two people in the file) with probability P per detection, as bottom-up grouping does, and
+``--no-join-split-parts`` associates without joining such parts again
+(``AssociationConfig.join_split_parts``), to measure what the joining does.
 
 Writes ``bench_detections.json`` and ``bench_detections.md`` into ``--out``.  Goals (issue 15): detector input
 within 1.5x the manual-label MPJPE at 5-25 m, no identity switch on crossing pedestrians at that range, no
@@ -96,10 +101,11 @@ GOAL_RANGE_M = (5.0, 25.0)
 
 
 def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1.0,
-                  detector_shared_noise: float = 0.0) -> dict[str, SimConfig]:
+                  detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0) -> dict[str, SimConfig]:
     """The two scenes (module docstring), detector output on; the simulated detector's keypoint noise
     (``sigma_px`` and ``sigma_height_frac``) times ``detector_noise_scale``, ``detector_shared_noise`` of its
-    variance the same in every camera (``DetectorOutputConfig.stereo_shared_noise``)."""
+    variance the same in every camera (``DetectorOutputConfig.stereo_shared_noise``), OpenPose skeletons split
+    in two with probability ``detector_split_prob`` (``DetectorOutputConfig.split_prob``)."""
     out = {}
     crossing = SimConfig()
     crossing.scene.crosswalk_prob = 1.0
@@ -121,6 +127,7 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
         cfg.detections.keypoint_noise.sigma_px *= detector_noise_scale
         cfg.detections.keypoint_noise.sigma_height_frac *= detector_noise_scale
         cfg.detections.stereo_shared_noise = detector_shared_noise
+        cfg.detections.split_prob = detector_split_prob
         if SHARED_CMU.is_dir():
             cfg.motion.motion_dir = str(SHARED_CMU)
             cfg.motion.split = "holdout"
@@ -297,7 +304,8 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
         detections = read_format(scene, fmt, seq)
         records = read_detection_truth(scene, seq, fmt)
         t0 = time.perf_counter()
-        tracks = associate(detections, calibs, clouds=clouds, ground=ground_from_calibrations(calibs, seq))
+        tracks = associate(detections, calibs, config=import_config.association if import_config else None,
+                           clouds=clouds, ground=ground_from_calibrations(calibs, seq))
         seconds[f"associate_{fmt}"] = time.perf_counter() - t0
         score = score_tracks(tracks, records, labelled)
         score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"] if a in crossing or b in crossing)
@@ -319,14 +327,16 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
 
 
 def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, detector_noise_scale: float = 1.0,
-        stereo_noise_check: bool = True, detector_shared_noise: float = 0.0) -> dict:
+        stereo_noise_check: bool = True, detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
+        join_split_parts: bool = True) -> dict:
     fit_config = FitConfig()
     fit_config.diagnostics = False
     fit_config.covariances = True
     ctx = _context(fit_config)
     scenes = {}
     import_config = ImportConfig(stereo_noise_check=stereo_noise_check)
-    configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise)
+    import_config.association.join_split_parts = join_split_parts
+    configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob)
     for s, (name, cfg) in enumerate(configs.items()):
         scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx, import_config)
     accuracy = {}
@@ -356,6 +366,8 @@ def markdown(result: dict, command: str) -> str:
              f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene, "
              f"{result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g} "
              f"({result.get('detector_shared_noise', 0.0):g} of its variance shared by the cameras), "
+             f"OpenPose skeletons split in two with probability {result.get('detector_split_prob', 0.0):g} "
+             f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}.  "
              "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
              "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
@@ -426,14 +438,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--detector-shared-noise", type=float, default=0.0,
                         help="fraction of the simulated detector's noise variance that is the same offset in "
                              "every camera (invisible to the stereo-row check)")
+    parser.add_argument("--detector-split-prob", type=float, default=0.0,
+                        help="probability that the simulated OpenPose detector reports a person as two parts "
+                             "(upper body; hips and legs)")
+    parser.add_argument("--no-join-split-parts", action="store_true",
+                        help="associate without joining a person's two parts")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_detections_") as tmp:
         result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp), args.detector_noise_scale,
-                     not args.no_stereo_noise_check, args.detector_shared_noise)
+                     not args.no_stereo_noise_check, args.detector_shared_noise, args.detector_split_prob,
+                     not args.no_join_split_parts)
     result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
-                  detector_shared_noise=args.detector_shared_noise,
+                  detector_shared_noise=args.detector_shared_noise, detector_split_prob=args.detector_split_prob,
+                  join_split_parts=not args.no_join_split_parts,
                   total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command
