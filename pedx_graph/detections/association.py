@@ -147,11 +147,12 @@ class AssociationConfig:
     """Join the two parts of a person a bottom-up detector reported as two people (module docstring, step 2)."""
     join_row_sigma: float = 0.05
     """How far a split person's keypoint rows leave a standing person's (RMS, fraction of the height): the
-    walking limbs' rise and fall, the head's tilt.  Default: the spread measured on the simulator's split
-    detections of CMU walking (median 0.048, 99 % below 0.10)."""
+    walking limbs' rise and fall, the head's tilt.  Default: about the median over one person's two parts
+    split by the simulated detector from CMU walking (benchmarks/results/bench_split_parts.md)."""
     join_column_sigma: float = 0.075
     """How far the median column of a split person's upper part lies from its hips and legs' (fraction of the
-    height): lean, swinging arms, the view.  Default: measured as above (median 0.051, 99 % below 0.22)."""
+    height): lean, swinging arms, the view.  Default: measured as above (its 99th percentile lies within
+    ``gate_sigmas`` of it)."""
     duplicate_frac: float = 0.1
     """Two detections in one image whose shared keypoints lie within this fraction of the larger one's
     height (median distance) are one person: the lower score is dropped."""
