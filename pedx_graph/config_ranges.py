@@ -287,6 +287,8 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.min_confidence": FRACTION,
     "AssociationConfig.min_shared_keypoints": Range(2.0, integer=True),
     "AssociationConfig.duplicate_frac": NON_NEGATIVE,
+    "AssociationConfig.join_row_sigma": POSITIVE,
+    "AssociationConfig.join_column_sigma": POSITIVE,
     "AssociationConfig.border_centre_steps": Range(0.0, integer=True),
     "AssociationConfig.pair_min_run_frames": COUNT,
     "AssociationConfig.feet_tolerance_m": POSITIVE,

@@ -123,6 +123,7 @@ from typing import Mapping
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedx_graph.body import BodyModel
 from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
@@ -341,7 +342,6 @@ def drop_duplicates(items: list[tuple[Detection, np.ndarray]], config: Associati
 def _standing_rows(keypoint_set: str) -> np.ndarray:
     """(K,) rows of a standing person's keypoints of the set, 0 at the top keypoint to 1 at the bottom one
     (the open body model's mean shape, :func:`~pedx_graph.body.keypoint_defs.standing_keypoints_2d`)."""
-    from pedx_graph.body import BodyModel
     return standing_keypoints_2d(BodyModel.load(), keypoint_set)[:, 1]
 
 

@@ -434,6 +434,7 @@ class SimConfig:
             ("detections.min_visible_keypoints", det.min_visible_keypoints >= 1),
             ("detections.clutter_per_image", 0 <= det.clutter_per_image <= 100),
             ("detections.fragment_prob", 0 <= det.fragment_prob <= 1),
+            ("detections.split_prob", 0 <= det.split_prob <= 1),
             ("detections.confidence_visible", 0 < det.confidence_visible <= 1),
             ("detections.confidence_occluded", 0 < det.confidence_occluded <= 1),
             ("detections.confidence_error_sigmas", det.confidence_error_sigmas > 0),
