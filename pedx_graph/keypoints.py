@@ -102,3 +102,30 @@ def lower_body_mask(name: str) -> np.ndarray:
     """(K,) bool: the keypoints of set ``name`` on the hips and legs (hips, knees, ankles, heels, toes); the
     others are the upper body (head, neck, shoulders, arms)."""
     return np.array(_lower_body_tuple(name), dtype=bool)
+
+
+def mirror_index(names: tuple[str, ...]) -> tuple[tuple[int, int], ...]:
+    """Left/right index pairs of a keypoint set, from its names (``LShoulder``/``RShoulder``,
+    ``left_eye``/``right_eye``, ``lsho``/``rsho``)."""
+    index = {n: i for i, n in enumerate(names)}
+    pairs = []
+    for i, name in enumerate(names):
+        mirror = None
+        if name.startswith("left_"):
+            mirror = "right_" + name[5:]
+        elif len(name) > 1 and name[0] == "L" and name[1].isupper():
+            mirror = "R" + name[1:]
+        elif name[0] == "l" and ("r" + name[1:]) in index:
+            mirror = "r" + name[1:]
+        if mirror is not None and mirror in index:
+            pairs.append((i, index[mirror]))
+    return tuple(pairs)
+
+
+def mirror_order(name: str) -> np.ndarray:
+    """(K,) index that swaps every left/right pair of set ``name`` (:func:`mirror_index`), the others in
+    place: ``uv[mirror_order(name)]`` is the detection with the person's left taken for its right."""
+    order = np.arange(len(load_keypoint_set(name).keypoints))
+    for a, b in mirror_index(load_keypoint_set(name).keypoints):
+        order[a], order[b] = b, a
+    return order

@@ -16,7 +16,7 @@ from pedx_graph.detections.coco import read_coco
 from pedx_graph.detections.evaluate import detection_truth, read_detection_truth
 from pedx_graph.detections.openpose import read_openpose
 from pedx_graph.detections.undistort import find_camera, rectified
-from pedx_graph.keypoints import lower_body_mask
+from pedx_graph.keypoints import load_keypoint_set, lower_body_mask
 from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig
 from pedx_graph.sim.detections import coco_paths, mirror_index
 from scene_fixtures import small_scene, tree_digest
@@ -200,3 +200,23 @@ def test_a_split_person_is_its_upper_body_and_its_legs_in_the_openpose_files_onl
             np.testing.assert_array_equal(joined[present & ~missing], uv[present & ~missing])
     digest = {k: v for k, v in tree_digest(scene).items() if k.startswith("detections/coco")}
     assert digest == {k: v for k, v in tree_digest(split).items() if k.startswith("detections/coco")}
+
+
+def test_a_flipped_person_is_the_same_detection_with_left_and_right_swapped_in_every_camera(tmp_path, scene):
+    """``flip_prob`` 1: every person's detection in every format and camera is the one of the same seed with
+    each left/right pair swapped (keypoints and confidences): one draw per person and frame, its own."""
+    cfg = _config()
+    cfg.detections.flip_prob = 1.0
+    flipped = small_scene(tmp_path / "flipped", pedestrians=6, frames=4, seed=5, config=cfg)
+    seq = json.loads((scene / "truth" / "meta.json").read_text())["sequence"]
+    for fmt in FORMATS:
+        names = load_keypoint_set(DETECTOR_FORMATS[fmt]).keypoints
+        order = np.arange(len(names))
+        for a, b in mirror_index(names):
+            order[a], order[b] = b, a
+        whole, mirrored = _people_by_image(scene, fmt, seq), _people_by_image(flipped, fmt, seq)
+        assert set(whole) == set(mirrored) and len(whole) > 10
+        for key, [(kind, uv)] in whole.items():
+            [(kind_flipped, uv_flipped)] = mirrored[key]
+            assert kind == kind_flipped == "person"
+            np.testing.assert_array_equal(uv_flipped, uv[order])

@@ -331,6 +331,10 @@ class DetectorOutputConfig:
     """OpenPose formats only: probability that a detected person's skeleton is broken in two by the
     bottom-up grouping, written as two people — the upper body (head, neck, arms) and the hips and legs
     (truth kind ``part``); 0 = never (top-down detectors, COCO, crop one box per person and do not split)."""
+    flip_prob: float = 0.0
+    """Probability per person and frame that the detector takes the person's left for its right on the whole
+    body (every left/right pair swapped, the confidences with them), in every camera alike (a back view
+    confuses it the same from each viewpoint); 0 = never (per-pair swaps are ``keypoint_noise.swap_prob``)."""
     confidence_visible: float = 0.9
     """Confidence of a visible keypoint detected exactly on a large person."""
     confidence_occluded: float = 0.45
@@ -435,6 +439,7 @@ class SimConfig:
             ("detections.clutter_per_image", 0 <= det.clutter_per_image <= 100),
             ("detections.fragment_prob", 0 <= det.fragment_prob <= 1),
             ("detections.split_prob", 0 <= det.split_prob <= 1),
+            ("detections.flip_prob", 0 <= det.flip_prob <= 1),
             ("detections.confidence_visible", 0 < det.confidence_visible <= 1),
             ("detections.confidence_occluded", 0 < det.confidence_occluded <= 1),
             ("detections.confidence_error_sigmas", det.confidence_error_sigmas > 0),

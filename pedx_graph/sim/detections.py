@@ -22,6 +22,8 @@ the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are
   ``confidence_error_sigmas`` times its noise sigma — confidence falls with the error and with occlusion;
 * false positives: a Poisson number (mean ``clutter_per_image``) of skeletons at random places and sizes, and
   with probability ``fragment_prob`` per detected person a partial duplicate of it (legs or upper body);
+* with ``flip_prob`` > 0, a person's left taken for its right on the whole body at a frame, in every camera
+  alike (truth kind stays ``person``, with ``"flipped": true``);
 * OpenPose formats, with ``split_prob`` > 0: a person's skeleton broken in two by the bottom-up grouping, its
   upper body and its hips and legs written as two people (no whole detection of it in that image);
 * the detection score is the mean confidence of its present keypoints.
@@ -49,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
-from pedx_graph.keypoints import lower_body_mask
+from pedx_graph.keypoints import lower_body_mask, mirror_index, mirror_order  # noqa: F401 (mirror_index: re-exported)
 from pedx_graph.data.detector_model import corrupt_keypoints
 from pedx_graph.data.types import RawCamera, StereoCalibration
 from pedx_graph.sim import cameras
@@ -109,24 +111,6 @@ def raw_cameras(calibs: dict[str, StereoCalibration], config: DetectorOutputConf
 
 
 # ---------------------------------------------------------------------------------------------- keypoint sets
-
-def mirror_index(names: tuple[str, ...]) -> tuple[tuple[int, int], ...]:
-    """Left/right index pairs of a keypoint set, from its names (``LShoulder``/``RShoulder``,
-    ``left_eye``/``right_eye``, ``lsho``/``rsho``)."""
-    index = {n: i for i, n in enumerate(names)}
-    pairs = []
-    for i, name in enumerate(names):
-        mirror = None
-        if name.startswith("left_"):
-            mirror = "right_" + name[5:]
-        elif len(name) > 1 and name[0] == "L" and name[1].isupper():
-            mirror = "R" + name[1:]
-        elif name[0] == "l" and ("r" + name[1:]) in index:
-            mirror = "r" + name[1:]
-        if mirror is not None and mirror in index:
-            pairs.append((i, index[mirror]))
-    return tuple(pairs)
-
 
 def sigma_scale(set_name: str) -> np.ndarray:
     """(K,) noise factor per keypoint of a set: PedX's measured per-keypoint click noise relative to its
@@ -287,7 +271,14 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                                                  shared)
                     if not (conf > 0).any():
                         continue
-                    record = {"kind": "person", "tracking_id": tid, "labelled": tid in labelled}
+                    if det_cfg.flip_prob > 0 and np.random.default_rng(
+                            [int(ctx.seed), 9, int(k), f_index, p_index]).random() < det_cfg.flip_prob:
+                        # own generator, one draw per person and frame: every camera flipped alike
+                        order = mirror_order(set_name)
+                        uv, conf = uv[order], conf[order]
+                        record = {"kind": "person", "tracking_id": tid, "labelled": tid in labelled, "flipped": True}
+                    else:
+                        record = {"kind": "person", "tracking_id": tid, "labelled": tid in labelled}
                     if det_cfg.split_prob > 0 and fmt.startswith("openpose_") and np.random.default_rng(
                             [int(ctx.seed), 8, int(k), f_index, p_index, zlib.crc32(view.camera.encode())]).random() < det_cfg.split_prob:
                         # own generator: the other draws (and so the files at split_prob 0) are unchanged
