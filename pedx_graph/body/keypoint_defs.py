@@ -212,15 +212,21 @@ def _build_named(names: tuple[str, ...], entries: dict, num_joints: int, source:
 _ARMS_DOWN = {16: (0.0, 0.0, -1.1), 17: (0.0, 0.0, 1.1)}
 
 
-def standing_keypoints_2d(body_model, set_name: str) -> np.ndarray:
-    """(K, 2) the keypoints of set ``set_name`` on ``body_model`` standing with its arms down (mean shape),
-    seen from the front: image-like coordinates (``v`` down), ``u`` centred, unit height (``v`` from 0 at
-    the top keypoint to 1 at the bottom one)."""
+def standing_keypoints_3d(body_model, set_name: str) -> np.ndarray:
+    """(K, 3) the keypoints of set ``set_name`` on ``body_model`` standing with its arms down (mean shape), in
+    the model's own frame (SMPL: x the body's left, y up, z forward), metres."""
     pose = np.zeros(72)
     for joint, rotvec in _ARMS_DOWN.items():
         pose[3 * joint:3 * joint + 3] = rotvec
     model = body_model.for_keypoint_set(set_name)
-    body_p = np.asarray(model.forward(pose, np.zeros(model.num_betas)).keypoints, dtype=float)
+    return np.asarray(model.forward(pose, np.zeros(model.num_betas)).keypoints, dtype=float)
+
+
+def standing_keypoints_2d(body_model, set_name: str) -> np.ndarray:
+    """(K, 2) the keypoints of set ``set_name`` on ``body_model`` standing with its arms down (mean shape),
+    seen from the front: image-like coordinates (``v`` down), ``u`` centred, unit height (``v`` from 0 at
+    the top keypoint to 1 at the bottom one)."""
+    body_p = standing_keypoints_3d(body_model, set_name)
     uv = np.stack([-body_p[:, 0], -body_p[:, 1]], axis=1)
     uv -= [uv[:, 0].mean(), uv[:, 1].min()]
     return uv / max(np.ptp(uv[:, 1]), 1e-6)

@@ -31,6 +31,7 @@ from pedx_graph.data.calib import read_calibrations
 from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
+from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.lidar_cut import LidarCutConfig
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.types import Detection
@@ -57,6 +58,9 @@ class ImportConfig:
     """Who is who when the files carry no ids (stereo matching, tracking, merging across pairs)."""
     lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
     """How each person's LiDAR points are cut from the scene clouds."""
+    flips: FlipConfig = field(default_factory=FlipConfig)
+    """A detection whose left and right the detector confused (the whole body), swapped back where the
+    person's walking direction shows it (:mod:`pedx_graph.detections.flips`)."""
     stereo_noise_check: bool = True
     """Check the noise model against the data's own stereo rows (keypoints seen in both images of a pair
     lie on one rectified row; :func:`pedx_graph.detections.noise.stereo_row_scale`) and, where the data show
@@ -217,8 +221,12 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         tracks = tracks_from_ids(people, calibrations, config.association, ground)     # centres for the cut
     else:
         tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground)
-        for track in tracks:
-            people[track.track_id] = {fr.frame: dict(fr.detections) for fr in track.frames}
+    tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
+                                    config.association.keypoint_sigma_frac,
+                                    config.association.tracker.frame_interval_s)
+    if flipped:
+        log.info("%s: %d detections had their left and right swapped back", seq, flipped)
+    people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
     check = stereo_row_scale(stereo_rows(views, calibrations), config.min_stereo_samples,
@@ -240,6 +248,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                                            category="pedestrian", view=view, subtype="detection"))
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
+              "left_right_swapped_back": flipped,
               "uncalibrated_cameras": uncalibrated,
               "stereo_noise_check": check.record() if check is not None else None}
     if len(clouds):
