@@ -38,6 +38,7 @@ front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair tu
                                           [--out benchmarks/results] [--detector-noise-scale 1]
                                           [--no-stereo-noise-check] [--detector-shared-noise 0]
                                           [--detector-split-prob 0] [--no-join-split-parts]
+                                          [--detector-flip-prob 0] [--no-unflip]
 
 ``--detector-noise-scale F`` makes the simulated detector F times as noisy as the one the shipped
 confidence -> noise curves were measured on (a real detector is not ours); ``--no-stereo-noise-check``
@@ -47,7 +48,10 @@ makes R of the detector's noise variance one offset in every camera, which that 
 ``--detector-split-prob P`` has the simulated OpenPose detector break a person's skeleton in two (upper body,
 hips and legs: two people in the file) with probability P per detection, as bottom-up grouping does, and
 ``--no-join-split-parts`` associates without joining such parts again
-(``AssociationConfig.join_split_parts``), to measure what the joining does.
+(``AssociationConfig.join_split_parts``), to measure what the joining does; ``--detector-flip-prob P`` has
+the simulated detector take a person's left for its right on the whole body, in every camera alike, with
+probability P per person and frame (``DetectorOutputConfig.flip_prob``), and ``--no-unflip`` imports without
+swapping such detections back (``ImportConfig.flips``).
 
 Writes ``bench_detections.json`` and ``bench_detections.md`` into ``--out``.  Goals (issue 15): detector input
 within 1.5x the manual-label MPJPE at 5-25 m, no identity switch on crossing pedestrians at that range, no
@@ -75,8 +79,9 @@ from pedx_graph.data.ply import read_ply_points  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.coco import read_coco  # noqa: E402
-from pedx_graph.detections.evaluate import (read_detection_truth, score_tracks,  # noqa: E402
+from pedx_graph.detections.evaluate import (detection_records, read_detection_truth, score_tracks,  # noqa: E402
                                           frame_owners as track_frame_owners)
+from pedx_graph.detections.flips import unflip_tracks  # noqa: E402
 from pedx_graph.detections.importer import ImportConfig, import_detections  # noqa: E402
 from pedx_graph.detections.openpose import read_openpose  # noqa: E402
 from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
@@ -101,11 +106,13 @@ GOAL_RANGE_M = (5.0, 25.0)
 
 
 def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1.0,
-                  detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0) -> dict[str, SimConfig]:
+                  detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
+                  detector_flip_prob: float = 0.0) -> dict[str, SimConfig]:
     """The two scenes (module docstring), detector output on; the simulated detector's keypoint noise
     (``sigma_px`` and ``sigma_height_frac``) times ``detector_noise_scale``, ``detector_shared_noise`` of its
     variance the same in every camera (``DetectorOutputConfig.stereo_shared_noise``), OpenPose skeletons split
-    in two with probability ``detector_split_prob`` (``DetectorOutputConfig.split_prob``)."""
+    in two with probability ``detector_split_prob`` (``DetectorOutputConfig.split_prob``), people's left and
+    right swapped with probability ``detector_flip_prob`` (``DetectorOutputConfig.flip_prob``)."""
     out = {}
     crossing = SimConfig()
     crossing.scene.crosswalk_prob = 1.0
@@ -128,6 +135,7 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
         cfg.detections.keypoint_noise.sigma_height_frac *= detector_noise_scale
         cfg.detections.stereo_shared_noise = detector_shared_noise
         cfg.detections.split_prob = detector_split_prob
+        cfg.detections.flip_prob = detector_flip_prob
         if SHARED_CMU.is_dir():
             cfg.motion.motion_dir = str(SHARED_CMU)
             cfg.motion.split = "holdout"
@@ -276,6 +284,28 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
+def flip_counts(tracks, calibs, ground, import_config: ImportConfig | None, records: list[dict]) -> dict:
+    """How the import's left/right check (``ImportConfig.flips``, run on the association's ``tracks`` as the
+    import runs it) stands to the simulator's whole-body flips (truth records ``"flipped": true``): person
+    detections flipped and swapped back or left so, and not flipped but swapped."""
+    config = import_config or ImportConfig()
+    fixed, _ = unflip_tracks(tracks, calibs, ground, config.flips, config.association.keypoint_sigma_px,
+                             config.association.keypoint_sigma_frac, config.association.tracker.frame_interval_s)
+    index = {(r["camera"], r["frame"], r["index"]): r for r in records}
+    out = {"flipped_swapped_back": 0, "flipped_left": 0, "not_flipped_swapped": 0, "not_flipped_left": 0}
+    for before, after in zip(tracks, fixed):
+        for fr_before, fr_after in zip(before.frames, after.frames):
+            for camera, det in fr_before.detections.items():
+                record = detection_records(det, records, index)[0]
+                if record["kind"] != "person":
+                    continue
+                swapped = fr_after.detections[camera] is not det
+                key = ("flipped_" + ("swapped_back" if swapped else "left")) if record.get("flipped") else \
+                    ("not_flipped_" + ("swapped" if swapped else "left"))
+                out[key] += 1
+    return out
+
+
 def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fit_config: FitConfig, ctx,
               import_config: ImportConfig | None = None) -> dict:
     scene = work / name
@@ -314,6 +344,8 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
         imported = work / f"{name}_{fmt}"
         summary = import_detections(detections, scene, imported, config=import_config)
         score["import_tracks"] = summary["sequences"][seq]["tracks"]
+        score["left_right_swapped_back"] = summary["sequences"][seq].get("left_right_swapped_back")
+        score["flips"] = flip_counts(tracks, calibs, ground_from_calibrations(calibs, seq), import_config, records)
         score["stereo_noise_check"] = summary["sequences"][seq].get("stereo_noise_check")
         dataset = read_dataset(imported) if (imported / "labels").is_dir() else []      # no track found
         t0 = time.perf_counter()
@@ -328,7 +360,7 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
 
 def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, detector_noise_scale: float = 1.0,
         stereo_noise_check: bool = True, detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
-        join_split_parts: bool = True) -> dict:
+        join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = True) -> dict:
     fit_config = FitConfig()
     fit_config.diagnostics = False
     fit_config.covariances = True
@@ -336,7 +368,9 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
     scenes = {}
     import_config = ImportConfig(stereo_noise_check=stereo_noise_check)
     import_config.association.join_split_parts = join_split_parts
-    configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob)
+    import_config.flips.enabled = unflip
+    configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob,
+                            detector_flip_prob)
     for s, (name, cfg) in enumerate(configs.items()):
         scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx, import_config)
     accuracy = {}
@@ -367,7 +401,9 @@ def markdown(result: dict, command: str) -> str:
              f"{result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g} "
              f"({result.get('detector_shared_noise', 0.0):g} of its variance shared by the cameras), "
              f"OpenPose skeletons split in two with probability {result.get('detector_split_prob', 0.0):g} "
-             f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), "
+             f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), left and right "
+             f"swapped on the whole body with probability {result.get('detector_flip_prob', 0.0):g} "
+             f"(swapped back: {'yes' if result.get('unflip', True) else 'no'}), "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}.  "
              "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
              "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
@@ -418,6 +454,14 @@ def markdown(result: dict, command: str) -> str:
         failed = sum(sc["fit_failures"].values())
         lines.append(f"- {name}: tracks fitted {fitted}; failed fits {failed}; seconds "
                      + ", ".join(f"{k} {v:.1f}" for k, v in sc["seconds"].items()))
+    flips = [(name, fmt, a["flips"]) for name, sc in result["scenes"].items()
+             for fmt, a in sc["association"].items() if a.get("flips")]
+    if any(sum(counts.values()) for _, _, counts in flips):
+        lines += ["", "Whole-body left/right flips of person detections in the association's tracks (simulator's "
+                  "truth) and the import's check (`ImportConfig.flips`): flipped -> swapped back / left flipped; "
+                  "not flipped -> swapped:", ""]
+        lines += [f"- {name} {fmt}: {c['flipped_swapped_back']} / {c['flipped_left']}; {c['not_flipped_swapped']} "
+                  f"of {c['not_flipped_swapped'] + c['not_flipped_left']}" for name, fmt, c in flips]
     lines += ["", f"Hardware: {result['hardware']}", ""]
     return "\n".join(lines)
 
@@ -443,16 +487,22 @@ def main(argv: list[str] | None = None) -> int:
                              "(upper body; hips and legs)")
     parser.add_argument("--no-join-split-parts", action="store_true",
                         help="associate without joining a person's two parts")
+    parser.add_argument("--detector-flip-prob", type=float, default=0.0,
+                        help="probability per person and frame that the simulated detector swaps the person's "
+                             "left and right (every camera alike)")
+    parser.add_argument("--no-unflip", action="store_true",
+                        help="import without swapping back detections whose left and right the detector confused")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_detections_") as tmp:
         result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp), args.detector_noise_scale,
                      not args.no_stereo_noise_check, args.detector_shared_noise, args.detector_split_prob,
-                     not args.no_join_split_parts)
+                     not args.no_join_split_parts, args.detector_flip_prob, not args.no_unflip)
     result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
                   detector_shared_noise=args.detector_shared_noise, detector_split_prob=args.detector_split_prob,
-                  join_split_parts=not args.no_join_split_parts,
+                  join_split_parts=not args.no_join_split_parts, detector_flip_prob=args.detector_flip_prob,
+                  unflip=not args.no_unflip,
                   total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command
