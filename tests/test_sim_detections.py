@@ -16,9 +16,9 @@ from pedx_graph.detections.coco import read_coco
 from pedx_graph.detections.evaluate import detection_truth, read_detection_truth
 from pedx_graph.detections.openpose import read_openpose
 from pedx_graph.detections.undistort import find_camera, rectified
-from pedx_graph.keypoints import load_keypoint_set, lower_body_mask
+from pedx_graph.keypoints import load_keypoint_set, lower_body_mask, mirror_index
 from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig
-from pedx_graph.sim.detections import coco_paths, mirror_index
+from pedx_graph.sim.detections import coco_paths
 from scene_fixtures import small_scene, tree_digest
 
 FORMATS = ("openpose_body25", "openpose_body25b", "coco")

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
-from pedx_graph.keypoints import lower_body_mask, mirror_index, mirror_order  # noqa: F401 (mirror_index: re-exported)
+from pedx_graph.keypoints import lower_body_mask, mirror_index, mirror_order
 from pedx_graph.data.detector_model import corrupt_keypoints
 from pedx_graph.data.types import RawCamera, StereoCalibration
 from pedx_graph.sim import cameras
