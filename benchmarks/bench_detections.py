@@ -38,7 +38,7 @@ front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair tu
                                           [--out benchmarks/results] [--detector-noise-scale 1]
                                           [--no-stereo-noise-check] [--detector-shared-noise 0]
                                           [--detector-split-prob 0] [--no-join-split-parts]
-                                          [--detector-flip-prob 0] [--no-unflip]
+                                          [--detector-flip-prob 0] [--unflip]
 
 ``--detector-noise-scale F`` makes the simulated detector F times as noisy as the one the shipped
 confidence -> noise curves were measured on (a real detector is not ours); ``--no-stereo-noise-check``
@@ -50,8 +50,8 @@ hips and legs: two people in the file) with probability P per detection, as bott
 ``--no-join-split-parts`` associates without joining such parts again
 (``AssociationConfig.join_split_parts``), to measure what the joining does; ``--detector-flip-prob P`` has
 the simulated detector take a person's left for its right on the whole body, in every camera alike, with
-probability P per person and frame (``DetectorOutputConfig.flip_prob``), and ``--no-unflip`` imports without
-swapping such detections back (``ImportConfig.flips``).
+probability P per person and frame (``DetectorOutputConfig.flip_prob``), and ``--unflip`` imports with the
+check that swaps such detections back (``ImportConfig.flips``, off by default).
 
 Writes ``bench_detections.json`` and ``bench_detections.md`` into ``--out``.  Goals (issue 15): detector input
 within 1.5x the manual-label MPJPE at 5-25 m, no identity switch on crossing pedestrians at that range, no
@@ -360,7 +360,7 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
 
 def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, detector_noise_scale: float = 1.0,
         stereo_noise_check: bool = True, detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
-        join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = True) -> dict:
+        join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = False) -> dict:
     fit_config = FitConfig()
     fit_config.diagnostics = False
     fit_config.covariances = True
@@ -403,7 +403,7 @@ def markdown(result: dict, command: str) -> str:
              f"OpenPose skeletons split in two with probability {result.get('detector_split_prob', 0.0):g} "
              f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), left and right "
              f"swapped on the whole body with probability {result.get('detector_flip_prob', 0.0):g} "
-             f"(swapped back: {'yes' if result.get('unflip', True) else 'no'}), "
+             f"(swapped back: {'yes' if result.get('unflip', False) else 'no'}), "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}.  "
              "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
              "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
@@ -490,19 +490,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--detector-flip-prob", type=float, default=0.0,
                         help="probability per person and frame that the simulated detector swaps the person's "
                              "left and right (every camera alike)")
-    parser.add_argument("--no-unflip", action="store_true",
-                        help="import without swapping back detections whose left and right the detector confused")
+    parser.add_argument("--unflip", action="store_true",
+                        help="import with the check that swaps back detections whose left and right the detector "
+                             "confused (ImportConfig.flips, off by default)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_detections_") as tmp:
         result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp), args.detector_noise_scale,
                      not args.no_stereo_noise_check, args.detector_shared_noise, args.detector_split_prob,
-                     not args.no_join_split_parts, args.detector_flip_prob, not args.no_unflip)
+                     not args.no_join_split_parts, args.detector_flip_prob, args.unflip)
     result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
                   detector_shared_noise=args.detector_shared_noise, detector_split_prob=args.detector_split_prob,
                   join_split_parts=not args.no_join_split_parts, detector_flip_prob=args.detector_flip_prob,
-                  unflip=not args.no_unflip,
+                  unflip=args.unflip,
                   total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command

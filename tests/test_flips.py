@@ -77,7 +77,7 @@ def test_swapped_detections_of_a_walker_are_swapped_back_the_others_left_alone()
         frames.append(DetectedTrackFrame(frame=k, detections={d.camera: d for d in dets}, world_p=centre,
                                          depth_sigma_m=0.1))
     track = DetectedTrack(track_id="det000001", frames=frames, pairs=(calib.name,))
-    config = FlipConfig()
+    config = FlipConfig(enabled=True)
     [fixed], count = unflip_tracks([track], calibs, _ground(), config, 3.0, 0.015, 0.1)
     assert count == 2 * len(swapped_at)                       # both images of each swapped frame
     order = mirror_order(SET)
@@ -91,5 +91,5 @@ def test_swapped_detections_of_a_walker_are_swapped_back_the_others_left_alone()
         DetectedTrackFrame(frame=fr.frame, detections=fr.detections, world_p=track.frames[0].world_p)
         for fr in track.frames])
     assert unflip_tracks([still], calibs, _ground(), config, 3.0, 0.015, 0.1)[1] == 0
-    # switched off
-    assert unflip_tracks([track], calibs, _ground(), FlipConfig(enabled=False), 3.0, 0.015, 0.1)[1] == 0
+    # switched off (the default)
+    assert unflip_tracks([track], calibs, _ground(), FlipConfig(), 3.0, 0.015, 0.1)[1] == 0

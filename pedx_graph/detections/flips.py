@@ -20,7 +20,7 @@ known to within ``max_direction_deg`` (two standard deviations, from the centres
   person's size, ``Z`` its depth: the torso's twist and sway), the log likelihood ratio of "swapped"
   (``o = -e``) over "as it is" (``o = e``) is ``sum_k -2 o_k . e_k / s_k^2``;
 
-a detection whose ratio exceeds ``min_log_odds`` for the walking direction and for it turned either way by
+(off by default: ``enabled``) a detection whose ratio exceeds ``min_log_odds`` for the walking direction and for it turned either way by
 its uncertainty gets its left and right swapped back (keypoints and
 confidences; :func:`~pedx_graph.keypoints.mirror_order`).  Seen from the side ``e`` is small and nothing is
 decided; a person standing still or walking backwards is not judged either way by the first rule, and the
@@ -50,8 +50,11 @@ _TORSO_NAMES = ("shoulder", "sho", "hip")
 class FlipConfig:
     """When a detection's left and right are swapped back (module docstring)."""
 
-    enabled: bool = True
-    """Swap back the detections whose left and right the detector confused."""
+    enabled: bool = False
+    """Swap back the detections whose left and right the detector confused.  Off by default: on simulated
+    scenes not used while building it (benchmark seeds 3-5, no flips), a few walkers judged against their
+    walking direction over a third of their frames had 5 % of all detections swapped wrongly
+    (docs/detections.md); turn it on for a detector known to flip back views."""
     min_speed_mps: float = 0.4
     """The person's facing is taken from its walking direction only when it walks at least this fast, m/s."""
     velocity_window_frames: int = 3

@@ -60,7 +60,7 @@ class ImportConfig:
     """How each person's LiDAR points are cut from the scene clouds."""
     flips: FlipConfig = field(default_factory=FlipConfig)
     """A detection whose left and right the detector confused (the whole body), swapped back where the
-    person's walking direction shows it (:mod:`pedx_graph.detections.flips`)."""
+    person's walking direction shows it (:mod:`pedx_graph.detections.flips`; off by default)."""
     stereo_noise_check: bool = True
     """Check the noise model against the data's own stereo rows (keypoints seen in both images of a pair
     lie on one rectified row; :func:`pedx_graph.detections.noise.stereo_row_scale`) and, where the data show
