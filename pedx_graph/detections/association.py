@@ -123,8 +123,7 @@ from typing import Mapping
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pedx_graph.body import BodyModel
-from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
+from pedx_graph.body.keypoint_defs import load_keypoint_set, open_standing_keypoints_3d
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
@@ -341,8 +340,9 @@ def drop_duplicates(items: list[tuple[Detection, np.ndarray]], config: Associati
 @functools.lru_cache(maxsize=None)
 def _standing_rows(keypoint_set: str) -> np.ndarray:
     """(K,) rows of a standing person's keypoints of the set, 0 at the top keypoint to 1 at the bottom one
-    (the open body model's mean shape, :func:`~pedx_graph.body.keypoint_defs.standing_keypoints_2d`)."""
-    return standing_keypoints_2d(BodyModel.load(), keypoint_set)[:, 1]
+    (the open body model's mean shape, :func:`~pedx_graph.body.keypoint_defs.open_standing_keypoints_3d`)."""
+    up = open_standing_keypoints_3d(keypoint_set)[:, 1]
+    return (up.max() - up) / max(np.ptp(up), 1e-6)
 
 
 def join_misfit(uv_upper: np.ndarray, uv_lower: np.ndarray, keypoint_set: str) -> tuple[float, float] | None:

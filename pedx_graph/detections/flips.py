@@ -12,7 +12,7 @@ known to within ``max_direction_deg`` (two standard deviations, from the centres
 ``depth_sigma_m`` along the viewing ray, ``lateral_sigma_m`` across it):
 
 * the expected separation ``e_k`` (rectified px) of each torso pair ``k`` (shoulders, hips): the left and
-  the right keypoint of a standing body (:func:`~pedx_graph.body.keypoint_defs.standing_keypoints_3d`, the
+  the right keypoint of a standing body (:func:`~pedx_graph.body.keypoint_defs.open_standing_keypoints_3d`, the
   open model) placed at the track's centre facing the walking direction, projected into the detection's
   image;
 * the observed separation ``o_k = uv_left_k - uv_right_k`` of the detection's keypoints;
@@ -35,8 +35,7 @@ from typing import Mapping
 
 import numpy as np
 
-from pedx_graph.body import BodyModel
-from pedx_graph.body.keypoint_defs import standing_keypoints_3d
+from pedx_graph.body.keypoint_defs import open_standing_keypoints_3d
 from pedx_graph.data.ground import GroundFrame
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.undistort import find_camera, rectified
@@ -86,7 +85,7 @@ def _torso_pairs(keypoint_set: str) -> tuple[tuple[int, int], ...]:
 def _standing(keypoint_set: str) -> np.ndarray:
     """(K, 3) the open model's standing keypoints of the set (x left, y up, z forward), centred on the
     torso pairs' mean."""
-    body_p = standing_keypoints_3d(BodyModel.load(), keypoint_set)
+    body_p = open_standing_keypoints_3d(keypoint_set)
     pairs = _torso_pairs(keypoint_set)
     torso = body_p[[i for pair in pairs for i in pair]] if pairs else body_p
     return body_p - torso.mean(axis=0)
