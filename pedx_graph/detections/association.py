@@ -24,7 +24,7 @@ Steps:
    person's skeleton in two: an upper body (head, neck, arms) and hips and legs reported as two people
    (:func:`join_split_parts`).  A detection with no hip or leg keypoint and one with nothing else become one
    where they make one standing person: the rows of their keypoints fitted together by a standing body's
-   (:func:`~pedx_graph.body.keypoint_defs.standing_keypoints_2d`, scale and offset) leave an RMS within
+   (:func:`~pedx_graph.body.keypoint_defs.open_standing_keypoints_3d`, scale and offset) leave an RMS within
    ``gate_sigmas`` of ``join_row_sigma``, and the two parts' median columns lie within ``gate_sigmas`` of
    ``join_column_sigma`` (both fractions of the fitted height); the best-fitting pairs first.  Then a
    detector reporting a person twice, or a fragment (legs alone), is dropped:
