@@ -16,7 +16,6 @@ Sources, in order:
 """
 from __future__ import annotations
 
-import functools
 import hashlib
 import logging
 from dataclasses import dataclass
@@ -221,16 +220,6 @@ def standing_keypoints_3d(body_model, set_name: str) -> np.ndarray:
         pose[3 * joint:3 * joint + 3] = rotvec
     model = body_model.for_keypoint_set(set_name)
     return np.asarray(model.forward(pose, np.zeros(model.num_betas)).keypoints, dtype=float)
-
-
-@functools.lru_cache(maxsize=None)
-def open_standing_keypoints_3d(set_name: str) -> np.ndarray:
-    """:func:`standing_keypoints_3d` on the shipped open model, loaded once per process (read-only): the
-    standing template of the association's checks."""
-    from pedx_graph.body.model import BodyModel       # the model module imports this one
-    out = standing_keypoints_3d(BodyModel.load(), set_name)
-    out.flags.writeable = False
-    return out
 
 
 def standing_keypoints_2d(body_model, set_name: str) -> np.ndarray:

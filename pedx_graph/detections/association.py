@@ -24,7 +24,7 @@ Steps:
    person's skeleton in two: an upper body (head, neck, arms) and hips and legs reported as two people
    (:func:`join_split_parts`).  A detection with no hip or leg keypoint and one with nothing else become one
    where they make one standing person: the rows of their keypoints fitted together by a standing body's
-   (:func:`~pedx_graph.body.keypoint_defs.open_standing_keypoints_3d`, scale and offset) leave an RMS within
+   (:func:`~pedx_graph.body.templates.open_standing_keypoints_3d`, scale and offset) leave an RMS within
    ``gate_sigmas`` of ``join_row_sigma``, and the two parts' median columns lie within ``gate_sigmas`` of
    ``join_column_sigma`` (both fractions of the fitted height); the best-fitting pairs first.  Then a
    detector reporting a person twice, or a fragment (legs alone), is dropped:
@@ -123,7 +123,8 @@ from typing import Mapping
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pedx_graph.body.keypoint_defs import load_keypoint_set, open_standing_keypoints_3d
+from pedx_graph.body.keypoint_defs import load_keypoint_set
+from pedx_graph.body.templates import open_standing_keypoints_3d
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
@@ -340,7 +341,7 @@ def drop_duplicates(items: list[tuple[Detection, np.ndarray]], config: Associati
 @functools.lru_cache(maxsize=None)
 def _standing_rows(keypoint_set: str) -> np.ndarray:
     """(K,) rows of a standing person's keypoints of the set, 0 at the top keypoint to 1 at the bottom one
-    (the open body model's mean shape, :func:`~pedx_graph.body.keypoint_defs.open_standing_keypoints_3d`)."""
+    (the open body model's mean shape, :func:`~pedx_graph.body.templates.open_standing_keypoints_3d`)."""
     up = open_standing_keypoints_3d(keypoint_set)[:, 1]
     return (up.max() - up) / max(np.ptp(up), 1e-6)
 

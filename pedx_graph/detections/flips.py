@@ -12,7 +12,7 @@ known to within ``max_direction_deg`` (two standard deviations, from the centres
 ``depth_sigma_m`` along the viewing ray, ``lateral_sigma_m`` across it):
 
 * the expected separation ``e_k`` (rectified px) of each torso pair ``k`` (shoulders, hips): the left and
-  the right keypoint of a standing body (:func:`~pedx_graph.body.keypoint_defs.open_standing_keypoints_3d`, the
+  the right keypoint of a standing body (:func:`~pedx_graph.body.templates.open_standing_keypoints_3d`, the
   open model) placed at the track's centre facing the walking direction, projected into the detection's
   image;
 * the observed separation ``o_k = uv_left_k - uv_right_k`` of the detection's keypoints;
@@ -35,7 +35,7 @@ from typing import Mapping
 
 import numpy as np
 
-from pedx_graph.body.keypoint_defs import open_standing_keypoints_3d
+from pedx_graph.body.templates import open_standing_keypoints_3d
 from pedx_graph.data.ground import GroundFrame
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.undistort import find_camera, rectified
