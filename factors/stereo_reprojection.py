@@ -441,6 +441,17 @@ class _Leading:
             setattr(self, name, np.asarray(getattr(jac, name))[None])
 
 
+def keypoint_losses(points: np.ndarray, setup: StereoSetup, robust: str, robust_scale: float) -> np.ndarray:
+    """(K, N) this term's loss per image and keypoint row at the world keypoints ``points`` (N, 3): the sum
+    of ``rho`` over the row's u and v whitened residuals (:func:`reprojection_whiten`, the factor's own
+    kernel), 0 on rows the setup does not use.  Summed over every row it is the factor's error; the label
+    screens (:mod:`pedx_graph.solvers.mirror`) compare labellings of one image with it."""
+    uv, _ = stereo_pixels(np.asarray(points, dtype=np.float64)[None], [setup])
+    meas, inv_sigma = stereo_dense_rows(setup)
+    _, loss, _, _ = reprojection_whiten(uv, meas[None], inv_sigma[None], [(robust, float(robust_scale))])
+    return loss.reshape(setup.num_images, setup.num_keypoints, 2).sum(axis=2)
+
+
 def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
                              images: Sequence[ImageKeypoints], sigma_px=2.0, sigma_occluded_px=6.0,
                              keypoint_weights: np.ndarray | None = None, robust: str = "gemanmcclure",

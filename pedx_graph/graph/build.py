@@ -132,6 +132,17 @@ def _row_sigmas_px(noise, rows: int = len(PEDX_KEYPOINTS)) -> np.ndarray:
     return np.concatenate([pedx, np.full(rows - len(pedx), float(noise.keypoint_sigma_px))])
 
 
+def reprojection_noise(config: FitConfig, rows: int = len(PEDX_KEYPOINTS)) -> dict:
+    """The reprojection term's noise arguments for labels of ``rows`` keypoint rows (``sigma_px``,
+    ``sigma_occluded_px``, ``keypoint_weights``, ``robust``, ``robust_scale`` of
+    :func:`factors.stereo_reprojection.make_reprojection_factor`): what the graph's factors use, also for
+    the label screens that judge one image's labels by that term's loss."""
+    noise = config.noise
+    return dict(sigma_px=_row_sigmas_px(noise, rows), sigma_occluded_px=noise.occluded_keypoint_sigma_px,
+                keypoint_weights=_hip_weights(config, rows), robust=_robust(noise.reprojection_loss),
+                robust_scale=noise.reprojection_loss_scale)
+
+
 def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     points = points[np.all(np.isfinite(points), axis=1)]
@@ -221,11 +232,8 @@ def frame_factors(k: FrameKeys, fr: TrackFrame, calibration: StereoCalibration |
     views = fitted_views(fr, terms, all_pairs=not isinstance(calibration, StereoCalibration))
     if views:
         rows = len(views[0][2].keypoints)          # 18, or 18 + E in a detector track's fit layout
-        add(make_reprojection_factor(
-            k, model, images_from_views(views, calibrations),
-            sigma_px=_row_sigmas_px(noise, rows), sigma_occluded_px=noise.occluded_keypoint_sigma_px,
-            keypoint_weights=_hip_weights(config, rows), robust=_robust(noise.reprojection_loss),
-            robust_scale=noise.reprojection_loss_scale), "stereo_reprojection")
+        add(make_reprojection_factor(k, model, images_from_views(views, calibrations),
+                                     **reprojection_noise(config, rows)), "stereo_reprojection")
     points = _subsample(fr.world_lidar_points, noise.lidar_max_points, rng)
     if terms.lidar_chamfer and len(points):
         seen = {}
