@@ -119,6 +119,8 @@ RULES: dict[str, Range | Choice] = {
     "NoiseConfig.occluded_keypoint_sigma_px": POSITIVE,
     "NoiseConfig.reprojection_loss": LOSSES,
     "NoiseConfig.reprojection_loss_scale": POSITIVE,
+    "NoiseConfig.left_right_swap_prob": Range(0.0, 0.5, hi_open=True),
+    "NoiseConfig.detector_left_right_swap_prob": Range(0.0, 0.5, hi_open=True),
     "NoiseConfig.hip_sigma_factor": POSITIVE,
     "NoiseConfig.lidar_sigma_m": POSITIVE,
     "NoiseConfig.lidar_range_sigma_m": NON_NEGATIVE,

@@ -255,6 +255,9 @@ def test_a_detector_tracks_hips_keep_their_own_sigma_pedx_hips_get_the_hip_facto
         track = relabel(base, truth[(base.sequence, base.tracking_id)], model, set_name, seed=6)
         laid, laid_ctx, laid_config = fit_layout(track, estimator_context(config), config)
         assert laid_config.noise.hip_sigma_factor == 1.0 and config.noise.hip_sigma_factor == 2.0
+        # and the left/right label screen with the detector's prior, the manual labels' (0) untouched
+        assert laid_config.noise.left_right_swap_prob == config.noise.detector_left_right_swap_prob > 0
+        assert config.noise.left_right_swap_prob == 0.0
         problem = build_track_graph(laid, laid_ctx, laid_config)
         view = laid.frames[0].labelled_views()[0][2]
         assert view.labelled[hips].all()

@@ -149,14 +149,21 @@ def layout_track(track: Track, model_sigma_px: float = 0.0) -> Track:
 def fit_layout(track: Track, ctx, config):
     """``(track, ctx, config)`` to fit a track of another keypoint set through the 18 + E row layout (module
     docstring): the laid-out track, a context with the layout's body model and ``config`` with
-    ``noise.hip_sigma_factor`` 1 (the hip rows are the set's own surface hips); the same objects for a
-    ``pedx18`` track."""
+    ``noise.hip_sigma_factor`` 1 (the hip rows are the set's own surface hips) and
+    ``noise.left_right_swap_prob`` the detector's (``noise.detector_left_right_swap_prob``: the left/right
+    label screen, :mod:`pedx_graph.solvers.mirror`); the same objects for a ``pedx18`` track."""
     set_name = track.keypoint_set
     if set_name == "pedx18":
         return track, ctx, config
     laid = layout_track(track, model_sigma_px=float(getattr(config.noise, "keypoint_model_sigma_px", 0.0)))
-    if getattr(config.noise, "hip_sigma_factor", 1.0) != 1.0:
-        config = dataclasses.replace(config, noise=dataclasses.replace(config.noise, hip_sigma_factor=1.0))
+    noise = config.noise
+    changes = {}
+    if getattr(noise, "hip_sigma_factor", 1.0) != 1.0:
+        changes["hip_sigma_factor"] = 1.0
+    if hasattr(noise, "detector_left_right_swap_prob"):
+        changes["left_right_swap_prob"] = noise.detector_left_right_swap_prob
+    if changes:
+        config = dataclasses.replace(config, noise=dataclasses.replace(noise, **changes))
     return laid, dataclasses.replace(ctx, model=layout_model(ctx.model, set_name)), config
 
 

@@ -73,6 +73,18 @@ class NoiseConfig:
     """Robust loss of the reprojection term: ``geman_mcclure``, ``huber``, ``cauchy`` or ``none``."""
     reprojection_loss_scale: float = 3.0
     """Scale of the robust reprojection loss in whitened units (multiples of the per-row sigma)."""
+    left_right_swap_prob: float = 0.0
+    """Prior probability that one image's labels of one left/right keypoint pair have the person's left and
+    right exchanged (a click on the wrong side).  After the first stage an exchange is undone where the
+    reprojection loss at the fitted body favours it by more than ``log((1 - p) / p)`` nats
+    (:mod:`pedx_graph.solvers.mirror`; ``mirrored_labels`` in the track's report).  0 (manual labels): the
+    annotators' left and right are kept as they are.  A detector's tracks use
+    ``detector_left_right_swap_prob`` instead (``pedx_graph.detections.fit_layout``)."""
+    detector_left_right_swap_prob: float = 0.05
+    """``left_right_swap_prob`` of tracks imported from a detector (another keypoint set than ``pedx18``):
+    heatmap detectors take a wrist, knee or ankle for the other one, or a whole person seen from behind
+    for one seen from the front, often with full confidence.  0.05: the simulator's detector model's
+    per-pair rate (``DetectorNoiseConfig.swap_prob``)."""
     hip_sigma_factor: float = 2.0
     """Hip keypoints get ``hip_sigma_factor`` times the sigma: the model's hip joints sit inside the pelvis.
     PedX-format labels only: a detector track's hip rows project its keypoint set's own surface hips, whose

@@ -1,6 +1,6 @@
 """The staged LM solve of one track: coarse stage without the LiDAR chamfer, a screen for images of someone
-else between the stages, full stage, limb depth-flip search when the track needs it; a single frame from
-several headings."""
+else between the stages, full stage, a screen for left/right labels exchanged, limb depth-flip search when
+the track needs it; a single frame from several headings."""
 from __future__ import annotations
 
 import dataclasses
@@ -16,6 +16,7 @@ from pedx_graph.graph.init import yaw_of
 from pedx_graph.solvers.batched import BatchedLinearizer
 from pedx_graph.solvers.flips import flip_search
 from pedx_graph.solvers.lm import solve
+from pedx_graph.solvers.mirror import mirror_screen
 
 
 def coarse_stage_config(config: FitConfig) -> FitConfig:
@@ -32,7 +33,10 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     stereo reprojection's ``solver.coarse_reprojection_loss`` (graduated non-convexity), then with every
     term from that estimate; between the two, images of someone else (:func:`outlier_views`, confirmed by
     running the first stage again without them) are taken out of the track, recorded in
-    ``report.dropped_views``.  Then, for tracks at range walking towards or away from the camera, the limb
+    ``report.dropped_views``; after the second stage, the left/right label screen
+    (:mod:`pedx_graph.solvers.mirror`, ``noise.left_right_swap_prob``) and, where it exchanged labels back,
+    the second stage again from its estimate (``report.mirrored_labels``).  Then, for tracks at range
+    walking towards or away from the camera, the limb
     depth-flip search (:mod:`pedx_graph.solvers.flips`, ``solver.flip_*``), which only ever lowers the
     error; tracks labelled in one camera per frame always get the search.  Returns (problem, values, report) of the final stage; the report's iterations and seconds
     cover every stage and the search, its initial error is the full graph's at the first stage's
@@ -80,7 +84,7 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
     if not config.terms.lidar_chamfer:
         problem = build_track_graph(track, ctx, config, yaw_override=yaw_override)
         values, report = solve(problem.graph, problem.initial, config.solver, *solver_parts(problem, config))
-        return track, problem, values, report
+        return _screened(track, ctx, config, problem, values, report)
     coarse_config = coarse_stage_config(config)
     coarse_solver = dataclasses.replace(config.solver, max_iterations=config.solver.coarse_max_iterations,
                                         relative_error_tol=config.solver.coarse_relative_error_tol)
@@ -133,6 +137,24 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
     report.iterations += coarse_report.iterations
     report.seconds += coarse_report.seconds
     report.dropped_views = dropped
+    return _screened(track, ctx, config, problem, values, report)
+
+
+def _screened(track: Track, ctx, config: FitConfig, problem, values, report):
+    """``(track, problem, values, report)`` after the left/right label screen (:mod:`pedx_graph.solvers.mirror`)
+    at ``values``: where it exchanged labels back, the graph of the screened track solved again from
+    ``values`` (the report's iterations and seconds cover both solves, its initial error stays the first's);
+    ``report.mirrored_labels`` records the exchanges."""
+    track, mirrored = mirror_screen(track, ctx, problem, values, config)
+    if mirrored:
+        problem = build_track_graph(track, ctx, config, initial=values, init=problem.init)
+        values, again = solve(problem.graph, problem.initial, config.solver, *solver_parts(problem, config))
+        report.final_error = again.final_error
+        report.iterations += again.iterations
+        report.seconds += again.seconds
+        report.converged = again.converged
+        report.errors = list(report.errors) + list(again.errors)
+    report.mirrored_labels = mirrored
     return track, problem, values, report
 
 

@@ -36,6 +36,8 @@ def fit_track(track: Track, config: FitConfig | None = None, context=None) -> Tr
         per_track["flips"] = report.flips
     if report.dropped_views:
         per_track["dropped_views"] = report.dropped_views
+    if report.mirrored_labels:
+        per_track["mirrored_labels"] = report.mirrored_labels
     result = TrackResult(sequence=track.sequence, tracking_id=track.tracking_id,
                          frames=[fr.frame for fr in track.frames], pose=est.pose, betas=est.betas,
                          trans=est.trans, world_keypoints=est.world_keypoints,
