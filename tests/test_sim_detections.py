@@ -220,3 +220,27 @@ def test_a_flipped_person_is_the_same_detection_with_left_and_right_swapped_in_e
             [(kind_flipped, uv_flipped)] = mirrored[key]
             assert kind == kind_flipped == "person"
             np.testing.assert_array_equal(uv_flipped, uv[order])
+
+
+def test_an_exchanged_keypoint_keeps_its_confidence_when_asked(tmp_path, scene):
+    """``swap_keeps_confidence``: the same draws, the same keypoint positions; a keypoint's confidence is only
+    ever raised, only on left/right pairs — an exchanged keypoint scored by its distance from the mirror point
+    it found, not from its own — and the exchanges the default model all but dropped come back confident."""
+    cfg = _config()
+    cfg.detections.swap_keeps_confidence = True
+    confident = small_scene(tmp_path / "confident", pedestrians=6, frames=4, seed=5, config=cfg)
+    seq = json.loads((scene / "truth" / "meta.json").read_text())["sequence"]
+    raised = 0
+    for fmt in FORMATS:
+        paired = np.zeros(len(load_keypoint_set(DETECTOR_FORMATS[fmt]).keypoints), dtype=bool)
+        for a, b in mirror_index(load_keypoint_set(DETECTOR_FORMATS[fmt]).keypoints):
+            paired[[a, b]] = True
+        plain, sure = _read(scene, fmt, seq), _read(confident, fmt, seq)
+        assert len(plain) == len(sure) > 20
+        for old, new in zip(plain, sure):
+            assert (old.camera, old.frame) == (new.camera, new.frame)
+            np.testing.assert_array_equal(old.image_uv, new.image_uv)
+            assert np.all(new.confidence >= old.confidence - 1e-6)
+            np.testing.assert_allclose(new.confidence[~paired], old.confidence[~paired], atol=1e-6)
+            raised += int(np.sum((old.confidence < 0.1) & (new.confidence > 0.3)))
+    assert raised >= 5

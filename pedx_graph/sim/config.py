@@ -335,6 +335,13 @@ class DetectorOutputConfig:
     """Probability per person and frame that the detector takes the person's left for its right on the whole
     body (every left/right pair swapped, the confidences with them), in every camera alike (a back view
     confuses it the same from each viewpoint); 0 = never (per-pair swaps are ``keypoint_noise.swap_prob``)."""
+    swap_keeps_confidence: bool = False
+    """How a left/right exchanged keypoint (``keypoint_noise.swap_prob``, ``flip_prob``) scores.  False: its
+    confidence falls with its distance from its own body point, like any misplaced keypoint (the exchange
+    gives itself away and the import's confidence-to-noise curve all but drops it).  True: with its distance
+    from the nearer of its own point and its mirror point — a heatmap detector that found the other wrist
+    precisely is as confident as if it had found the right one, and nothing in the file tells the exchange
+    apart (``flip_prob``'s whole-body exchanges keep their confidences either way)."""
     confidence_visible: float = 0.9
     """Confidence of a visible keypoint detected exactly on a large person."""
     confidence_occluded: float = 0.45

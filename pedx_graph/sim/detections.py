@@ -19,7 +19,9 @@ the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are
   alike from several viewpoints); points outside the raw image are absent;
 * confidence per keypoint: ``c = c0 * h / (h + h_half) * exp(-e^2 / 2) + N(0, s^2)`` clipped to [0.02, 1],
   ``c0`` = ``confidence_visible`` or ``confidence_occluded``, ``e`` = the keypoint's pixel error divided by
-  ``confidence_error_sigmas`` times its noise sigma — confidence falls with the error and with occlusion;
+  ``confidence_error_sigmas`` times its noise sigma — confidence falls with the error and with occlusion
+  (with ``swap_keeps_confidence``, a left/right exchanged keypoint's error is measured from the nearer of
+  its own and its mirror point: confident of the wrong side);
 * false positives: a Poisson number (mean ``clutter_per_image``) of skeletons at random places and sizes, and
   with probability ``fragment_prob`` per detected person a partial duplicate of it (legs or upper body);
 * with ``flip_prob`` > 0, a person's left taken for its right on the whole body at a frame, in every camera
@@ -175,6 +177,10 @@ def _person_detection(raw_uv: np.ndarray, visible: np.ndarray, present: np.ndarr
     sigma = np.hypot(noise.sigma_px, noise.sigma_height_frac * height) * scale
     sigma = np.where(visible, sigma, sigma * noise.occluded_sigma_factor)
     error = np.linalg.norm(np.where(np.isfinite(uv), uv - uv0, 0.0), axis=1)
+    if config.swap_keeps_confidence:          # an exchanged keypoint localises its mirror point well
+        order = mirror_order(set_name)
+        mirror_error = np.linalg.norm(np.where(np.isfinite(uv), uv - uv0[order], 0.0), axis=1)
+        error = np.where(ok[order], np.minimum(error, mirror_error), error)
     conf = _confidence(error, sigma, visible, height, config, rng)
     width, height_img = image_size
     inside = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] > 0) & (uv[:, 0] < width - 1) & (uv[:, 1] > 0) \
