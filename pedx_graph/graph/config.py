@@ -74,11 +74,12 @@ class NoiseConfig:
     reprojection_loss_scale: float = 3.0
     """Scale of the robust reprojection loss in whitened units (multiples of the per-row sigma)."""
     left_right_swap_prob: float = 0.0
-    """Prior probability that one image's labels of one left/right keypoint pair have the person's left and
-    right exchanged (a click on the wrong side).  After the first stage an exchange is undone where the
-    reprojection loss at the fitted body favours it by more than ``log((1 - p) / p)`` nats
-    (:mod:`pedx_graph.solvers.mirror`; ``mirrored_labels`` in the track's report).  0 (manual labels): the
-    annotators' left and right are kept as they are.  A detector's tracks use
+    """Prior probability that one image's labels of one left/right keypoint pair — or of every pair, the whole
+    image — have the person's left and right exchanged (a click on the wrong side).  After the second stage
+    an exchange is undone where the reprojection loss favours it by more than ``log((1 - p) / p)`` nats, at
+    the body the neighbouring frames predict (whole images) or at the fitted body (single pairs), and the
+    second stage runs again (:mod:`pedx_graph.solvers.mirror`; ``mirrored_labels`` in the track's report).
+    0 (manual labels): the annotators' left and right are kept as they are.  A detector's tracks use
     ``detector_left_right_swap_prob`` instead (``pedx_graph.detections.fit_layout``)."""
     detector_left_right_swap_prob: float = 0.05
     """``left_right_swap_prob`` of tracks imported from a detector (another keypoint set than ``pedx18``):
