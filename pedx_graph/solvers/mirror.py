@@ -31,7 +31,8 @@ whole image; ``noise.detector_left_right_swap_prob`` for a detector's tracks).  
 right limbs project close together, leaves a small gain and keeps its labels (exchanging them would move the
 fit little either way).  :func:`pedx_graph.solvers.staging.solve_staged` then solves the screened track again
 from its estimate; the exchanges are recorded in the track's report (``mirrored_labels``: frame, pair, side,
-the pair's row names or ``"all"``, the gain).
+the pair's row names or ``"all"``, the gain).  The batch LM fit only: the incremental (iSAM2, streaming) and
+ADMM solvers fit the labels as given.
 """
 from __future__ import annotations
 
