@@ -39,6 +39,8 @@ front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair tu
                                           [--no-stereo-noise-check] [--detector-shared-noise 0]
                                           [--detector-split-prob 0] [--no-join-split-parts]
                                           [--detector-flip-prob 0] [--unflip]
+                                          [--detector-swap-prob P] [--detector-swap-keeps-confidence]
+                                          [--no-mirror-screen]
 
 ``--detector-noise-scale F`` makes the simulated detector F times as noisy as the one the shipped
 confidence -> noise curves were measured on (a real detector is not ours); ``--no-stereo-noise-check``
@@ -51,7 +53,13 @@ hips and legs: two people in the file) with probability P per detection, as bott
 (``AssociationConfig.join_split_parts``), to measure what the joining does; ``--detector-flip-prob P`` has
 the simulated detector take a person's left for its right on the whole body, in every camera alike, with
 probability P per person and frame (``DetectorOutputConfig.flip_prob``), and ``--unflip`` imports with the
-check that swaps such detections back (``ImportConfig.flips``, off by default).
+check that swaps such detections back (``ImportConfig.flips``, off by default);
+``--detector-swap-prob P`` sets the simulated detector's rate of exchanging one left/right pair of one person
+in one image (``keypoint_noise.swap_prob``, 0.05 by default), ``--detector-swap-keeps-confidence`` scores
+such keypoints as confidently as well-placed ones (``DetectorOutputConfig.swap_keeps_confidence``: nothing in
+the file gives them away), and ``--no-mirror-screen`` fits without the left/right label screen
+(``NoiseConfig.detector_left_right_swap_prob`` 0), to measure what the screen does; the screen's exchanges
+are counted per scene and format (``label_screen``).
 
 Writes ``bench_detections.json`` and ``bench_detections.md`` into ``--out``.  Goals (issue 15): detector input
 within 1.5x the manual-label MPJPE at 5-25 m, no identity switch on crossing pedestrians at that range, no
@@ -107,12 +115,16 @@ GOAL_RANGE_M = (5.0, 25.0)
 
 def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1.0,
                   detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
-                  detector_flip_prob: float = 0.0) -> dict[str, SimConfig]:
+                  detector_flip_prob: float = 0.0, swap_keeps_confidence: bool = False,
+                  detector_swap_prob: float | None = None) -> dict[str, SimConfig]:
     """The two scenes (module docstring), detector output on; the simulated detector's keypoint noise
     (``sigma_px`` and ``sigma_height_frac``) times ``detector_noise_scale``, ``detector_shared_noise`` of its
     variance the same in every camera (``DetectorOutputConfig.stereo_shared_noise``), OpenPose skeletons split
     in two with probability ``detector_split_prob`` (``DetectorOutputConfig.split_prob``), people's left and
-    right swapped with probability ``detector_flip_prob`` (``DetectorOutputConfig.flip_prob``)."""
+    right swapped with probability ``detector_flip_prob`` (``DetectorOutputConfig.flip_prob``), left/right
+    exchanged keypoints scored as confidently as well-placed ones with ``swap_keeps_confidence``
+    (``DetectorOutputConfig.swap_keeps_confidence``), each pair exchanged with probability
+    ``detector_swap_prob`` (``keypoint_noise.swap_prob``; None: the simulator's default)."""
     out = {}
     crossing = SimConfig()
     crossing.scene.crosswalk_prob = 1.0
@@ -136,6 +148,9 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
         cfg.detections.stereo_shared_noise = detector_shared_noise
         cfg.detections.split_prob = detector_split_prob
         cfg.detections.flip_prob = detector_flip_prob
+        cfg.detections.swap_keeps_confidence = swap_keeps_confidence
+        if detector_swap_prob is not None:
+            cfg.detections.keypoint_noise.swap_prob = detector_swap_prob
         if SHARED_CMU.is_dir():
             cfg.motion.motion_dir = str(SHARED_CMU)
             cfg.motion.split = "holdout"
@@ -215,7 +230,8 @@ def frame_owners(tracks, records: list[dict]) -> dict[tuple[str, int], str]:
 
 def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dict, ground, by_id: bool,
              owners: dict | None = None) -> tuple:
-    """Per scored frame: distance, global / root-relative MPJPE (mm), keypoint NEES (18,); plus failures.
+    """Per scored frame: distance, global / root-relative MPJPE (mm), keypoint NEES (18,); plus failures and
+    the left/right label screen's exchanges (``{"pairs", "whole_images"}``, the fits' ``mirrored_labels``).
     Detector tracks (``by_id`` False) are scored against the person most of the frame's detections belong to
     (``owners``, :func:`frame_owners`; frames of a bystander's, clutter or fragments are not scored); a frame
     fitted farther than ``MATCH_RADIUS_M`` from that person is a row with ``misplaced`` set (counted, no
@@ -223,10 +239,13 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
     if not by_id and owners is None:
         raise ValueError("fit_rows: detector tracks are scored against their frames' owners (frame_owners)")
     rows, failures = [], 0
+    exchanges = {"pairs": 0, "whole_images": 0}
     for track, (result, error) in zip(tracks, fit_tracks(tracks, config, workers=workers)):
         if result is None:
             failures += 1
             continue
+        for record in (result.extra_track or {}).get("mirrored_labels", []):
+            exchanges["whole_images" if record["keypoints"] == "all" else "pairs"] += 1
         for i, frame in enumerate(result.frames):
             candidates = truth.get(frame, [])
             pelvis_fit = np.asarray(result.world_keypoints[i])[[12, 13]].mean(axis=0)
@@ -257,7 +276,7 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
             rows.append({"distance_m": labelled[tid][frame], "mpjpe_mm": 1000 * float(np.mean(glob)),
                          "rel_mpjpe_mm": 1000 * float(np.mean(rel)), "nees": nees,
                          "joint_mm": 1000 * np.asarray(glob, dtype=float).reshape(-1)})
-    return rows, failures
+    return rows, failures, exchanges
 
 
 def _stats(rows: list[dict]) -> dict:
@@ -324,9 +343,10 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
     result = {"simulated": {k: sim_summary[k] for k in ("pedestrians", "labelled_tracks", "labelled_instances",
                                                        "detections")},
               "crossing_people": len(crossing), "crossing_events": events, "association": {}, "accuracy": {},
-              "tracks_fitted": {}, "fit_failures": {}}
+              "tracks_fitted": {}, "fit_failures": {}, "label_screen": {}}
     t0 = time.perf_counter()
-    rows, failures = fit_rows(manual, fit_config, workers, truth, labelled, ground, by_id=True)
+    rows, failures, result["label_screen"]["manual"] = fit_rows(manual, fit_config, workers, truth, labelled,
+                                                                ground, by_id=True)
     seconds["fit_manual"] = time.perf_counter() - t0
     result["accuracy"]["manual"], result["tracks_fitted"]["manual"] = rows, len(manual)
     result["fit_failures"]["manual"] = failures
@@ -349,8 +369,9 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
         score["stereo_noise_check"] = summary["sequences"][seq].get("stereo_noise_check")
         dataset = read_dataset(imported) if (imported / "labels").is_dir() else []      # no track found
         t0 = time.perf_counter()
-        rows, failures = fit_rows(dataset, fit_config, workers, truth, labelled, ground, by_id=False,
-                                  owners=frame_owners(tracks, records))
+        rows, failures, result["label_screen"][fmt] = fit_rows(dataset, fit_config, workers, truth, labelled,
+                                                               ground, by_id=False,
+                                                               owners=frame_owners(tracks, records))
         seconds[f"fit_{fmt}"] = time.perf_counter() - t0
         result["accuracy"][fmt], result["tracks_fitted"][fmt] = rows, len(dataset)
         result["fit_failures"][fmt] = failures
@@ -360,8 +381,12 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
 
 def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, detector_noise_scale: float = 1.0,
         stereo_noise_check: bool = True, detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
-        join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = False) -> dict:
+        join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = False,
+        swap_keeps_confidence: bool = False, mirror_screen: bool = True,
+        detector_swap_prob: float | None = None) -> dict:
     fit_config = FitConfig()
+    if not mirror_screen:
+        fit_config.noise.detector_left_right_swap_prob = 0.0
     fit_config.diagnostics = False
     fit_config.covariances = True
     ctx = _context(fit_config)
@@ -370,7 +395,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
     import_config.association.join_split_parts = join_split_parts
     import_config.flips.enabled = unflip
     configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob,
-                            detector_flip_prob)
+                            detector_flip_prob, swap_keeps_confidence, detector_swap_prob)
     for s, (name, cfg) in enumerate(configs.items()):
         scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx, import_config)
     accuracy = {}
@@ -404,6 +429,10 @@ def markdown(result: dict, command: str) -> str:
              f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), left and right "
              f"swapped on the whole body with probability {result.get('detector_flip_prob', 0.0):g} "
              f"(swapped back: {'yes' if result.get('unflip', False) else 'no'}), "
+             f"left/right pairs exchanged with probability "
+             f"{'the default' if result.get('detector_swap_prob') is None else result['detector_swap_prob']} "
+             f"({'as confident as well-placed keypoints' if result.get('swap_keeps_confidence') else 'losing confidence'}), "
+             f"left/right label screen {'on' if result.get('mirror_screen', True) else 'off'}, "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}.  "
              "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
              "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
@@ -462,6 +491,12 @@ def markdown(result: dict, command: str) -> str:
                   "not flipped -> swapped:", ""]
         lines += [f"- {name} {fmt}: {c['flipped_swapped_back']} / {c['flipped_left']}; {c['not_flipped_swapped']} "
                   f"of {c['not_flipped_swapped'] + c['not_flipped_left']}" for name, fmt, c in flips]
+    screened = [(name, fmt, c) for name, sc in result["scenes"].items()
+                for fmt, c in sc.get("label_screen", {}).items()]
+    if screened:
+        lines += ["", "Left/right labels the fit's screen exchanged back (`mirrored_labels`, "
+                  "pedx_graph.solvers.mirror): pairs / whole images:", ""]
+        lines += [f"- {name} {fmt}: {c['pairs']} / {c['whole_images']}" for name, fmt, c in screened]
     lines += ["", f"Hardware: {result['hardware']}", ""]
     return "\n".join(lines)
 
@@ -493,17 +528,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--unflip", action="store_true",
                         help="import with the check that swaps back detections whose left and right the detector "
                              "confused (ImportConfig.flips, off by default)")
+    parser.add_argument("--detector-swap-keeps-confidence", action="store_true",
+                        help="the simulated detector scores left/right exchanged keypoints as confidently as "
+                             "well-placed ones (DetectorOutputConfig.swap_keeps_confidence)")
+    parser.add_argument("--detector-swap-prob", type=float, default=None,
+                        help="probability that the simulated detector exchanges one left/right pair of one "
+                             "person in one image (keypoint_noise.swap_prob; default: the simulator's)")
+    parser.add_argument("--no-mirror-screen", action="store_true",
+                        help="fit without the left/right label screen (noise.detector_left_right_swap_prob 0)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_detections_") as tmp:
         result = run(args.seed, args.pedestrians, args.frames, args.workers, Path(tmp), args.detector_noise_scale,
                      not args.no_stereo_noise_check, args.detector_shared_noise, args.detector_split_prob,
-                     not args.no_join_split_parts, args.detector_flip_prob, args.unflip)
+                     not args.no_join_split_parts, args.detector_flip_prob, args.unflip,
+                     swap_keeps_confidence=args.detector_swap_keeps_confidence,
+                     mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob)
     result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
                   detector_shared_noise=args.detector_shared_noise, detector_split_prob=args.detector_split_prob,
                   join_split_parts=not args.no_join_split_parts, detector_flip_prob=args.detector_flip_prob,
-                  unflip=args.unflip,
+                  unflip=args.unflip, swap_keeps_confidence=args.detector_swap_keeps_confidence,
+                  mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
                   total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command
