@@ -21,7 +21,9 @@ image:
 1. **the whole image** (every pair exchanged) is judged at the body its *neighbouring frames* predict
    (:func:`neighbour_poses`: each joint's rotation and the root's interpolated in time between the previous
    and the next frame, the frame's own translation; interior frames without a long gap only): the sum of
-   the pairs' gains — a fit that followed a confused frame cannot testify against it, its neighbours can;
+   the pairs' gains less the prior log odds must beat the best choice of single pairs at that body (each
+   pair's gain less the prior log odds, where positive) — a fit that followed a confused frame cannot
+   testify against it, its neighbours can, and a leg confused alone does not drag the arms along;
 2. otherwise **pair by pair** at the fitted body: the frame's other images and the priors hold it where one
    image's pair is wrong.
 
@@ -30,7 +32,8 @@ An exchange is made when its gain exceeds the prior log odds ``log((1 - p) / p)`
 whole image; ``noise.detector_left_right_swap_prob`` for a detector's tracks).  A side view, whose left and
 right limbs project close together, leaves a small gain and keeps its labels (exchanging them would move the
 fit little either way).  :func:`pedx_graph.solvers.staging.solve_staged` then solves the screened track again
-from its estimate; the exchanges are recorded in the track's report (``mirrored_labels``: frame, pair, side,
+from its estimate and screens it once more (a body freed of one exchange can show another; at most two
+rounds); the exchanges are recorded in the track's report (``mirrored_labels``: frame, pair, side,
 the pair's row names or ``"all"``, the gain).  The batch LM fit only: the incremental (iSAM2, streaming) and
 ADMM solvers fit the labels as given.
 """
@@ -150,7 +153,9 @@ def mirror_screen(track: Track, ctx, problem, values, config) -> tuple[Track, li
             if usable[i]:                       # the whole image, judged by the body its neighbours predict
                 whole = pair_gains(world_p_predicted[i], view, calibration, side, pairs, noise)
                 gain = float(np.nansum(whole))
-                if np.isfinite(whole).any() and gain > limit:
+                # against the best choice of single pairs at that body (each with its own prior odds)
+                single = float(np.sum(np.maximum(whole[np.isfinite(whole)] - limit, 0.0)))
+                if np.isfinite(whole).any() and gain - limit > max(0.0, single):
                     changed[pair, side] = mirrored_view(view, pairs)
                     records.append({"frame": int(frame.frame), "pair": pair, "side": side, "keypoints": "all",
                                     "gain": round(gain, 2)})

@@ -35,7 +35,7 @@ def solve_staged(track: Track, ctx, config: FitConfig, yaw_override=None):
     running the first stage again without them) are taken out of the track, recorded in
     ``report.dropped_views``; after the second stage, the left/right label screen
     (:mod:`pedx_graph.solvers.mirror`, ``noise.left_right_swap_prob``) and, where it exchanged labels back,
-    the second stage again from its estimate (``report.mirrored_labels``).  Then, for tracks at range
+    the second stage again from its estimate, at most twice (``report.mirrored_labels``).  Then, for tracks at range
     walking towards or away from the camera, the limb
     depth-flip search (:mod:`pedx_graph.solvers.flips`, ``solver.flip_*``), which only ever lowers the
     error; tracks labelled in one camera per frame always get the search.  Returns (problem, values, report) of the final stage; the report's iterations and seconds
@@ -143,10 +143,15 @@ def _two_stages(track: Track, ctx, config: FitConfig, yaw_override=None):
 def _screened(track: Track, ctx, config: FitConfig, problem, values, report):
     """``(track, problem, values, report)`` after the left/right label screen (:mod:`pedx_graph.solvers.mirror`)
     at ``values``: where it exchanged labels back, the graph of the screened track solved again from
-    ``values`` (the report's iterations and seconds cover both solves, its initial error stays the first's);
-    ``report.mirrored_labels`` records the exchanges."""
-    track, mirrored = mirror_screen(track, ctx, problem, values, config)
-    if mirrored:
+    ``values``, and screened once more (a body freed of one exchange can show another; at most two rounds);
+    the report's iterations and seconds cover every solve, its initial error stays the first's;
+    ``report.mirrored_labels`` records the exchanges in order."""
+    mirrored = []
+    for _ in range(2):
+        track, found = mirror_screen(track, ctx, problem, values, config)
+        if not found:
+            break
+        mirrored += found
         problem = build_track_graph(track, ctx, config, initial=values, init=problem.init)
         values, again = solve(problem.graph, problem.initial, config.solver, *solver_parts(problem, config))
         report.final_error = again.final_error
