@@ -125,8 +125,8 @@ def neighbour_poses(pose: np.ndarray, timestamps: np.ndarray, max_gaps: int = 3
 
 
 def mirror_screen(track: Track, ctx, problem, values, config) -> tuple[Track, list[dict]]:
-    """``(track, records)``: ``track`` with the left/right labels the estimate ``values`` of ``problem`` shows
-    exchanged exchanged back (module docstring), one record per exchange (``frame``, ``pair``, ``side``,
+    """``(track, records)``: ``track`` with the left/right labels that the estimate ``values`` of ``problem``
+    shows to be exchanged put back (module docstring), one record per exchange (``frame``, ``pair``, ``side``,
     ``keypoints``: the pair's two row names, or ``"all"`` for a whole image; ``gain``); the same track and no
     record when none qualifies or ``noise.left_right_swap_prob`` is 0.  ``ctx.model``: the body model of the
     labels' rows (a detector track's fit layout)."""
