@@ -52,8 +52,9 @@ class SolveReport:
     """Images taken out of their frames' labels after the first stage (:func:`pedx_graph.solvers.staging.
     drop_outlier_views`): ``{"frame", "pair", "side", "median_sigmas"}`` each; empty when none was."""
     mirrored_labels: list = field(default_factory=list)
-    """Left/right label pairs exchanged back after the first stage (:mod:`pedx_graph.solvers.mirror`):
-    ``{"frame", "pair", "side", "keypoints", "gain"}`` each; empty when none was."""
+    """Left/right labels exchanged back after the second stage (:mod:`pedx_graph.solvers.mirror`):
+    ``{"frame", "pair", "side", "keypoints", "gain"}`` each (``keypoints``: the pair's two row names, or
+    ``"all"`` for a whole image); empty when none was."""
 
 
 def _tangent_dims(values: gtsam.Values) -> dict[int, int]:
