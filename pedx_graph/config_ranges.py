@@ -324,6 +324,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,
     "AssociationConfig.smooth_min_centres": COUNT,
     "AssociationConfig.smooth_motion_m": POSITIVE,
+    "AssociationConfig.walking_speed_mps": NON_NEGATIVE,
     "AssociationConfig.lidar_cluster_gap_m": POSITIVE,
     "AssociationConfig.lidar_support_margin": FRACTION,
     "AssociationConfig.lidar_identity_min_points": COUNT,

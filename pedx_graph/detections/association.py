@@ -262,6 +262,12 @@ class AssociationConfig:
     smooth_motion_m: float = 0.15
     """How far a walker leaves a straight line within that window (added to each centre's uncertainty in
     quadrature), metres."""
+    walking_speed_mps: float = 1.4
+    """Spread of a person's velocity along each ground-plane axis before its centres are seen, m/s: a track's
+    walking velocity (:func:`_trend`) is drawn toward standing with this sigma, so a short track whose few
+    centres are noisy (a person mostly hidden: stereo depth from a handful of keypoints) is not given the
+    speed its noise suggests, while a walk seen over many frames follows its centres.  Default: adults'
+    typical walking speed (about 1.2-1.5 m/s in pedestrian studies); 0 = no prior."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """What makes a pair's person a track: ``min_track_frames``, ``min_mean_score``, and the speed limits
     (``max_speed_mps``, ``frame_interval_s``) bounding how fast a person's disparity may change."""
@@ -1721,19 +1727,22 @@ def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationC
     through the centres (``x`` (n,) frames from it, ``y`` (n, 2), ``sigma`` (n,)) within four
     ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest), started from the centres the
     best-supported line explains (:func:`_consensus`) and refitted three times without the centres beyond
-    ``gate_sigmas``; zero with fewer than two distinct frames."""
+    ``gate_sigmas``; the slope drawn toward zero by ``walking_speed_mps`` (per axis: a walker's speed is that
+    of a prior, not of the noise of a few centres); zero with fewer than two distinct frames."""
     near = np.abs(x) <= 4 * config.smooth_window_frames
     if near.sum() < config.smooth_min_centres:
         near = np.zeros(len(x), dtype=bool)
         near[np.lexsort((x, np.abs(x)))[:config.smooth_min_centres]] = True
     x, y, w = x[near], y[near], 1.0 / sigma[near] ** 2
     max_step = config.tracker.max_speed_mps * config.tracker.frame_interval_s
+    walking_step = config.walking_speed_mps * config.tracker.frame_interval_s
+    standing = (np.zeros(2), 1.0 / walking_step ** 2) if walking_step > 0 else None
     keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
     coef = np.zeros((2, 2))
     for _ in range(3):
         if len(np.unique(x[keep])) < 2:
             return np.zeros(2)
-        coef = _walking_line(x[keep], y[keep], w[keep], max_step)
+        coef = _walking_line(x[keep], y[keep], w[keep], max_step, standing)
         new_keep = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) * np.sqrt(w) <= config.gate_sigmas
         if new_keep.sum() < 2 or np.array_equal(new_keep, keep):
             break
