@@ -103,7 +103,8 @@ Steps:
    becomes the weighted line fit, in the ground plane, of the track's centres within
    ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest; weights: each centre's depth
    uncertainty and ``smooth_motion_m`` in quadrature; the line's velocity drawn to the person's velocity over
-   a wider stretch, so that a track's end is not extrapolated from two noisy centres), started from the
+   a wider stretch, so that a track's end is not extrapolated from two noisy centres, and that velocity
+   drawn toward standing by ``walking_speed_mps``, so that a few noisy centres do not set it), started from the
    centres the best-supported line explains (:func:`_consensus`: most
    centres within ``gate_sigmas``, not the weighted least squares a single confident outlier would
    steer), centres beyond ``gate_sigmas`` left out, the line's speed at most ``tracker.max_speed_mps`` —
