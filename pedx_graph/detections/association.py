@@ -109,7 +109,9 @@ Steps:
    centres within ``gate_sigmas``, not the weighted least squares a single confident outlier would
    steer), centres beyond ``gate_sigmas`` left out, the line's speed at most ``tracker.max_speed_mps`` —
    one frame's noisy stereo depth or a cut that caught a passing car no longer sets the gate, and frames
-   seen in one image get a depth too.  A centre taken from the LiDAR that lies within ``min_separation_m`` of
+   seen in one image get a depth too.  Each smoothed centre's uncertainty is its line's at that frame
+   (:func:`_offset_sigma`, the walking velocity's own uncertainty included): it grows where the line is
+   carried past the centres (a track's ends, a stretch seen in one image), and the cut's gate with it.  A centre taken from the LiDAR that lies within ``min_separation_m`` of
    another person's smoothed centre, nearer to it than to its own person's, is taken back and the person
    smoothed again (:func:`separate_people`).
 """
@@ -1723,13 +1725,29 @@ def _walking_line(x: np.ndarray, y: np.ndarray, w: np.ndarray, max_step: float,
     return coef
 
 
+def _offset_sigma(x: np.ndarray, w: np.ndarray, slope_weight: float, slope_variance: float = 0.0) -> float:
+    """Standard deviation, metres, of the offset ``a`` (the line's value at ``x = 0``) of :func:`_walking_line`'s
+    fit to centres at frames ``x`` (n,) from the frame with weights ``w`` (n,) (inverse variances per axis),
+    its slope drawn with weight ``slope_weight`` to a velocity that is itself uncertain by ``slope_variance``
+    (per axis): with ``C = N^-1``, ``N = [[sum w, sum w x], [sum w x, sum w x^2 + slope_weight]]``, the
+    variance ``C_00 + (C_01 slope_weight)^2 slope_variance``.  ``1 / sqrt(sum w)`` where the centres lie
+    around the frame; larger where the line is carried past them (a track's ends, a stretch without a
+    centre)."""
+    s0, s1, s2 = float(w.sum()), float((w * x).sum()), float((w * x * x).sum()) + slope_weight
+    det = s0 * s2 - s1 * s1
+    if det <= 0:
+        return float(1.0 / np.sqrt(s0))
+    return float(np.sqrt(s2 / det + (-s1 / det * slope_weight) ** 2 * slope_variance))
+
+
 def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationConfig) -> np.ndarray:
     """A walker's velocity (2,) metres per frame around ``x = 0``: the weighted line (:func:`_walking_line`)
     through the centres (``x`` (n,) frames from it, ``y`` (n, 2), ``sigma`` (n,)) within four
     ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest), started from the centres the
     best-supported line explains (:func:`_consensus`) and refitted three times without the centres beyond
     ``gate_sigmas``; the slope drawn toward zero by ``walking_speed_mps`` (per axis: a walker's speed is that
-    of a prior, not of the noise of a few centres); zero with fewer than two distinct frames."""
+    of a prior, not of the noise of a few centres); zero with fewer than two distinct frames.  Returns the
+    velocity and its variance per axis ((metres per frame)^2; the walking prior's alone for a zero)."""
     near = np.abs(x) <= 4 * config.smooth_window_frames
     if near.sum() < config.smooth_min_centres:
         near = np.zeros(len(x), dtype=bool)
@@ -1738,23 +1756,26 @@ def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationC
     max_step = config.tracker.max_speed_mps * config.tracker.frame_interval_s
     walking_step = config.walking_speed_mps * config.tracker.frame_interval_s
     standing = (np.zeros(2), 1.0 / walking_step ** 2) if walking_step > 0 else None
+    prior_weight = standing[1] if standing is not None else 0.0
     keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
     coef = np.zeros((2, 2))
     for _ in range(3):
         if len(np.unique(x[keep])) < 2:
-            return np.zeros(2)
+            return np.zeros(2), (walking_step ** 2 if walking_step > 0 else max_step ** 2)
         coef = _walking_line(x[keep], y[keep], w[keep], max_step, standing)
         new_keep = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) * np.sqrt(w) <= config.gate_sigmas
         if new_keep.sum() < 2 or np.array_equal(new_keep, keep):
             break
         keep = new_keep
-    return coef[1]
+    s0, s1 = float(w[keep].sum()), float((w[keep] * x[keep]).sum())
+    s2 = float((w[keep] * x[keep] ** 2).sum()) + prior_weight
+    return coef[1], s0 / max(s0 * s2 - s1 * s1, 1e-300)
 
 
 def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config: AssociationConfig,
                    only: frozenset | None = None) -> None:
-    """Replace every frame's centre by the track's smoothed one (module docstring, step 7), in place; with
-    ``only``, just those frames' (every frame's centre still counts).
+    """Replace every frame's centre and its uncertainty by the track's smoothed ones (module docstring, step 7;
+    :func:`_offset_sigma`), in place; with ``only``, just those frames' (every frame's centre still counts).
 
     Each frame's line is fitted to the centres within ``smooth_window_frames`` (at least the
     ``smooth_min_centres`` nearest), its velocity drawn to the person's walking velocity over four windows
@@ -1781,7 +1802,8 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
             near = np.zeros(len(t), dtype=bool)
             near[np.lexsort((t, np.abs(t - fr.frame)))[:config.smooth_min_centres]] = True
         x, y, w = t[near] - fr.frame, level[near, :2], 1.0 / sigma[near] ** 2
-        prior = (_trend(t - fr.frame, level[:, :2], sigma, config), 1.0 / velocity_sigma ** 2)
+        trend, trend_variance = _trend(t - fr.frame, level[:, :2], sigma, config)
+        prior = (trend, 1.0 / velocity_sigma ** 2)
         keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
         for _ in range(3):                       # weighted line per axis; outlying centres left out
             coef = _walking_line(x[keep], y[keep], w[keep], max_step, prior)
@@ -1790,7 +1812,7 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
             if not new_keep.any() or np.array_equal(new_keep, keep):
                 break
             keep = new_keep
-        fit_sigma = float(1.0 / np.sqrt(w[keep].sum()))
+        fit_sigma = _offset_sigma(x[keep], w[keep], prior[1], trend_variance)
         level_p = np.array([coef[0][0], coef[0][1], height])
         fr.world_p = ground.world_p_sensor + world_R_level @ level_p
         fr.depth_sigma_m = min(float(fr.depth_sigma_m), fit_sigma) if fr.frame in set(t[near][keep]) else fit_sigma
