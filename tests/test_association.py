@@ -504,7 +504,8 @@ def test_a_short_tracks_velocity_is_a_walkers_not_its_noise():
 def test_a_smoothed_centres_sigma_grows_where_the_line_is_carried_past_its_centres():
     """Walks at 1.4 m/s seen at frames 0-9 with 0.3 m centre noise, smoothed over frames 0-15: past the track's
     end the claimed sigma grows frame by frame, and it is honest there and among the centres — over 200 random
-    walks each frame's error stays within 2 claimed sigmas per axis about 95 % of the time (the fit's
+    walks each frame's error stays within 2 claimed sigmas per axis about 95 % of the time (96-97 % at this
+    seed; the fit's
     ``1 / sqrt(sum w)``, the same past the end, covered 76 % there; without the walking velocity's own
     uncertainty, 88 %)."""
     from pedx_graph.detections.association import DetectedTrackFrame, smooth_centres
@@ -531,7 +532,7 @@ def test_a_smoothed_centres_sigma_grows_where_the_line_is_carried_past_its_centr
     assert all(b > a for a, b in zip(sigma[9:], sigma[10:])), np.round(sigma, 3)
     assert sigma[15] > 2 * sigma[9], np.round(sigma, 3)
     for part in ("seen", "past"):
-        assert 0.92 < inside[part] / total[part] < 0.99, (part, inside[part] / total[part])
+        assert 0.935 < inside[part] / total[part] < 0.99, (part, inside[part] / total[part])
 
 
 def test_a_frame_borrowed_from_someone_else_is_unpaired():

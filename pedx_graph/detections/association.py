@@ -111,9 +111,10 @@ Steps:
    one frame's noisy stereo depth or a cut that caught a passing car no longer sets the gate, and frames
    seen in one image get a depth too.  Each smoothed centre's uncertainty is its line's at that frame
    (:func:`_offset_sigma`, the walking velocity's own uncertainty included): it grows where the line is
-   carried past the centres (a track's ends, a stretch seen in one image), and the cut's gate with it.  A centre taken from the LiDAR that lies within ``min_separation_m`` of
-   another person's smoothed centre, nearer to it than to its own person's, is taken back and the person
-   smoothed again (:func:`separate_people`).
+   carried past the centres (a track's ends, a stretch seen in one image), and the cut's gate with it.  A
+   centre taken from the LiDAR that lies within ``min_separation_m`` of another person's smoothed centre,
+   nearer to it than to its own person's, is taken back and the person smoothed again
+   (:func:`separate_people`).
 """
 from __future__ import annotations
 
@@ -1740,14 +1741,15 @@ def _offset_sigma(x: np.ndarray, w: np.ndarray, slope_weight: float, slope_varia
     return float(np.sqrt(s2 / det + (-s1 / det * slope_weight) ** 2 * slope_variance))
 
 
-def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationConfig) -> np.ndarray:
+def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationConfig) -> tuple[np.ndarray, float]:
     """A walker's velocity (2,) metres per frame around ``x = 0``: the weighted line (:func:`_walking_line`)
     through the centres (``x`` (n,) frames from it, ``y`` (n, 2), ``sigma`` (n,)) within four
     ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest), started from the centres the
     best-supported line explains (:func:`_consensus`) and refitted three times without the centres beyond
     ``gate_sigmas``; the slope drawn toward zero by ``walking_speed_mps`` (per axis: a walker's speed is that
     of a prior, not of the noise of a few centres); zero with fewer than two distinct frames.  Returns the
-    velocity and its variance per axis ((metres per frame)^2; the walking prior's alone for a zero)."""
+    velocity and its variance per axis ((metres per frame)^2; for a zero, the walking prior's, or a walker's
+    top speed squared without one)."""
     near = np.abs(x) <= 4 * config.smooth_window_frames
     if near.sum() < config.smooth_min_centres:
         near = np.zeros(len(x), dtype=bool)
