@@ -1765,12 +1765,13 @@ def _trend(x: np.ndarray, y: np.ndarray, sigma: np.ndarray, config: AssociationC
         if len(np.unique(x[keep])) < 2:
             return np.zeros(2), (walking_step ** 2 if walking_step > 0 else max_step ** 2)
         coef = _walking_line(x[keep], y[keep], w[keep], max_step, standing)
+        fitted = keep
         new_keep = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) * np.sqrt(w) <= config.gate_sigmas
         if new_keep.sum() < 2 or np.array_equal(new_keep, keep):
             break
         keep = new_keep
-    s0, s1 = float(w[keep].sum()), float((w[keep] * x[keep]).sum())
-    s2 = float((w[keep] * x[keep] ** 2).sum()) + prior_weight
+    s0, s1 = float(w[fitted].sum()), float((w[fitted] * x[fitted]).sum())     # the centres the line was fitted to
+    s2 = float((w[fitted] * x[fitted] ** 2).sum()) + prior_weight
     return coef[1], s0 / max(s0 * s2 - s1 * s1, 1e-300)
 
 
