@@ -96,6 +96,30 @@ def test_import_openpose_with_file_ids(tmp_path):
         assert np.linalg.norm(offset[:2]) < 0.5, (tid, fr.frame, offset)
 
 
+def test_the_association_lidar_cut_defines_the_written_segments(tmp_path, capsys):
+    """One definition of the cut: ``association.lidar_cut`` also cuts the segments written for the fit, and
+    the old top-level ``lidar_cut`` of the import config is refused, naming the key."""
+    root = small_scene(tmp_path / "scene", pedestrians=2, frames=3, seed=1)
+    files = tmp_path / "openpose"
+    assert write_openpose_truth(root, distorted_rig(root), files)
+    args = ["import", "openpose", str(files), "--calib", str(root), "--use-file-ids"]
+    segments = {}
+    for name, clearance in (("default", None), ("high", 3.0)):
+        config = tmp_path / f"{name}.yaml"
+        config.write_text("" if clearance is None else f"association:\n  lidar_cut:\n    ground_clearance_m: {clearance}\n")
+        out = tmp_path / name
+        assert main(args + ["--out", str(out), "--config", str(config)]) == 0
+        segments[name] = sum(len(fr.world_lidar_points) for track in read_dataset(out) for fr in track.frames)
+    # nobody's points lie 3 m above the ground: the segments follow the association's cut options
+    assert segments["default"] > 0 and segments["high"] == 0
+    old = tmp_path / "old.yaml"
+    old.write_text("lidar_cut:\n  ground_clearance_m: 3.0\n")
+    capsys.readouterr()
+    assert main(args + ["--out", str(tmp_path / "old"), "--config", str(old)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lidar_cut" in err[0] and str(old) in err[0]
+
+
 def test_import_simulated_detector_output_then_fit(tmp_path):
     """The simulator's own detector files (no ids, distorted images, clutter): import COCO results and OpenPose
     BODY_25B through the association, then fit; each fitted track lies on one true pedestrian."""

@@ -10,7 +10,7 @@ confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoise
 ``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` with ``keypoint_set`` and per-keypoint
 ``confidence`` and ``sigma_px`` (:mod:`pedx_graph.data.labels2d`), copy ``calib/`` (and ``timestamps/``),
 link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
-(:func:`pedx_graph.detections.lidar_cut.write_track_segments`) when the source dataset has them.  A summary
+(:func:`pedx_graph.detections.lidar_cut.write_track_segments`, with the cut of ``association.lidar_cut``) when the source dataset has them.  A summary
 goes to ``<out>/import_summary.json``, the resolved config to ``<out>/import_config.yaml``.
 """
 from __future__ import annotations
@@ -32,7 +32,6 @@ from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
-from pedx_graph.detections.lidar_cut import LidarCutConfig
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
@@ -55,9 +54,9 @@ class ImportConfig:
     min_keypoints: int = 3
     """A detection with fewer kept keypoints (after the threshold) is not written."""
     association: AssociationConfig = field(default_factory=AssociationConfig)
-    """Who is who when the files carry no ids (stereo matching, tracking, merging across pairs)."""
-    lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
-    """How each person's LiDAR points are cut from the scene clouds."""
+    """Who is who when the files carry no ids (stereo matching, tracking, merging across pairs).  Its
+    ``lidar_cut`` is the one definition of how a person's LiDAR points are cut from a scene cloud: the
+    association's LiDAR centres and the segments written for the fit use the same cut."""
     flips: FlipConfig = field(default_factory=FlipConfig)
     """A detection whose left and right the detector confused (the whole body), swapped back where the
     person's walking direction shows it (:mod:`pedx_graph.detections.flips`; off by default)."""
@@ -254,7 +253,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,
-                                                  lambda frame: clouds[frame], config.lidar_cut)
+                                                  lambda frame: clouds[frame], config.association.lidar_cut)
     return result
 
 
