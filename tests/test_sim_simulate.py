@@ -228,6 +228,23 @@ def test_same_seed_same_bytes(tmp_path, body):
     assert _files_digest(c) == digest_a
 
 
+def test_workers_in_a_script_without_main_guard_fail_with_a_clear_error(tmp_path):
+    """Spawned workers import the calling script again; without a ``__main__`` guard they cannot start, and
+    the call must say so instead of waiting on them for ever."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text("from pedx_graph.sim import SimConfig, simulate\n"
+                      "cfg = SimConfig()\ncfg.scene.n_frames = 2\ncfg.scene.n_pedestrians = 1\n"
+                      "cfg.lidar.azimuth_step_deg = 0.72\n"
+                      f"simulate({str(tmp_path / 'out')!r}, cfg, seed=0, workers=2, overwrite=True)\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]            # the parent's own error, after the workers'
+    assert last.startswith("RuntimeError: simulate(workers=2)") and "__main__" in last
+
+
 def test_figure_renders(sim_run, tmp_path):
     from pedx_graph.sim.figure import render_frame      # matplotlib: a test dependency (pyproject [test])
 

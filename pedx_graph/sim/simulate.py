@@ -48,6 +48,7 @@ import json
 import logging
 import shutil
 import time
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,9 +162,25 @@ class _FrameContext:
 _WORKER_CONTEXT: _FrameContext | None = None
 
 
-def _init_worker(ctx: _FrameContext) -> None:
+_UNGUARDED = ("simulate(workers={workers}): the worker processes are spawned and import the calling script "
+              "again, which called simulate again: guard the script's entry point with "
+              "'if __name__ == \"__main__\":', or use workers=1")
+
+
+def _importing_main_in_worker() -> bool:
+    """True in a spawned worker while it imports the parent's main script (what multiprocessing itself checks
+    before it starts a process: the script was run again without a ``__main__`` guard)."""
+    import multiprocessing
+    return bool(getattr(multiprocessing.current_process(), "_inheriting", False))
+
+
+def _init_worker(ctx_path: str) -> None:
+    """A worker's start: the frame context from the file the parent pickled it to (a large argument written
+    down the spawn pipe would leave the parent blocked for ever if the worker died before reading it)."""
+    import pickle
     global _WORKER_CONTEXT
-    _WORKER_CONTEXT = ctx
+    with open(ctx_path, "rb") as f:
+        _WORKER_CONTEXT = pickle.load(f)
 
 
 def _frame_in_worker(k: int) -> dict:
@@ -409,10 +426,12 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     ``workers`` > 1 simulates frames in worker processes (spawned); every frame has its own random streams
     (:func:`frame_rngs`), so the files are the same for any worker count; spawned workers import the calling
     script again, so a script calling this with ``workers`` > 1 needs an ``if __name__ == "__main__":`` guard
-    (without one the call never returns: the parent waits on workers that failed to start).  Returns a
-    summary dict.
+    (without one the workers fail to start and this raises a RuntimeError saying so).  Returns a summary
+    dict.
     """
     t_start = time.perf_counter()
+    if int(workers) > 1 and _importing_main_in_worker():
+        raise RuntimeError(_UNGUARDED.format(workers=int(workers)))
     config = (config or SimConfig()).validate()
     out = Path(out_dir)
     existing = [name for name in OUTPUT_ENTRIES if (out / name).exists()]
@@ -469,13 +488,23 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     detections: dict[str, list] = {}
     frame_seconds = {sc.first_frame + k: k / sc.fps for k in range(sc.n_frames)}
     workers = max(1, min(int(workers), sc.n_frames))
-    pool = None
+    pool, ctx_path = None, None
     if workers > 1:
         import multiprocessing
+        import os
+        import pickle
+        import tempfile
+        from concurrent.futures import ProcessPoolExecutor
 
-        # spawned (not forked) workers: Embree's thread pool in this process must not be inherited
-        pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(ctx,))
-        results = pool.imap_unordered(_frame_in_worker, range(sc.n_frames))
+        handle, ctx_path = tempfile.mkstemp(prefix="pedx_graph_sim_", suffix=".pkl")
+        with os.fdopen(handle, "wb") as f:
+            pickle.dump(ctx, f, protocol=pickle.HIGHEST_PROTOCOL)
+        # spawned (not forked) workers: Embree's thread pool in this process must not be inherited.  An
+        # executor, not a multiprocessing Pool: a worker that dies (the calling script run again without a
+        # __main__ guard) breaks it and the call fails, where a Pool starts replacements and waits on.
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_init_worker, initargs=(ctx_path,))
+        results = pool.map(_frame_in_worker, range(sc.n_frames))
     else:
         results = (_simulate_frame(ctx, k) for k in range(sc.n_frames))
     try:
@@ -488,10 +517,16 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
                 detections.setdefault(fmt, []).extend(items)
             for key, value in frame_counts.items():
                 counts[key] += value
+    except BrokenProcessPool as exc:
+        raise RuntimeError(f"simulate(workers={workers}): a worker process died ({exc}); spawned workers import "
+                           "the calling script again, which cannot start them without an "
+                           "'if __name__ == \"__main__\":' guard (else see the workers' errors above, or use "
+                           "workers=1)") from exc
     finally:
         if pool is not None:
-            pool.close()
-            pool.join()
+            pool.shutdown(wait=True, cancel_futures=True)
+        if ctx_path is not None:
+            Path(ctx_path).unlink(missing_ok=True)
 
     for kind in ("pointclouds", "images"):
         write_timestamps(out, seq, frame_seconds, kind=kind)
