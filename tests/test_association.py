@@ -535,6 +535,47 @@ def test_a_smoothed_centres_sigma_grows_where_the_line_is_carried_past_its_centr
         assert 0.935 < inside[part] / total[part] < 0.99, (part, inside[part] / total[part])
 
 
+def test_a_smoothed_centres_sigma_is_that_of_the_line_it_returns(monkeypatch):
+    """Each frame's claimed sigma comes from the centres its line was fitted to, also where the refits that
+    leave outlying centres out stop before they settle (random walks with gross outliers: a few in a
+    thousand tracks end so; their last refit's keep set is not the fitted one)."""
+    import pedx_graph.detections.association as association
+
+    fitted_x, sigma_x = [], []
+    walking_line, offset_sigma = association._walking_line, association._offset_sigma
+
+    def recording_line(x, *args):
+        fitted_x.append(np.array(x))
+        return walking_line(x, *args)
+
+    def recording_sigma(x, *args):
+        sigma_x.append((len(fitted_x), np.array(x)))
+        return offset_sigma(x, *args)
+
+    monkeypatch.setattr(association, "_walking_line", recording_line)
+    monkeypatch.setattr(association, "_offset_sigma", recording_sigma)
+    ground = _ground(_rig())
+    rng = np.random.default_rng(0)
+    for _ in range(700):
+        n = int(rng.integers(3, 12))
+        heading = rng.uniform(0, 2 * np.pi)
+        velocity = 0.14 * np.array([np.cos(heading), np.sin(heading), 0.0])
+        start = np.array([15.0, -2.0, GROUND_Z + 0.9])
+        frames = [association.DetectedTrackFrame(frame=k, detections={}) for k in range(n)]
+        for fr in frames:
+            sigma = float(rng.choice([0.05, 0.2, 0.5]))
+            noise = rng.normal(size=2) * sigma
+            if rng.random() < 0.3:
+                noise += rng.normal(size=2) * 1.5                # a gross outlier
+            fr.world_p, fr.depth_sigma_m = start + fr.frame * velocity + np.r_[noise, 0.0], sigma
+        fitted_x.clear()
+        sigma_x.clear()
+        association.smooth_centres(frames, ground, AssociationConfig())
+        assert len(sigma_x) == n
+        for calls, x in sigma_x:                                   # the line fitted last before the sigma
+            np.testing.assert_array_equal(x, fitted_x[calls - 1])
+
+
 def test_a_frame_borrowed_from_someone_else_is_unpaired():
     """A person's left tracklet paired over 8 frames with its right tracklet, plus one frame with a right
     detection of someone 15 m nearer (another tracklet, one frame): that right detection leaves the person."""

@@ -1810,15 +1810,17 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
         keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
         for _ in range(3):                       # weighted line per axis; outlying centres left out
             coef = _walking_line(x[keep], y[keep], w[keep], max_step, prior)
+            fitted = keep                        # the centres this line was fitted to
             residual = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) / sigma[near]
             new_keep = residual <= config.gate_sigmas
             if not new_keep.any() or np.array_equal(new_keep, keep):
                 break
             keep = new_keep
-        fit_sigma = _offset_sigma(x[keep], w[keep], prior[1], trend_variance)
+        fit_sigma = _offset_sigma(x[fitted], w[fitted], prior[1], trend_variance)
         level_p = np.array([coef[0][0], coef[0][1], height])
         fr.world_p = ground.world_p_sensor + world_R_level @ level_p
-        fr.depth_sigma_m = min(float(fr.depth_sigma_m), fit_sigma) if fr.frame in set(t[near][keep]) else fit_sigma
+        fr.depth_sigma_m = min(float(fr.depth_sigma_m), fit_sigma) if fr.frame in set(t[near][fitted]) \
+            else fit_sigma
 
 
 def _frame_centre(entry: DetectedTrackFrame, sources: list[Observation]) -> None:
