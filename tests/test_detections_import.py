@@ -106,7 +106,8 @@ def test_the_association_lidar_cut_defines_the_written_segments(tmp_path, capsys
     segments = {}
     for name, clearance in (("default", None), ("high", 3.0)):
         config = tmp_path / f"{name}.yaml"
-        config.write_text("" if clearance is None else f"association:\n  lidar_cut:\n    ground_clearance_m: {clearance}\n")
+        config.write_text("" if clearance is None else
+                          f"association:\n  lidar_cut:\n    ground_clearance_m: {clearance}\n")
         out = tmp_path / name
         assert main(args + ["--out", str(out), "--config", str(config)]) == 0
         segments[name] = sum(len(fr.world_lidar_points) for track in read_dataset(out) for fr in track.frames)

@@ -10,8 +10,9 @@ confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoise
 ``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` with ``keypoint_set`` and per-keypoint
 ``confidence`` and ``sigma_px`` (:mod:`pedx_graph.data.labels2d`), copy ``calib/`` (and ``timestamps/``),
 link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
-(:func:`pedx_graph.detections.lidar_cut.write_track_segments`, with the cut of ``association.lidar_cut``) when the source dataset has them.  A summary
-goes to ``<out>/import_summary.json``, the resolved config to ``<out>/import_config.yaml``.
+(:func:`pedx_graph.detections.lidar_cut.write_track_segments`, with the cut of ``association.lidar_cut``)
+when the source dataset has them.  A summary goes to ``<out>/import_summary.json``, the resolved config to
+``<out>/import_config.yaml``.
 """
 from __future__ import annotations
 

@@ -489,25 +489,25 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     frame_seconds = {sc.first_frame + k: k / sc.fps for k in range(sc.n_frames)}
     workers = max(1, min(int(workers), sc.n_frames))
     pool, ctx_path = None, None
-    if workers > 1:
-        import multiprocessing
-        import os
-        import pickle
-        import tempfile
-        from concurrent.futures import ProcessPoolExecutor
-
-        handle, ctx_path = tempfile.mkstemp(prefix="pedx_graph_sim_", suffix=".pkl")
-        with os.fdopen(handle, "wb") as f:
-            pickle.dump(ctx, f, protocol=pickle.HIGHEST_PROTOCOL)
-        # spawned (not forked) workers: Embree's thread pool in this process must not be inherited.  An
-        # executor, not a multiprocessing Pool: a worker that dies (the calling script run again without a
-        # __main__ guard) breaks it and the call fails, where a Pool starts replacements and waits on.
-        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_init_worker, initargs=(ctx_path,))
-        results = pool.map(_frame_in_worker, range(sc.n_frames))
-    else:
-        results = (_simulate_frame(ctx, k) for k in range(sc.n_frames))
     try:
+        if workers > 1:
+            import multiprocessing
+            import os
+            import pickle
+            import tempfile
+            from concurrent.futures import ProcessPoolExecutor
+
+            handle, ctx_path = tempfile.mkstemp(prefix="pedx_graph_sim_", suffix=".pkl")
+            with os.fdopen(handle, "wb") as f:
+                pickle.dump(ctx, f, protocol=pickle.HIGHEST_PROTOCOL)
+            # spawned (not forked) workers: Embree's thread pool in this process must not be inherited.  An
+            # executor, not a multiprocessing Pool: a worker that dies (the calling script run again without a
+            # __main__ guard) breaks it and the call fails, where a Pool starts replacements and waits on.
+            pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_init_worker, initargs=(ctx_path,))
+            results = pool.map(_frame_in_worker, range(sc.n_frames))
+        else:
+            results = (_simulate_frame(ctx, k) for k in range(sc.n_frames))
         if progress:
             from tqdm import tqdm
             results = tqdm(results, total=sc.n_frames, desc="simulate", unit="frame", disable=None)  # off unless a TTY
