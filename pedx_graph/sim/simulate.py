@@ -162,9 +162,8 @@ class _FrameContext:
 _WORKER_CONTEXT: _FrameContext | None = None
 
 
-_UNGUARDED = ("simulate(workers={workers}): the worker processes are spawned and import the calling script "
-              "again, which called simulate again: guard the script's entry point with "
-              "'if __name__ == \"__main__\":', or use workers=1")
+_UNGUARDED = ("simulate(workers={workers}): {what}; spawned workers import the calling script again, which "
+              "cannot start them without an 'if __name__ == \"__main__\":' guard (or use workers=1)")
 
 
 def _importing_main_in_worker() -> bool:
@@ -431,7 +430,8 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
     """
     t_start = time.perf_counter()
     if int(workers) > 1 and _importing_main_in_worker():
-        raise RuntimeError(_UNGUARDED.format(workers=int(workers)))
+        raise RuntimeError(_UNGUARDED.format(workers=int(workers), what="called again by a worker importing the "
+                                                                            "calling script"))
     config = (config or SimConfig()).validate()
     out = Path(out_dir)
     existing = [name for name in OUTPUT_ENTRIES if (out / name).exists()]
@@ -518,10 +518,8 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
             for key, value in frame_counts.items():
                 counts[key] += value
     except BrokenProcessPool as exc:
-        raise RuntimeError(f"simulate(workers={workers}): a worker process died ({exc}); spawned workers import "
-                           "the calling script again, which cannot start them without an "
-                           "'if __name__ == \"__main__\":' guard (else see the workers' errors above, or use "
-                           "workers=1)") from exc
+        raise RuntimeError(_UNGUARDED.format(workers=workers, what="a worker process died (its own error is "
+                                                                   "printed above)")) from exc
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
