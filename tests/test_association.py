@@ -837,6 +837,20 @@ def test_track_head_or_tail_holding_the_other_walker_goes_back_to_it():
     assert [[id(o) for o in t] for t in apart] == [[id(o) for o in near[:6]], [id(o) for o in near[8:]]]
 
 
+def test_stretch_exchanged_between_walkers_in_step_and_given_back_is_repaired():
+    """The walkers in step again, their tracks carried on with each other from frame 8 and back again from
+    frame 14 (they met twice while missed in turns).  No single exchange of tails helps: either tail leaves
+    six frames on the wrong walker.  Exchanging the stretch gives each track its own walker back."""
+    from pedx_graph.detections.association import repair_swaps
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
+    near, far, _, _ = _walkers_in_step(calib, np.random.default_rng(7), range(20))
+    swapped = [near[:8] + far[8:14] + near[14:], far[:8] + near[8:14] + far[14:]]
+    repaired = repair_swaps(swapped, calib, AssociationConfig())
+    assert sorted([id(o) for o in t] for t in repaired) == sorted([[id(o) for o in near], [id(o) for o in far]])
+
+
 def test_walk_cost_follows_perspective_near_the_camera():
     """A walker 4-7 m away walking diagonally away from the camera: its image speed halves over 20 frames
     (perspective), which no straight line in time fits; the projected straight walk fits it to the noise."""

@@ -77,7 +77,8 @@ Steps:
    two).  A track whose image velocity changes across frames it missed by more than a walker's velocity can
    (:func:`split_reversals`: the tracker carried it on with someone walking the other way) is split there.
    Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
-   tried, and at their ends a head or tail moved from one to the other (:func:`repair_swaps`): a walker moves
+   tried, at their ends a head or tail moved from one to the other, and stretches exchanged where they met and
+   given back where they met again (:func:`repair_swaps`): a walker moves
    on a straight line at constant speed, which the image column (projected: curved near the camera) and the
    frames' centre depths follow, so the exchange is made when it fits the two tracks to such walks clearly
    better (a tracker carrying each on with the other while they were missed in turns).  A person with fewer than
@@ -1151,10 +1152,12 @@ def _normal_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.solve(normal, np.einsum("mni,n->mi", a, b)[:, :, None])[:, :, 0]
 
 
-def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float) -> np.ndarray:
+def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float,
+                coefficients: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Sums of ``min(z^2, gate^2)`` of the normalised residuals of weighted least-squares fits of ``y`` (n,)
     with standard deviations ``sigma`` (n,) by the columns of each of ``design`` (m, n, k) (one fit per model),
-    each fit iterated three times with the residuals beyond ``gate`` left out (as long as ``k`` remain): (m,)."""
+    each fit iterated three times with the residuals beyond ``gate`` left out (as long as ``k`` remain): (m,);
+    with ``coefficients``, also the fits' coefficients (m, k)."""
     weight = 1.0 / sigma
     a = design * weight[None, :, None]
     b = y * weight
@@ -1167,7 +1170,8 @@ def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: floa
         new_keep = np.abs(z) <= gate
         enough = new_keep.sum(axis=1) >= design.shape[2]
         keep = np.where(enough[:, None], new_keep, keep)
-    return np.sum(np.minimum(z ** 2, gate ** 2), axis=1)
+    total = np.sum(np.minimum(z ** 2, gate ** 2), axis=1)
+    return (total, coef) if coefficients else total
 
 
 def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
@@ -1182,8 +1186,14 @@ def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float
     ``min(z^2, gate^2)`` of the normalised residuals of the columns and of the depths (NaN = unknown; used from
     three known) (:func:`_robust_fit`): ``c`` searched on a grid of 33 rates, then on a grid 16 times finer
     around the best; 0 for < 3 frames."""
+    return _walk_fit(frames, u, sigma, gate, max_rate, depth, depth_sigma)[0]
+
+
+def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
+              depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None) -> tuple[float, float]:
+    """:func:`_walk_cost`'s misfit and the rate ``c`` it was found at (0 for < 3 frames)."""
     if len(frames) < 3:
-        return 0.0
+        return 0.0, 0.0
     tau = frames - 0.5 * (frames.min() + frames.max())
     known = np.isfinite(depth) if depth is not None else np.zeros(len(frames), dtype=bool)
 
@@ -1195,13 +1205,39 @@ def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float
         return total
 
     if max_rate * float(np.max(np.abs(tau))) <= 1e-3:
-        return float(costs(np.zeros(1))[0])
+        return float(costs(np.zeros(1))[0]), 0.0
     coarse = np.linspace(-max_rate, max_rate, 33)
     coarse_costs = costs(coarse)
     best = coarse[int(np.argmin(coarse_costs))]
     step = coarse[1] - coarse[0]
     fine = np.clip(best + np.linspace(-step, step, 33), -max_rate, max_rate)
-    return float(min(coarse_costs.min(), costs(fine).min()))
+    fine_costs = costs(fine)
+    if fine_costs.min() < coarse_costs.min():
+        return float(fine_costs.min()), float(fine[int(np.argmin(fine_costs))])
+    return float(coarse_costs.min()), float(best)
+
+
+def _walk_misfits(fit: tuple, rate: float, gate: float, seen: tuple) -> np.ndarray:
+    """Per observation of ``seen``, its ``min(z^2, gate^2)`` (column plus depth where both are known) against
+    the straight walk fitted at ``rate`` to ``fit`` (:func:`_walk_fit`); both ``(frames, u, sigma, depth,
+    depth_sigma)`` as :func:`_image_track` gives them, ``seen`` with its own noise.  Zeros when ``fit`` has
+    fewer than 3 frames."""
+    frames, u, sigma, depth, depth_sigma = fit
+    s_frames, s_u, s_sigma, s_depth, s_depth_sigma = seen
+    out = np.zeros(len(s_frames))
+    if len(frames) < 3:
+        return out
+    centre = 0.5 * (frames.min() + frames.max())
+    tau, s_tau = frames - centre, s_frames - centre
+    stretch, s_stretch = 1.0 + rate * tau, 1.0 + rate * s_tau
+    _, coef = _robust_fit(np.stack([1.0 / stretch, tau / stretch], axis=1)[None], u, sigma, gate, coefficients=True)
+    out += np.minimum(((s_u - (coef[0, 0] + coef[0, 1] * s_tau) / s_stretch) / s_sigma) ** 2, gate ** 2)
+    known, s_known = np.isfinite(depth), np.isfinite(s_depth)
+    if known.sum() >= 3:
+        _, coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], gate, coefficients=True)
+        z = (s_depth[s_known] - coef[0, 0] * s_stretch[s_known]) / s_depth_sigma[s_known]
+        out[s_known] += np.minimum(z ** 2, gate ** 2)
+    return out
 
 
 def _depth_rate(px_per_m: float | None, calib: StereoCalibration, config: AssociationConfig) -> float:
@@ -1240,7 +1276,12 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     come within half a person's height of each other in the image at frames at most 2 apart, every split
     time ``tau`` from the later start to just after the earlier end is tried: heads kept, tails exchanged (at
     the first such time one track's head moves to the other, at the last one track's tail: a track begun
-    with, or carried on to, the other person; never all of one track).  The frames' centre depths weigh in
+    with, or carried on to, the other person; never all of one track).  So are stretches ``[t1, t2)``
+    exchanged, both ends within 2 frames of a frame where the two are that near (people walking together
+    or meeting twice: the tracker carried each on with the other and back again where they met next): those
+    around the runs of frames whose observations fit the other track's walk better than their own
+    (:func:`_walk_misfits`, each walk fitted robustly as the track is; a stretch holding all of one track is
+    not tried, that would join them; nor is one of a single frame).  The frames' centre depths weigh in
     too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
@@ -1275,7 +1316,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
 
         now = cost_of(tracks[a]) + cost_of(tracks[b])
         found = None
-        for tau in sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1}):
+        taus = sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1})
+        for tau in taus:
             new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
             new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
             if not new_a or not new_b:          # tracks apart in time: that would join them
@@ -1283,6 +1325,45 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
             gain = now - (cost_of(new_a) + cost_of(new_b))
             if gain > gate ** 2 and (found is None or gain > found[0]):
                 found = (gain, new_a, new_b)
+        # a stretch exchanged and exchanged back: the tracker can only have switched where the two were near
+        # each other in the image, so both ends lie within 2 frames of such a frame; at least two frames long
+        # (one frame's exchange is one noisy column or depth against a walk: the straight-walk test cannot
+        # tell it from noise, and among the many stretches tried one such frame beats the gate by chance).
+        # Which stretches: per frame, how much better its observations fit the other track's walk than their
+        # own (each track's walk fitted as it is, robustly: a stretch of the other person is its outliers);
+        # the runs where that sum is positive (:func:`_supported_runs`), their ends give or take 2 frames,
+        # are then tried exactly.
+        near_frames = np.union1d(fa[near.any(axis=1)], fb[near.any(axis=0)])
+        switches = [t for t in taus if t <= hi and np.min(np.abs(near_frames - t)) <= 2]
+        if len(switches) < 2:
+            return found
+        seen = {k: _image_track(tracks[k], calib, config, side, hidden, memo) for k in (a, b)}
+        fits = {k: _walk_fit(*seen[k][:3], gate, _depth_rate(seen[k][5], calib, config), *seen[k][3:5])[1]
+                for k in (a, b)}
+        shared = {m: tuple(x[(seen[m][0] >= lo) & (seen[m][0] <= hi)] for x in seen[m][:5]) for m in (a, b)}
+        misfit = {(k, m): dict(zip(shared[m][0].astype(int), _walk_misfits(seen[k][:5], fits[k], gate, shared[m])))
+                  for k in (a, b) for m in (a, b)}           # frames both tracks span: inside both walks
+        span = sorted(set(misfit[(a, a)]) | set(misfit[(b, b)]))
+        better = np.array([misfit[(a, a)].get(f, 0.0) + misfit[(b, b)].get(f, 0.0)
+                           - misfit[(a, b)].get(f, 0.0) - misfit[(b, a)].get(f, 0.0) for f in span])
+        tried = set()
+        for first, last in _supported_runs(better):
+            starts = [t for t in switches if abs(t - span[first]) <= 2]
+            ends = [t for t in switches if span[last - 1] - 2 < t <= span[last - 1] + 3]
+            for t1 in starts:
+                for t2 in ends:
+                    if t2 - t1 < 2 or (t1, t2) in tried:
+                        continue
+                    tried.add((t1, t2))
+                    inside_a = [o for o in tracks[a] if t1 <= o.frame < t2]
+                    inside_b = [o for o in tracks[b] if t1 <= o.frame < t2]
+                    if len(inside_a) == len(tracks[a]) or len(inside_b) == len(tracks[b]):
+                        continue                    # all of one track: not an exchange but a join
+                    new_a = sorted([o for o in tracks[a] if not t1 <= o.frame < t2] + inside_b, key=lambda o: o.frame)
+                    new_b = sorted([o for o in tracks[b] if not t1 <= o.frame < t2] + inside_a, key=lambda o: o.frame)
+                    gain = now - (cost_of(new_a) + cost_of(new_b))
+                    if gain > gate ** 2 and (found is None or gain > found[0]):
+                        found = (gain, new_a, new_b)
         return found
 
     changed = set(range(len(tracks)))
