@@ -1310,21 +1310,27 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
         hidden = _overlapping_frames(tracks[a], tracks[b])
 
-        def cost_of(track):
-            frames, u, sigma, depth, depth_sigma, px_per_m = _image_track(track, calib, config, side, hidden, memo)
-            return _walk_cost(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)
+        def walk_of(seen):          # (misfit, rate) of a track's straight walk (:func:`_walk_fit`)
+            frames, u, sigma, depth, depth_sigma, px_per_m = seen
+            return _walk_fit(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)
 
-        now = cost_of(tracks[a]) + cost_of(tracks[b])
+        def consider(new_a, new_b):
+            nonlocal found
+            gain = now - (walk_of(_image_track(new_a, calib, config, side, hidden, memo))[0]
+                          + walk_of(_image_track(new_b, calib, config, side, hidden, memo))[0])
+            if gain > gate ** 2 and (found is None or gain > found[0]):
+                found = (gain, new_a, new_b)
+
+        seen = {k: _image_track(tracks[k], calib, config, side, hidden, memo) for k in (a, b)}
+        walks = {k: walk_of(seen[k]) for k in (a, b)}
+        now = walks[a][0] + walks[b][0]
         found = None
         taus = sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1})
         for tau in taus:
             new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
             new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
-            if not new_a or not new_b:          # tracks apart in time: that would join them
-                continue
-            gain = now - (cost_of(new_a) + cost_of(new_b))
-            if gain > gate ** 2 and (found is None or gain > found[0]):
-                found = (gain, new_a, new_b)
+            if new_a and new_b:               # else the tracks lie apart in time: that would join them
+                consider(new_a, new_b)
         # a stretch exchanged and exchanged back: the tracker can only have switched where the two were near
         # each other in the image, so both ends lie within 2 frames of such a frame; at least two frames long
         # (one frame's exchange is one noisy column or depth against a walk: the straight-walk test cannot
@@ -1337,11 +1343,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         switches = [t for t in taus if t <= hi and np.min(np.abs(near_frames - t)) <= 2]
         if len(switches) < 2:
             return found
-        seen = {k: _image_track(tracks[k], calib, config, side, hidden, memo) for k in (a, b)}
-        fits = {k: _walk_fit(*seen[k][:3], gate, _depth_rate(seen[k][5], calib, config), *seen[k][3:5])[1]
-                for k in (a, b)}
         shared = {m: tuple(x[(seen[m][0] >= lo) & (seen[m][0] <= hi)] for x in seen[m][:5]) for m in (a, b)}
-        misfit = {(k, m): dict(zip(shared[m][0].astype(int), _walk_misfits(seen[k][:5], fits[k], gate, shared[m])))
+        misfit = {(k, m): dict(zip(shared[m][0].astype(int), _walk_misfits(seen[k][:5], walks[k][1], gate, shared[m])))
                   for k in (a, b) for m in (a, b)}           # frames both tracks span: inside both walks
         span = sorted(set(misfit[(a, a)]) | set(misfit[(b, b)]))
         better = np.array([misfit[(a, a)].get(f, 0.0) + misfit[(b, b)].get(f, 0.0)
@@ -1359,11 +1362,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                     inside_b = [o for o in tracks[b] if t1 <= o.frame < t2]
                     if len(inside_a) == len(tracks[a]) or len(inside_b) == len(tracks[b]):
                         continue                    # all of one track: not an exchange but a join
-                    new_a = sorted([o for o in tracks[a] if not t1 <= o.frame < t2] + inside_b, key=lambda o: o.frame)
-                    new_b = sorted([o for o in tracks[b] if not t1 <= o.frame < t2] + inside_a, key=lambda o: o.frame)
-                    gain = now - (cost_of(new_a) + cost_of(new_b))
-                    if gain > gate ** 2 and (found is None or gain > found[0]):
-                        found = (gain, new_a, new_b)
+                    consider(sorted([o for o in tracks[a] if not t1 <= o.frame < t2] + inside_b, key=lambda o: o.frame),
+                             sorted([o for o in tracks[b] if not t1 <= o.frame < t2] + inside_a, key=lambda o: o.frame))
         return found
 
     changed = set(range(len(tracks)))
