@@ -1217,26 +1217,32 @@ def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float,
     return float(coarse_costs.min()), float(best)
 
 
-def _walk_misfits(fit: tuple, rate: float, gate: float, seen: tuple) -> np.ndarray:
-    """Per observation of ``seen``, its ``min(z^2, gate^2)`` (column plus depth where both are known) against
-    the straight walk fitted at ``rate`` to ``fit`` (:func:`_walk_fit`); both ``(frames, u, sigma, depth,
-    depth_sigma)`` as :func:`_image_track` gives them, ``seen`` with its own noise.  Zeros when ``fit`` has
-    fewer than 3 frames."""
+def _walk_misfits(fit: tuple, rate: float, gate: float, seen: list[tuple]) -> list[np.ndarray]:
+    """Per series of ``seen``, per observation its ``min(z^2, gate^2)`` (column plus depth where both are
+    known) against the straight walk fitted once at ``rate`` to ``fit`` (:func:`_walk_fit`); all ``(frames,
+    u, sigma, depth, depth_sigma)`` as :func:`_image_track` gives them, each of ``seen`` with its own noise.
+    Zeros when ``fit`` has fewer than 3 frames."""
     frames, u, sigma, depth, depth_sigma = fit
-    s_frames, s_u, s_sigma, s_depth, s_depth_sigma = seen
-    out = np.zeros(len(s_frames))
+    out = [np.zeros(len(series[0])) for series in seen]
     if len(frames) < 3:
         return out
     centre = 0.5 * (frames.min() + frames.max())
-    tau, s_tau = frames - centre, s_frames - centre
-    stretch, s_stretch = 1.0 + rate * tau, 1.0 + rate * s_tau
-    _, coef = _robust_fit(np.stack([1.0 / stretch, tau / stretch], axis=1)[None], u, sigma, gate, coefficients=True)
-    out += np.minimum(((s_u - (coef[0, 0] + coef[0, 1] * s_tau) / s_stretch) / s_sigma) ** 2, gate ** 2)
-    known, s_known = np.isfinite(depth), np.isfinite(s_depth)
+    tau = frames - centre
+    stretch = 1.0 + rate * tau
+    _, u_coef = _robust_fit(np.stack([1.0 / stretch, tau / stretch], axis=1)[None], u, sigma, gate, coefficients=True)
+    known = np.isfinite(depth)
+    depth_coef = None
     if known.sum() >= 3:
-        _, coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], gate, coefficients=True)
-        z = (s_depth[s_known] - coef[0, 0] * s_stretch[s_known]) / s_depth_sigma[s_known]
-        out[s_known] += np.minimum(z ** 2, gate ** 2)
+        _, depth_coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], gate,
+                                    coefficients=True)
+    for misfit, (s_frames, s_u, s_sigma, s_depth, s_depth_sigma) in zip(out, seen):
+        s_tau = s_frames - centre
+        s_stretch = 1.0 + rate * s_tau
+        misfit += np.minimum(((s_u - (u_coef[0, 0] + u_coef[0, 1] * s_tau) / s_stretch) / s_sigma) ** 2, gate ** 2)
+        if depth_coef is not None:
+            s_known = np.isfinite(s_depth)
+            z = (s_depth[s_known] - depth_coef[0, 0] * s_stretch[s_known]) / s_depth_sigma[s_known]
+            misfit[s_known] += np.minimum(z ** 2, gate ** 2)
     return out
 
 
@@ -1344,8 +1350,10 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         if len(switches) < 2:
             return found
         shared = {m: tuple(x[(seen[m][0] >= lo) & (seen[m][0] <= hi)] for x in seen[m][:5]) for m in (a, b)}
-        misfit = {(k, m): dict(zip(shared[m][0].astype(int), _walk_misfits(seen[k][:5], walks[k][1], gate, shared[m])))
-                  for k in (a, b) for m in (a, b)}           # frames both tracks span: inside both walks
+        misfit = {}                         # (walk of k, observations of m): frame -> misfit, on frames both span
+        for k in (a, b):
+            for m, values in zip((a, b), _walk_misfits(seen[k][:5], walks[k][1], gate, [shared[a], shared[b]])):
+                misfit[(k, m)] = dict(zip(shared[m][0].astype(int), values))
         span = sorted(set(misfit[(a, a)]) | set(misfit[(b, b)]))
         better = np.array([misfit[(a, a)].get(f, 0.0) + misfit[(b, b)].get(f, 0.0)
                            - misfit[(a, b)].get(f, 0.0) - misfit[(b, a)].get(f, 0.0) for f in span])
