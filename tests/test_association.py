@@ -851,6 +851,52 @@ def test_stretch_exchanged_between_walkers_in_step_and_given_back_is_repaired():
     assert sorted([id(o) for o in t] for t in repaired) == sorted([[id(o) for o in near], [id(o) for o in far]])
 
 
+def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_beside_it():
+    """The walkers in step: the near one's track ends at frame 3 and a new one starts at frame 8 (hidden for
+    four frames); the far one, unseen before, is found at frame 8 too, in the same image column.  The walk
+    joins the near one's two pieces (its centre depths; the far one is 1.5 m deeper).  A piece of someone
+    standing still, or of a walker coming back the other way, is not joined."""
+    from pedx_graph.detections.association import stitch_tracks
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    near, far, position, _ = _walkers_in_step(calib, np.random.default_rng(11), range(20))
+    pieces = [near[:4], far[8:], near[8:]]
+    joined = stitch_tracks(pieces, calib, AssociationConfig())
+    assert [[id(o) for o in t] for t in joined] == [[id(o) for o in near[:4] + near[8:]], [id(o) for o in far[8:]]]
+    # each piece alone is what it was without a join (0 = off)
+    assert stitch_tracks(pieces, calib, AssociationConfig(stitch_max_gap_frames=0)) == pieces
+    # beyond the allowed gap: not joined
+    assert len(stitch_tracks([near[:4], near[16:]], calib, AssociationConfig(stitch_max_gap_frames=10))) == 2
+    rng = np.random.default_rng(12)
+    start = (20.0, -1.6 + 0.14 * 8)            # where the near walker is at frame 8
+    standing = _walker_observations(calib, start, (0.0, 0.0), range(8, 14), rng)
+    back = _walker_observations(calib, (start[0], start[1] + 0.14 * 8), (0.0, -0.14), range(8, 14), rng)
+    for other, step in ((standing, 0.0), (back, -0.14)):
+        for obs in other:
+            obs.world_p = np.array([start[0], start[1] + step * (obs.frame - 8), GROUND_Z + 1.0])
+            obs.depth_sigma_m = 0.1
+        assert len(stitch_tracks([near[:4], other], calib, AssociationConfig())) == 2
+
+
+def test_a_person_hidden_for_four_frames_is_one_track_with_both_pieces():
+    """A walker at 20 m seen in both images at frames 0-3, hidden from 4 to 7, seen again from 8 to 15: the
+    per-camera tracker gives up after the gap (``tracklet.max_misses``), and the first piece alone (4 frames)
+    is shorter than ``tracker.min_track_frames``; the two pieces make one track of all 12 frames."""
+    calibs = _rig()
+    ahead = _person_points((20.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
+    rng = np.random.default_rng(14)
+    dets = []
+    seen = [k for k in range(16) if not 4 <= k <= 7]
+    for k in seen:
+        dets += _detections(calib, _person_points((20.0, -1.0 + 0.14 * k), np.pi / 2, 0.6 * k), k, rng)
+    tracks = associate(dets, calibs, ground=_ground(calibs))
+    assert [[fr.frame for fr in tr.frames] for tr in tracks] == [seen]
+    parted = associate(dets, calibs, AssociationConfig(stitch_max_gap_frames=0), ground=_ground(calibs))
+    assert [[fr.frame for fr in tr.frames] for tr in parted] == [seen[4:]]
+
+
 def test_walk_cost_follows_perspective_near_the_camera():
     """A walker 4-7 m away walking diagonally away from the camera: its image speed halves over 20 frames
     (perspective), which no straight line in time fits; the projected straight walk fits it to the noise."""

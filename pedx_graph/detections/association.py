@@ -81,7 +81,10 @@ Steps:
    given back where they met again (:func:`repair_swaps`): a walker moves
    on a straight line at constant speed, which the image column (projected: curved near the camera) and the
    frames' centre depths follow, so the exchange is made when it fits the two tracks to such walks clearly
-   better (a tracker carrying each on with the other while they were missed in turns).  A person with fewer than
+   better (a tracker carrying each on with the other while they were missed in turns).  Before that, a person
+   the pair lost and found again (hidden, or missed in both images, for up to ``stitch_max_gap_frames``) is
+   made one track when one straight walk explains both pieces, each with its stereo depths
+   (:func:`stitch_tracks`).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
    flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
@@ -273,6 +276,9 @@ class AssociationConfig:
     centres are noisy (a person mostly hidden: stereo depth from a handful of keypoints) is not given the
     speed its noise suggests, while a walk seen over many frames follows its centres.  Default: adults'
     typical walking speed (about 1.2-1.5 m/s in pedestrian studies); 0 = no prior."""
+    stitch_max_gap_frames: int = 10
+    """A pair's track of a person lost and found again up to this many frames later is joined to the track
+    that found it when one straight walk explains both (:func:`stitch_tracks`), frames; 0 = off."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """What makes a pair's person a track: ``min_track_frames``, ``min_mean_score``, and the speed limits
     (``max_speed_mps``, ``frame_interval_s``) bounding how fast a person's disparity may change."""
@@ -1013,13 +1019,10 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                     ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
         tracklets[side] = camera_tracklets(deduplicated, config, ranges)
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
-    out = []
-    projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
+    candidates = []
     for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges, ground):
         drop_disparity_outliers(person, calib, config)
         frames = sorted(set(person.sides["left"]) | set(person.sides["right"]))
-        if len(frames) < config.tracker.min_track_frames:
-            continue
         track = []
         for frame in frames:
             uv, payload = {}, {}
@@ -1036,6 +1039,12 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                 both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                 obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
             track.append(obs)
+        candidates.append(track)
+    out = []
+    projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
+    for track in stitch_tracks(candidates, calib, config):
+        if len(track) < config.tracker.min_track_frames:
+            continue
         if float(np.mean([o.score for o in track])) < config.tracker.min_mean_score:
             continue
         if clouds is not None:
@@ -1443,6 +1452,82 @@ def split_reversals(tracks: list[list[Observation]], calib: StereoCalibration,
             continue
         out.append([o for o in track if o.frame < split_at])
         pending.insert(0, [o for o in track if o.frame >= split_at])
+    return out
+
+
+def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
+                  config: AssociationConfig) -> list[list[Observation]]:
+    """Join one pair's tracks of a person lost and found again: hidden for a few frames (a passing car, a
+    neighbour in front) or missed in both images, the per-camera tracker gives up (``tracklet.max_misses``) or
+    no longer recognises its keypoints (limbs swing over a gap), and the person goes on as a new track.  A
+    piece may be too short to be kept (``tracker.min_track_frames``), and a piece fitted alone gets no shape
+    or walk from the frames where the person was seen well.
+
+    A track ending at frame ``e`` and one starting at ``s``, ``e < s <= e + 1 + stitch_max_gap_frames``, are one
+    person when one straight walk at constant velocity explains both: the misfit of the joined track
+    (:func:`_walk_fit`: image column and centre depths, robust, in the image where both are seen most,
+    :func:`_image_track`) exceeds the two tracks' own misfits by at most ``gate_sigmas^2`` (joining one
+    walker's pieces leaves an increase about chi-square distributed with four degrees of freedom, one walk's
+    column line, depth and rate fewer: the default gate passes 98 % of them; a piece of someone elsewhere
+    adds up to ``gate_sigmas^2`` per frame).
+    Each track must hold at least three frames (its own walk is measured; through two frames any walk
+    passes) of which at least two have a stereo centre: seen in one image, a person cannot be told from
+    someone behind it in the same image column.  Among the joins that pass, each track's predecessor and
+    successor are chosen by least total increase (Hungarian assignment); chains of joins make one track.
+    Returns the tracks, each joined chain in the place of its first track, the others as they were."""
+    max_gap = config.stitch_max_gap_frames
+    if max_gap <= 0 or len(tracks) < 2:
+        return tracks
+    gate = config.gate_sigmas
+    memo: dict = {}
+    sides = ("left", "right")
+    series = {sd: [_image_track(t, calib, config, sd, memo=memo) if len(t) >= 3 else None for t in tracks]
+              for sd in sides}
+    own: dict[tuple[str, int], float] = {}
+
+    def misfit(seen: tuple) -> float:
+        frames, u, sigma, depth, depth_sigma, px_per_m = seen
+        return _walk_fit(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)[0]
+
+    placed = [len(t) >= 3 and sum(o.world_p is not None for o in t) >= 2 for t in tracks]
+    joins = []
+    for a, head in enumerate(tracks):
+        if not placed[a]:
+            continue
+        for b, tail in enumerate(tracks):
+            if b == a or not placed[b] or not 0 < tail[0].frame - head[-1].frame <= max_gap + 1:
+                continue
+            side = max(sides, key=lambda sd: min(len(series[sd][a][0]), len(series[sd][b][0])))
+            if min(len(series[side][a][0]), len(series[side][b][0])) < 3:
+                continue
+            for k in (a, b):
+                if (side, k) not in own:
+                    own[(side, k)] = misfit(series[side][k])
+            increase = misfit(_image_track(head + tail, calib, config, side, memo=memo)) \
+                - own[(side, a)] - own[(side, b)]
+            if increase <= gate ** 2:
+                joins.append((increase, a, b))
+    if not joins:
+        return tracks
+    heads = sorted({a for _, a, _ in joins})
+    tails = sorted({b for _, _, b in joins})
+    cost = np.full((len(heads), len(tails)), _GATED)
+    for increase, a, b in joins:
+        cost[heads.index(a), tails.index(b)] = increase
+    successor = {}
+    for r, c in zip(*linear_sum_assignment(cost)):
+        if cost[r, c] < _GATED:
+            successor[heads[r]] = tails[c]
+    followers = set(successor.values())
+    out = []
+    for k, track in enumerate(tracks):
+        if k in followers:
+            continue
+        chain = list(track)
+        while k in successor:
+            k = successor[k]
+            chain += tracks[k]
+        out.append(chain)
     return out
 
 
