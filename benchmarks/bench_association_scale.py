@@ -39,7 +39,7 @@ from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 FORMAT = "openpose_body25"
 #: Steps of the association whose share of the time is reported (functions of its module).
-STEPS = ("camera_tracklets", "pair_tracklets", "repair_swaps", "split_reversals", "_lidar_centre",
+STEPS = ("camera_tracklets", "pair_tracklets", "stitch_tracks", "repair_swaps", "split_reversals", "_lidar_centre",
          "detection_ranges", "merge_pair_tracks", "smooth_centres", "separate_people")
 
 
@@ -94,7 +94,7 @@ def markdown(result: dict) -> str:
                      f"{row['id_switches']} | {row['associate_seconds']:.1f} | "
                      f"{1000 * row['associate_seconds'] / max(row['detections'], 1):.1f} | {shares} |")
     lines += ["", "Step shares are of the association's whole time and overlap where one step calls another "
-              "(`_lidar_centre` runs inside `pair_tracks`, as do the tracklet steps and `repair_swaps`)."]
+              "(`_lidar_centre` runs inside `pair_tracks`, as do the tracklet steps, `stitch_tracks` and `repair_swaps`)."]
     return "\n".join(lines) + "\n"
 
 

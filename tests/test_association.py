@@ -855,7 +855,8 @@ def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_besi
     """The walkers in step: the near one's track ends at frame 3 and a new one starts at frame 8 (hidden for
     four frames); the far one, unseen before, is found at frame 8 too, in the same image column.  The walk
     joins the near one's two pieces (its centre depths; the far one is 1.5 m deeper).  A piece of someone
-    standing still, or of a walker coming back the other way, is not joined."""
+    standing still, or of a walker coming back the other way, is not joined; nor is the near one's second
+    piece seen in one image only, without depths."""
     from pedx_graph.detections.association import stitch_tracks
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
@@ -868,6 +869,9 @@ def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_besi
     assert stitch_tracks(pieces, calib, AssociationConfig(stitch_max_gap_frames=0)) == pieces
     # beyond the allowed gap: not joined
     assert len(stitch_tracks([near[:4], near[16:]], calib, AssociationConfig(stitch_max_gap_frames=10))) == 2
+    # found again in one image only (no centre): it could as well be the one behind in that column
+    one_image = [Observation(frame=o.frame, uv={"left": o.uv["left"]}, score=0.8, payload=o.payload) for o in near[8:]]
+    assert len(stitch_tracks([near[:4], one_image], calib, AssociationConfig())) == 2
     rng = np.random.default_rng(12)
     start = (20.0, -1.6 + 0.14 * 8)            # where the near walker is at frame 8
     standing = _walker_observations(calib, start, (0.0, 0.0), range(8, 14), rng)

@@ -1481,7 +1481,8 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
     gate = config.gate_sigmas
     memo: dict = {}
     sides = ("left", "right")
-    series = {sd: [_image_track(t, calib, config, sd, memo=memo) if len(t) >= 3 else None for t in tracks]
+    placed = [len(t) >= 3 and sum(o.world_p is not None for o in t) >= 2 for t in tracks]
+    series = {sd: [_image_track(t, calib, config, sd, memo=memo) if ok else None for t, ok in zip(tracks, placed)]
               for sd in sides}
     own: dict[tuple[str, int], float] = {}
 
@@ -1489,7 +1490,6 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
         frames, u, sigma, depth, depth_sigma, px_per_m = seen
         return _walk_fit(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)[0]
 
-    placed = [len(t) >= 3 and sum(o.world_p is not None for o in t) >= 2 for t in tracks]
     joins = []
     for a, head in enumerate(tracks):
         if not placed[a]:
