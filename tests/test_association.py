@@ -2,6 +2,7 @@
 their ids), false detections and flickering bystanders never become tracks, tracks of two pairs merge."""
 from __future__ import annotations
 
+import dataclasses
 from collections import defaultdict
 
 import numpy as np
@@ -856,7 +857,7 @@ def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_besi
     four frames); the far one, unseen before, is found at frame 8 too, in the same image column.  The walk
     joins the near one's two pieces (its centre depths; the far one is 1.5 m deeper).  A piece of someone
     standing still, or of a walker coming back the other way, is not joined; nor is the near one's second
-    piece seen in one image only, without depths."""
+    piece seen in one image only, without depths, nor any piece when another one fits as well."""
     from pedx_graph.detections.association import stitch_tracks
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
@@ -869,6 +870,10 @@ def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_besi
     assert stitch_tracks(pieces, calib, AssociationConfig(stitch_max_gap_frames=0)) == pieces
     # beyond the allowed gap: not joined
     assert len(stitch_tracks([near[:4], near[16:]], calib, AssociationConfig(stitch_max_gap_frames=10))) == 2
+    # the far walker's first piece, its depths known to 1.5 m only (stereo at range), fits the near one's
+    # second piece too: two pieces pass for it, the walk cannot tell which, and none is joined
+    vague = [dataclasses.replace(o, depth_sigma_m=1.5) for o in far[:4]]
+    assert len(stitch_tracks([near[:4], vague, near[8:]], calib, AssociationConfig())) == 3
     # found again in one image only (no centre): it could as well be the one behind in that column
     one_image = [Observation(frame=o.frame, uv={"left": o.uv["left"]}, score=0.8, payload=o.payload) for o in near[8:]]
     assert len(stitch_tracks([near[:4], one_image], calib, AssociationConfig())) == 2

@@ -1472,9 +1472,11 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
     adds up to ``gate_sigmas^2`` per frame).
     Each track must hold at least three frames (its own walk is measured; through two frames any walk
     passes) of which at least two have a stereo centre: seen in one image, a person cannot be told from
-    someone behind it in the same image column.  Among the joins that pass, each track's predecessor and
-    successor are chosen by least total increase (Hungarian assignment); chains of joins make one track.
-    Returns the tracks, each joined chain in the place of its first track, the others as they were."""
+    someone behind it in the same image column.  A join is made only where it is the one that passes both for
+    the first track's end and for the second's start (two people one behind the other on a ray, hidden
+    together, leave two pieces that the found one fits; the far one's noisy depths fit it best, and the walk
+    cannot tell which); chains of joins make one track.  Returns the tracks, each joined chain in the place
+    of its first track, the others as they were."""
     max_gap = config.stitch_max_gap_frames
     if max_gap <= 0 or len(tracks) < 2:
         return tracks
@@ -1506,18 +1508,14 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
             increase = misfit(_image_track(head + tail, calib, config, side, memo=memo)) \
                 - own[(side, a)] - own[(side, b)]
             if increase <= gate ** 2:
-                joins.append((increase, a, b))
-    if not joins:
-        return tracks
-    heads = sorted({a for _, a, _ in joins})
-    tails = sorted({b for _, _, b in joins})
-    cost = np.full((len(heads), len(tails)), _GATED)
-    for increase, a, b in joins:
-        cost[heads.index(a), tails.index(b)] = increase
-    successor = {}
-    for r, c in zip(*linear_sum_assignment(cost)):
-        if cost[r, c] < _GATED:
-            successor[heads[r]] = tails[c]
+                joins.append((a, b))
+    # a join is made only where it is the one that passes for its track's end and for the other's start
+    heads = defaultdict(int)
+    tails = defaultdict(int)
+    for a, b in joins:
+        heads[a] += 1
+        tails[b] += 1
+    successor = {a: b for a, b in joins if heads[a] == 1 and tails[b] == 1}
     followers = set(successor.values())
     out = []
     for k, track in enumerate(tracks):
