@@ -706,7 +706,10 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
     with someone else midway leaves the part before the switch paired, where a sum over the whole overlap
     would reject both parts.  A single failing frame between two passing ones counts zero instead (a
     detector's one-frame glitch is no change of person; it stays unpaired).  A run shorter than the whole
-    overlap counts only with at least ``pair_min_run_frames`` paired frames."""
+    overlap counts only with at least ``pair_min_run_frames`` paired frames.  When no run counts, the whole
+    overlap does where its summed evidence is positive and at least ``pair_min_run_frames`` of its frames
+    pass: the two agree in most frames, the failing ones scattered among them (a detector that reports, in
+    one image, now the person and now someone beside it), not a tracklet gone on with someone else."""
     by_frame = {frame: (det, uv) for frame, det, uv in right}
     items = []
     for frame, det, uv_left in left:
@@ -739,6 +742,9 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
         whole = lo == 0 and hi == len(items)
         if paired and (whole or len(paired) >= config.pair_min_run_frames):
             out.append((float(runs_gain[lo:hi].sum()), paired))
+    passed = [items[k][0] for k in range(len(items)) if passing[k]]
+    if not out and runs_gain.sum() > 0 and len(passed) >= config.pair_min_run_frames:
+        out.append((float(runs_gain.sum()), passed))
     return out
 
 
