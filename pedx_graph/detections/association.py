@@ -59,7 +59,9 @@ Steps:
    every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``,
    summed over the runs of consecutive shared frames that support the pairing most (a tracklet the
    per-camera tracker carried on with someone else midway is paired over the part before the change; one
-   failing frame between two passing ones, a detector's glitch, does not break a run).
+   failing frame between two passing ones, a detector's glitch, does not break a run; where no run holds
+   ``pair_min_run_frames`` passing frames, the whole overlap counts when its sum is positive and that many
+   of its frames pass).
    Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
