@@ -1272,6 +1272,13 @@ def _depth_rate(px_per_m: float | None, calib: StereoCalibration, config: Associ
     return config.tracker.max_speed_mps * config.tracker.frame_interval_s * px_per_m / calib.focal_px
 
 
+def _track_walk(seen: tuple, calib: StereoCalibration, config: AssociationConfig) -> tuple[float, float]:
+    """:func:`_walk_fit` (misfit, rate) of a track as :func:`_image_track` gives it, at ``gate_sigmas``, its
+    depth rate bounded by a walker's top speed at the track's scale (:func:`_depth_rate`)."""
+    frames, u, sigma, depth, depth_sigma, px_per_m = seen
+    return _walk_fit(frames, u, sigma, config.gate_sigmas, _depth_rate(px_per_m, calib, config), depth, depth_sigma)
+
+
 def _overlapping_frames(track_a: list[Observation], track_b: list[Observation], cover: float = 0.5) -> frozenset:
     """Frames where, in an image both tracks' detections are in, one detection's box covers at least ``cover``
     of the other's: one person (partly) in front of the other, whose LiDAR cuts cannot be told apart."""
@@ -1333,19 +1340,15 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
         hidden = _overlapping_frames(tracks[a], tracks[b])
 
-        def walk_of(seen):          # (misfit, rate) of a track's straight walk (:func:`_walk_fit`)
-            frames, u, sigma, depth, depth_sigma, px_per_m = seen
-            return _walk_fit(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)
-
         def consider(new_a, new_b):
             nonlocal found
-            gain = now - (walk_of(_image_track(new_a, calib, config, side, hidden, memo))[0]
-                          + walk_of(_image_track(new_b, calib, config, side, hidden, memo))[0])
+            gain = now - (_track_walk(_image_track(new_a, calib, config, side, hidden, memo), calib, config)[0]
+                          + _track_walk(_image_track(new_b, calib, config, side, hidden, memo), calib, config)[0])
             if gain > gate ** 2 and (found is None or gain > found[0]):
                 found = (gain, new_a, new_b)
 
         seen = {k: _image_track(tracks[k], calib, config, side, hidden, memo) for k in (a, b)}
-        walks = {k: walk_of(seen[k]) for k in (a, b)}
+        walks = {k: _track_walk(seen[k], calib, config) for k in (a, b)}
         now = walks[a][0] + walks[b][0]
         found = None
         taus = sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1})
@@ -1494,12 +1497,7 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
     placed = [len(t) >= 3 and sum(o.world_p is not None for o in t) >= 2 for t in tracks]
     series = {sd: [_image_track(t, calib, config, sd, memo=memo) if ok else None for t, ok in zip(tracks, placed)]
               for sd in sides}
-    own: dict[tuple[str, int], float] = {}
-
-    def misfit(seen: tuple) -> float:
-        frames, u, sigma, depth, depth_sigma, px_per_m = seen
-        return _walk_fit(frames, u, sigma, gate, _depth_rate(px_per_m, calib, config), depth, depth_sigma)[0]
-
+    own: dict[tuple[str, int], float] = {}        # (image, track) -> the track's own walk misfit
     joins = []
     for a, head in enumerate(tracks):
         if not placed[a]:
@@ -1512,8 +1510,8 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
                 continue
             for k in (a, b):
                 if (side, k) not in own:
-                    own[(side, k)] = misfit(series[side][k])
-            increase = misfit(_image_track(head + tail, calib, config, side, memo=memo)) \
+                    own[(side, k)] = _track_walk(series[side][k], calib, config)[0]
+            increase = _track_walk(_image_track(head + tail, calib, config, side, memo=memo), calib, config)[0] \
                 - own[(side, a)] - own[(side, b)]
             if increase <= gate ** 2:
                 joins.append((a, b))
