@@ -28,7 +28,8 @@ people), bystander tracks (a real unlabelled person), labelled people recovered,
 people's detections (mostly a left image paired with the wrong right image), identity switches (a track going
 on with another person; all, and those involving a person in a crossing: two labelled people at 5-25 m who
 pass each other in one image — keypoint boxes overlapping at some frame, their left-right order changed),
-fragmentations (a person split over several tracks).
+wrong frames (frames of a track that are someone else's than its owner's: a neighbour's stretch counts its
+frames once, where the switches count it twice), fragmentations (a person split over several tracks).
 
 Scenes: ``crossing`` (default rig, everyone on the crosswalks, no groups, labelled at 5-25 m: people cross in
 front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair turned 20 degrees and placed
@@ -447,15 +448,16 @@ def markdown(result: dict, command: str) -> str:
                      f"{g['crossing_id_switches']} | {g['false_tracks']} | {g.get('misplaced_frames_5_25', 0)} |")
     lines += ["", "## Association (per scene and format)", "",
               "| scene | format | tracks | false | bystander | recovered / labelled people | id switches "
-              "(crossing) | mixed frames | fragmentations | crossing people (events) | stereo-row noise scale "
-              "(applied) |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "(crossing) | wrong frames | mixed frames | fragmentations | crossing people (events) | "
+              "stereo-row noise scale (applied) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, sc in result["scenes"].items():
         for fmt, a in sc["association"].items():
             check = a.get("stereo_noise_check") or {}
             lines.append(f"| {name} | {fmt} | {a['tracks']} | {a['false_tracks']} | {a['bystander_tracks']} | "
                          f"{a['recovered']} / {a['labelled_people']} | {a['id_switches']} "
-                         f"({a['crossing_id_switches']}) | {a['mixed_frames']} | {a['fragmentations']} | "
+                         f"({a['crossing_id_switches']}) | {a.get('wrong_frames', '-')} | {a['mixed_frames']} | "
+                         f"{a['fragmentations']} | "
                          f"{sc['crossing_people']} ({sc['crossing_events']}) | "
                          f"{cell(check.get('scale'), '.2f')} ({cell(check.get('applied'), '.2f')}) |")
     lines += ["", "## Accuracy (both scenes)", "",

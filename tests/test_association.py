@@ -190,7 +190,8 @@ def test_tracker_birth_and_death():
 
 def test_scoring_counts_switches_fragments_and_false_tracks():
     """:func:`score_tracks`: a track going on with another person is a switch charged to both, a person in two
-    tracks a fragmentation, a track of clutter a false track, a track of an unlabelled person a bystander's."""
+    tracks a fragmentation, a track of clutter a false track, a track of an unlabelled person a bystander's;
+    the frames of someone other than a track's owner are its wrong frames."""
     from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
     from pedx_graph.detections.evaluate import score_tracks
 
@@ -218,6 +219,11 @@ def test_scoring_counts_switches_fragments_and_false_tracks():
     assert score["false_tracks"] == 1 and score["bystander_tracks"] == 1
     assert score["recovered"] == 1 and score["labelled_people"] == 2      # only b owns a track
     assert score["fragmentations"] == 2                   # a in t1 and t3, b in t1 and t2
+    assert score["wrong_frames"] == 2                     # t1's two frames of a (t3 is no one's track)
+    # a neighbour's one frame inside a track: two switches (in and out), one wrong frame
+    score = score_tracks([track("t5", [(0, "person", "a"), (1, "person", "b"), (2, "person", "a")])], records,
+                         labelled)
+    assert score["id_switches"] == 2 and score["wrong_frames"] == 1
 
 
 def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():
@@ -247,6 +253,7 @@ def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():
     score = score_tracks([track], records, {"z": {f: 10.0 for f in range(4)}})
     assert score["id_switches"] == 1 and score["switches"] == [("t1", 1, "a", "z")]
     assert score["mixed_frames"] == 2
+    assert score["wrong_frames"] == 1                     # frame 0, a's, in z's track
 
 
 def test_two_people_crossing_at_20_m_on_the_pedx_rig_keep_their_ids():

@@ -17,7 +17,11 @@ or clutter.  :func:`detection_truth` finds the record of a read detection from i
   wrong right image);
 * **identity switches**: per output track, over its frames in time order, the number of times the person
   holding most of the frame's detections changes (a tie keeps the previous person) (the track went on with someone else; both people are
-  charged with it in ``switches_by_person``) — plus **fragmentation**: per labelled person, the number of
+  charged with it in ``switches_by_person``);
+* **wrong frames**: frames of a track with an owner whose person (as for the switches) is someone else —
+  how many frames a switch or a swap left on the wrong track: a neighbour's stretch inside a track counts
+  its frames once, where the switches count two (in and out) however short it is;
+* **fragmentation**: per labelled person, the number of
   distinct tracks holding its detections beyond the first (a person lost and found again, or seen by two
   pairs whose tracks were not merged).
 """
@@ -95,13 +99,13 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     records; ``labelled``: tracking id -> {frame: horizontal distance (m)} of the labelled instances.
     Returns ``{"tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people",
     "id_switches", "fragmentations", "owners": {track id: owner}, "switches_by_person": {tid: count},
-    "switches": [(track id, frame, from person, to person)], "mixed_frames"}``.
+    "switches": [(track id, frame, from person, to person)], "mixed_frames", "wrong_frames"}``.
     """
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     owners, false, bystander, switches = {}, 0, 0, 0
     by_person: dict[str, int] = {}
     switch_list: list[tuple[str, int, str, str]] = []
-    mixed_frames = 0
+    mixed_frames, wrong_frames = 0, 0
     tracks_of: dict[str, set] = defaultdict(set)
     for track in tracks:
         votes = Counter()
@@ -117,7 +121,8 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
             if len(people) > 1:
                 mixed_frames += 1               # two people's detections in one frame of one track
         previous = None
-        for frame, current in frame_owners(track, records, index).items():
+        frame_people = frame_owners(track, records, index)
+        for frame, current in frame_people.items():
             if previous is not None and current != previous:
                 switches += 1                   # the track went on with another person
                 switch_list.append((track.track_id, frame, previous, current))
@@ -131,6 +136,7 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
             owners[track.track_id] = None
             continue
         owners[track.track_id] = owner
+        wrong_frames += sum(1 for person in frame_people.values() if person != owner)
         if owner not in labelled:
             bystander += 1
     fragmentations, recovered, eligible = 0, 0, 0
@@ -144,4 +150,4 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     return {"tracks": len(tracks), "false_tracks": false, "bystander_tracks": bystander,
             "recovered": recovered, "labelled_people": eligible, "id_switches": switches,
             "fragmentations": fragmentations, "owners": owners, "switches_by_person": by_person,
-            "switches": switch_list, "mixed_frames": mixed_frames}
+            "switches": switch_list, "mixed_frames": mixed_frames, "wrong_frames": wrong_frames}
