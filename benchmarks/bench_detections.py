@@ -456,7 +456,7 @@ def markdown(result: dict, command: str) -> str:
             check = a.get("stereo_noise_check") or {}
             lines.append(f"| {name} | {fmt} | {a['tracks']} | {a['false_tracks']} | {a['bystander_tracks']} | "
                          f"{a['recovered']} / {a['labelled_people']} | {a['id_switches']} "
-                         f"({a['crossing_id_switches']}) | {a.get('wrong_frames', '-')} | {a['mixed_frames']} | "
+                         f"({a['crossing_id_switches']}) | {a['wrong_frames']} | {a['mixed_frames']} | "
                          f"{a['fragmentations']} | "
                          f"{sc['crossing_people']} ({sc['crossing_events']}) | "
                          f"{cell(check.get('scale'), '.2f')} ({cell(check.get('applied'), '.2f')}) |")
