@@ -704,6 +704,38 @@ def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():
         assert sorted(person.paired) == list(range(20))
 
 
+def test_a_frame_goes_to_the_persons_own_detection_not_a_neighbours_a_carried_on_tracklet_holds():
+    """A walker at 19 m, clean in the left image.  The right image's tracker lost it after frame 2 and carried a
+    neighbour's tracklet on with it from frame 3; at frames 1-2 that tracklet holds the neighbour, 4 px of
+    disparity off the walker's (1 m deeper), close enough to pass the stereo gates with the walker's left
+    detection.  Summed over its run, the long tracklet outweighs the walker's own short right tracklet
+    (frames 0-2), yet at frames 1-2 the walker's own right detection pairs better: the walker keeps its own
+    right detections at every frame, and the neighbour's stay out."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    ahead = _person_points((19.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(21)
+    views = {}
+    for k in range(12):
+        walker = calib.project(_person_points((19.0, -1.0 + 0.12 * k), 0.0, 0.5 * k))
+        neighbour = calib.project(_person_points((19.0, -1.0 + 0.12 * k), 0.0, 0.5 * k + 2.0))[1] + [4.0, 0.0]
+        for name, side, uv in (("walker", "left", walker[0]), ("walker", "right", walker[1]),
+                               ("neighbour", "right", neighbour)):
+            uv = uv + rng.normal(size=uv.shape)
+            det = Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                            confidence=np.full(len(uv), 0.8), score=0.8, source=f"{name}/{side}/{k}")
+            views[name, side, k] = (k, det, uv)
+    left = [[views["walker", "left", k] for k in range(12)]]
+    right = [[views["walker", "right", k] for k in range(3)],
+             [views["neighbour", "right", k] for k in (1, 2)] + [views["walker", "right", k] for k in range(3, 12)]]
+    people = pair_tracklets(left, right, calib, AssociationConfig())
+    walker = next(p for p in people if p.sides["left"])
+    assert sorted(walker.sides["right"]) == list(range(12))
+    assert {d.source.split("/")[0] for _, d, _ in walker.sides["right"].values()} == {"walker"}
+    assert sorted(walker.paired) == list(range(12))
+
+
 def test_single_frame_glitches_do_not_break_a_pairing():
     """A person's left and right tracklets share 7 frames; in every other one (1, 3, 5) the right detection is
     off by 60 px in rows (a detector's glitch: that frame fails the stereo gates).  No run of passing frames

@@ -61,7 +61,12 @@ Steps:
    per-camera tracker carried on with someone else midway is paired over the part before the change; one
    failing frame between two passing ones, a detector's glitch, does not break a run; where no run holds
    ``pair_min_run_frames`` passing frames, the whole overlap counts when its sum is positive and that many
-   of its frames pass).
+   of its frames pass).  A passing frame counts only for its detections' best pairing: where the left
+   detection pairs better with another right tracklet's detection at that frame, or the right one with
+   another left tracklet's, and that rival pairing stands on its own there (the frame lies in one of its
+   supported runs), it adds nothing to this pairing and stays unpaired in it (:func:`contest_frames`: a
+   tracklet carried on with a neighbour a few pixels of disparity off does not take the frames of the
+   person's own shorter tracklet).
    Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
@@ -696,22 +701,13 @@ def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray,
     return (disparity - a - b * (frames - f0)) / sigma
 
 
-def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
-                   ranges: Mapping[int, float] | None = None,
-                   ground: GroundFrame | None = None) -> list[tuple[float, list[int]]]:
-    """Evidence that a left and a right tracklet are one person, as ``(evidence, paired frames)`` per stretch of
-    their shared frames.  Each shared frame whose stereo terms pass the gates and whose disparity lies within
-    ``gate_sigmas`` of the tracklets' smooth disparity adds ``gate_sigmas^2 / 2`` minus its cost; every other
-    shared frame subtracts ``gate_sigmas^2 / 2`` (the pairing evidence changes there: those frames stay
-    unpaired).  The stretches are the runs of consecutive shared frames with the largest summed evidence,
-    found in turn (:func:`_supported_runs`): a per-camera tracker that carried one of the two tracklets on
-    with someone else midway leaves the part before the switch paired, where a sum over the whole overlap
-    would reject both parts.  A single failing frame between two passing ones counts zero instead (a
-    detector's one-frame glitch is no change of person; it stays unpaired).  A run shorter than the whole
-    overlap counts only with at least ``pair_min_run_frames`` paired frames.  When no run counts, the whole
-    overlap does where its summed evidence is positive and at least ``pair_min_run_frames`` of its frames
-    pass: the two agree in most frames, the failing ones scattered among them (a detector that reports, in
-    one image, now the person and now someone beside it), not a tracklet gone on with someone else."""
+def _pair_gains(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
+                ranges: Mapping[int, float] | None = None,
+                ground: GroundFrame | None = None) -> tuple[list[int], np.ndarray]:
+    """Per shared frame of a left and a right tracklet, in frame order: the frames and their pairing gains.
+    A frame whose stereo terms pass the gates and whose disparity lies within ``gate_sigmas`` of the
+    tracklets' smooth disparity gains ``gate_sigmas^2 / 2`` minus its cost (the stereo terms and the
+    disparity residual); every other shared frame ``-gate_sigmas^2 / 2``."""
     by_frame = {frame: (det, uv) for frame, det, uv in right}
     items = []
     for frame, det, uv_left in left:
@@ -720,8 +716,6 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
             pair_ranges = (ranges.get(id(det)), ranges.get(id(by_frame[frame][0]))) if ranges else (None, None)
             items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset, pair_ranges,
                                               ground)))
-    if not items:
-        return []
     items.sort(key=lambda item: item[0])
     c0 = 0.5 * config.gate_sigmas ** 2
     gain = np.full(len(items), -c0)
@@ -733,18 +727,48 @@ def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: As
         for k, zf in zip(good, z):
             if abs(zf) <= config.gate_sigmas:
                 gain[k] = c0 - 0.5 * (items[k][1][0] + zf ** 2)   # the stereo terms and the disparity residual
+    return [frame for frame, _ in items], gain
+
+
+def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
+                   ranges: Mapping[int, float] | None = None,
+                   ground: GroundFrame | None = None) -> list[tuple[float, list[int]]]:
+    """Evidence that a left and a right tracklet are one person (:func:`_pair_gains`, then
+    :func:`_pair_runs`)."""
+    return _pair_runs(*_pair_gains(left, right, calib, config, ranges, ground), config)
+
+
+def _pair_runs(frames: list[int], gain: np.ndarray, config: AssociationConfig) -> list[tuple[float, list[int]]]:
+    """Evidence that a left and a right tracklet are one person, as ``(evidence, paired frames)`` per stretch of
+    their shared ``frames`` (in order, with their pairing ``gain``, :func:`_pair_gains`).  A passing frame adds
+    its gain; every failing one subtracts ``gate_sigmas^2 / 2`` (the pairing evidence changes there: those
+    frames stay unpaired); a contested one (NaN, :func:`contest_frames`) adds nothing and stays unpaired.  The
+    stretches are the runs of consecutive shared frames with the largest summed evidence, found in turn
+    (:func:`_supported_runs`): a per-camera tracker that carried one of the two tracklets on
+    with someone else midway leaves the part before the switch paired, where a sum over the whole overlap
+    would reject both parts.  A single failing frame between two passing ones counts zero instead (a
+    detector's one-frame glitch is no change of person; it stays unpaired).  A run shorter than the whole
+    overlap counts only with at least ``pair_min_run_frames`` paired frames.  When no run counts, the whole
+    overlap does where its summed evidence is positive and at least ``pair_min_run_frames`` of its frames
+    pass: the two agree in most frames, the failing ones scattered among them (a detector that reports, in
+    one image, now the person and now someone beside it), not a tracklet gone on with someone else."""
+    if not frames:
+        return []
+    c0 = 0.5 * config.gate_sigmas ** 2
     # one failing frame between two passing ones is a detector's glitch, not a change of person: it does not
     # break the run (it adds nothing and stays unpaired)
+    contested = np.isnan(gain)
     passing = gain > -c0
-    glitch = ~passing & np.r_[False, passing[:-1]] & np.r_[passing[1:], False]
-    runs_gain = np.where(glitch, 0.0, gain)
+    failing = ~passing & ~contested
+    glitch = failing & np.r_[False, passing[:-1]] & np.r_[passing[1:], False]
+    runs_gain = np.where(glitch | contested, 0.0, gain)
     out = []
     for lo, hi in _supported_runs(runs_gain):
-        paired = [items[k][0] for k in range(lo, hi) if passing[k]]
-        whole = lo == 0 and hi == len(items)
+        paired = [frames[k] for k in range(lo, hi) if passing[k]]
+        whole = lo == 0 and hi == len(frames)
         if paired and (whole or len(paired) >= config.pair_min_run_frames):
             out.append((float(runs_gain[lo:hi].sum()), paired))
-    passed = [items[k][0] for k in range(len(items)) if passing[k]]
+    passed = [frames[k] for k in range(len(frames)) if passing[k]]
     if not out and runs_gain.sum() > 0 and len(passed) >= config.pair_min_run_frames:
         out.append((float(runs_gain.sum()), passed))
     return out
@@ -896,19 +920,48 @@ class _Person:
         return any(f in self.sides[side] for f in frames)
 
 
+def contest_frames(gains: dict, config: AssociationConfig) -> None:
+    """Keep each passing frame only for its detections' best pairing, in place.  ``gains``: (left tracklet,
+    right tracklet) -> (shared frames, their pairing gains, :func:`_pair_gains`).  At a frame where the left
+    detection pairs better (a higher gain) with another right tracklet's detection, or the right detection
+    with another left tracklet's, the pairing's frame is contested: NaN, which :func:`_pair_runs` counts as
+    zero evidence and leaves unpaired.  Only a rival pairing that stands on its own at that frame contests
+    (the frame lies in one of its own supported runs, :func:`_pair_runs`): a chance agreement for a frame or
+    two, with a neighbour's or a fragment's tracklet, takes nothing away.  The case: one image's tracker
+    carried a tracklet on with a neighbour beside the person (a few pixels of disparity off) while the
+    person's own detection at that frame is in another, shorter tracklet; summed over the whole run, the
+    carried-on tracklet outweighs the person's own, though at those frames the person's own detection is the
+    better match."""
+    c0 = 0.5 * config.gate_sigmas ** 2
+    best = {"left": defaultdict(lambda: -np.inf), "right": defaultdict(lambda: -np.inf)}
+    for (i, j), (frames, gain) in gains.items():
+        supported = {f for _, paired in _pair_runs(frames, gain, config) for f in paired}
+        for f, g in zip(frames, gain):
+            if f in supported:
+                best["left"][(i, f)] = max(best["left"][(i, f)], g)
+                best["right"][(j, f)] = max(best["right"][(j, f)], g)
+    for (i, j), (frames, gain) in gains.items():
+        for k, (f, g) in enumerate(zip(frames, gain)):
+            if g > -c0 and (g < best["left"][(i, f)] or g < best["right"][(j, f)]):
+                gain[k] = np.nan
+
+
 def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration, config: AssociationConfig,
                    ranges: Mapping[int, float] | None = None, ground: GroundFrame | None = None) -> list[_Person]:
     """Group one pair's left and right tracklets into people (module docstring, step 4); ``ranges``: id of a
     detection -> its LiDAR range (:func:`detection_ranges`); ``ground``: people stand on it
     (``feet_tolerance_m``)."""
-    edges = []
+    gains = {}
     for i, lt in enumerate(left):
         l_frames = {f for f, _, _ in lt}
         for j, rt in enumerate(right):
-            if not l_frames & {f for f, _, _ in rt}:
-                continue
-            for evidence, paired in _pair_evidence(lt, rt, calib, config, ranges, ground):
-                edges.append((-evidence, i, j, paired))
+            if l_frames & {f for f, _, _ in rt}:
+                gains[(i, j)] = _pair_gains(lt, rt, calib, config, ranges, ground)
+    contest_frames(gains, config)
+    edges = []
+    for (i, j), (frames, gain) in gains.items():
+        for evidence, paired in _pair_runs(frames, gain, config):
+            edges.append((-evidence, i, j, paired))
     edges.sort(key=lambda e: e[:3])
     people: list[_Person] = []
     used = {"left": defaultdict(set), "right": defaultdict(set)}      # tracklet -> frames already paired
