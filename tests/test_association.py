@@ -736,6 +736,36 @@ def test_a_frame_goes_to_the_persons_own_detection_not_a_neighbours_a_carried_on
     assert sorted(walker.paired) == list(range(12))
 
 
+def test_a_one_frame_agreement_with_another_tracklet_takes_no_frame_from_a_pairing():
+    """A walker at 19 m, its left and right tracklets agreeing at frames 0-9.  A two-frame right tracklet of
+    someone else matches the walker's left detection a little better at frame 5 (0.2 px noise against the
+    walker's 1.5 px) and fails the stereo gates at frame 6: that pairing stands on no run of its own, so it
+    contests nothing, and the walker stays paired with its own right detection at every frame."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    ahead = _person_points((19.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(22)
+
+    def view(name, side, k, uv):
+        return (k, Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                             confidence=np.full(len(uv), 0.8), score=0.8, source=f"{name}/{side}/{k}"), uv)
+
+    left, right, other = [], [], []
+    for k in range(10):
+        uv_l, uv_r = calib.project(_person_points((19.0, -1.0 + 0.12 * k), 0.0, 0.5 * k))
+        left.append(view("walker", "left", k, uv_l + 1.5 * rng.normal(size=uv_l.shape)))
+        right.append(view("walker", "right", k, uv_r + 1.5 * rng.normal(size=uv_r.shape)))
+        if k == 5:
+            other.append(view("other", "right", k, uv_r + 0.2 * rng.normal(size=uv_r.shape)))
+        elif k == 6:
+            other.append(view("other", "right", k, uv_r + [0.0, 60.0]))
+    people = pair_tracklets([left], [right, other], calib, AssociationConfig())
+    walker = next(p for p in people if p.sides["left"])
+    assert sorted(walker.paired) == list(range(10))
+    assert {d.source.split("/")[0] for _, d, _ in walker.sides["right"].values()} == {"walker"}
+
+
 def test_single_frame_glitches_do_not_break_a_pairing():
     """A person's left and right tracklets share 7 frames; in every other one (1, 3, 5) the right detection is
     off by 60 px in rows (a detector's glitch: that frame fails the stereo gates).  No run of passing frames
