@@ -54,7 +54,7 @@ Steps:
    (``lidar_range_sigma_m``; capped at ``gate_sigmas``, never gating);
    gated out when a residual exceeds ``gate_sigmas``, the disparity is not positive or the depth lies outside
    ``[min_depth_m, max_depth_m]``.  A left and a right tracklet are scored over all their shared frames
-   (:func:`_pair_evidence`): the per-frame disparities must follow one smooth depth (a line in time whose
+   (:func:`_pair_gains`, :func:`_pair_runs`): the per-frame disparities must follow one smooth depth (a line in time whose
    slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each shared frame passing
    every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``,
    summed over the runs of consecutive shared frames that support the pairing most (a tracklet the
@@ -728,14 +728,6 @@ def _pair_gains(left: list, right: list, calib: StereoCalibration, config: Assoc
             if abs(zf) <= config.gate_sigmas:
                 gain[k] = c0 - 0.5 * (items[k][1][0] + zf ** 2)   # the stereo terms and the disparity residual
     return [frame for frame, _ in items], gain
-
-
-def _pair_evidence(left: list, right: list, calib: StereoCalibration, config: AssociationConfig,
-                   ranges: Mapping[int, float] | None = None,
-                   ground: GroundFrame | None = None) -> list[tuple[float, list[int]]]:
-    """Evidence that a left and a right tracklet are one person (:func:`_pair_gains`, then
-    :func:`_pair_runs`)."""
-    return _pair_runs(*_pair_gains(left, right, calib, config, ranges, ground), config)
 
 
 def _pair_runs(frames: list[int], gain: np.ndarray, config: AssociationConfig) -> list[tuple[float, list[int]]]:
