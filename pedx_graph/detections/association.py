@@ -54,8 +54,9 @@ Steps:
    (``lidar_range_sigma_m``; capped at ``gate_sigmas``, never gating);
    gated out when a residual exceeds ``gate_sigmas``, the disparity is not positive or the depth lies outside
    ``[min_depth_m, max_depth_m]``.  A left and a right tracklet are scored over all their shared frames
-   (:func:`_pair_gains`, :func:`_pair_runs`): the per-frame disparities must follow one smooth depth (a line in time whose
-   slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each shared frame passing
+   (:func:`_pair_gains`, :func:`_pair_runs`): the per-frame disparities must follow one smooth depth (a line
+   in time whose slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each
+   shared frame passing
    every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``,
    summed over the runs of consecutive shared frames that support the pairing most (a tracklet the
    per-camera tracker carried on with someone else midway is paired over the part before the change; one
