@@ -56,8 +56,8 @@ Steps:
    ``[min_depth_m, max_depth_m]``.  A left and a right tracklet are scored over all their shared frames
    (:func:`_pair_gains`, :func:`_pair_runs`): the per-frame disparities must follow one smooth depth (a line
    in time whose slope a walker's ``max_speed_mps`` allows, robust, ``disparity_smooth_px`` slack); each
-   shared frame passing
-   every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts ``gate_sigmas^2 / 2``,
+   shared frame passing every gate adds ``gate_sigmas^2 / 2`` minus its cost, each failing one subtracts
+   ``gate_sigmas^2 / 2``,
    summed over the runs of consecutive shared frames that support the pairing most (a tracklet the
    per-camera tracker carried on with someone else midway is paired over the part before the change; one
    failing frame between two passing ones, a detector's glitch, does not break a run; where no run holds
