@@ -132,7 +132,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -1562,11 +1562,8 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
             if increase <= gate ** 2:
                 joins.append((a, b))
     # a join is made only where it is the one that passes for its track's end and for the other's start
-    heads = defaultdict(int)
-    tails = defaultdict(int)
-    for a, b in joins:
-        heads[a] += 1
-        tails[b] += 1
+    heads = Counter(a for a, _ in joins)
+    tails = Counter(b for _, b in joins)
     successor = {a: b for a, b in joins if heads[a] == 1 and tails[b] == 1}
     followers = set(successor.values())
     out = []
