@@ -78,7 +78,9 @@ Steps:
    paired frames' disparities), without gating on it.  Paired frames are triangulated at their median
    disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
    agrees; a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
-   where the track's nearest stereo centre in time allows that depth (:func:`_agrees_with_stereo`).  A
+   where the track's nearest stereo centre in time allows that depth (:func:`_agrees_with_stereo`); once
+   the pair's tracks are final (below), such a centre some stereo centre on the track's straight walk does
+   not allow is taken back (:func:`drop_stray_range_centres`: the cluster of someone in front).  A
    paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
@@ -1106,7 +1108,8 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
                 if obs.world_p is None and config.lidar_identity:
                     _range_centre(obs, calib, ranges)
-                    if obs.world_p is not None and not _agrees_with_stereo(obs, stereo, calib, config):
+                    if obs.world_p is not None and stereo and \
+                            not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib, config):
                         obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
                         obs.fallback = None
                 if obs.world_p is not None and obs.frame in clouds:
@@ -1119,7 +1122,10 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                                   ranges if config.lidar_identity else None, claimed, others)
                     projections.update({(obs.frame, side): v for side, v in views.items()})
         out.append(track)
-    return repair_swaps(split_reversals(out, calib, config), calib, config)
+    out = repair_swaps(split_reversals(out, calib, config), calib, config)
+    if clouds is not None and config.lidar_identity:
+        drop_stray_range_centres(out, calib, config)
+    return out
 
 
 def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
@@ -1580,17 +1586,61 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
 
 def _agrees_with_stereo(obs: Observation, stereo: list[Observation], calib: StereoCalibration,
                         config: AssociationConfig) -> bool:
-    """Whether a one-image frame's range centre (:func:`_range_centre`) lies at the depth the track's nearest
-    stereo (or LiDAR) centre in time allows: within ``gate_sigmas`` of that centre's depth uncertainty plus
-    how far a walker gets in the frames between (``tracker.max_speed_mps``); true when the track has none (a
-    detection's cluster can be a neighbour's or the background behind it)."""
-    if not stereo:
-        return True
-    nearest = min(stereo, key=lambda o: (abs(o.frame - obs.frame), o.frame))
-    reach = config.tracker.max_speed_mps * config.tracker.frame_interval_s * abs(nearest.frame - obs.frame)
+    """Whether a one-image frame's range centre (:func:`_range_centre`) lies at a depth each of the track's
+    stereo (or LiDAR) centres ``stereo`` allows: within ``gate_sigmas`` of that centre's depth uncertainty
+    plus how far a walker gets in the frames between (``tracker.max_speed_mps``); true when there are none
+    (a detection's cluster can be a neighbour's or the background behind it)."""
     depth = float(calib.world_to_rect(np.asarray(obs.world_p, dtype=float))[2])
-    known = float(calib.world_to_rect(np.asarray(nearest.world_p, dtype=float))[2])
-    return abs(depth - known) <= config.gate_sigmas * min(float(nearest.depth_sigma_m), 5.0) + reach
+    step = config.tracker.max_speed_mps * config.tracker.frame_interval_s
+    for known in stereo:
+        reach = step * abs(known.frame - obs.frame)
+        known_depth = float(calib.world_to_rect(np.asarray(known.world_p, dtype=float))[2])
+        if abs(depth - known_depth) > config.gate_sigmas * min(float(known.depth_sigma_m), 5.0) + reach:
+            return False
+    return True
+
+
+def _nearest_in_time(observations: list[Observation], frame: int) -> Observation:
+    """The observation nearest to ``frame`` in time (the earlier one of two as near)."""
+    return min(observations, key=lambda o: (abs(o.frame - frame), o.frame))
+
+
+def _on_walk(stereo: list[Observation], calib: StereoCalibration, config: AssociationConfig) -> list[Observation]:
+    """The observations of ``stereo`` whose centre depth lies within ``gate_sigmas`` of the straight walk
+    fitted to the track they make (:func:`_track_walk`: image columns and depths, robust), each depth
+    uncertain as :func:`_image_track` gives it; all of them when fewer than three have a centre."""
+    seen = _image_track(stereo, calib, config)
+    frames, _, _, depth, depth_sigma, _ = seen
+    known = np.isfinite(depth)
+    if known.sum() < 3:
+        return list(stereo)
+    _, rate = _track_walk(seen, calib, config)
+    stretch = 1.0 + rate * (frames - 0.5 * (frames.min() + frames.max()))       # Z / Z0 (:func:`_walk_cost`)
+    _, coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], config.gate_sigmas,
+                          coefficients=True)
+    fits = np.abs(depth - coef[0, 0] * stretch) <= config.gate_sigmas * depth_sigma      # False where unknown
+    kept = {int(f) for f in frames[fits]}
+    return [obs for obs in stereo if obs.frame in kept]
+
+
+def drop_stray_range_centres(tracks: list[list[Observation]], calib: StereoCalibration,
+                             config: AssociationConfig) -> None:
+    """Take back, in place, the centre of a frame seen in one image (no disparity) whose depth some stereo
+    (or LiDAR) centre of its final track does not allow (:func:`_agrees_with_stereo`), leaving out those off
+    the track's straight walk (:func:`_on_walk`: a neighbour's cut, a frame paired with someone else).
+
+    Each range centre was checked against the nearest stereo centre in time only, while the tracks could
+    still hold each other's tails (before :func:`repair_swaps`).  Once they are final every centre counts:
+    the cluster of someone in front that a loose stereo depth (1 m) next to it allowed is refused by a
+    sharp one (0.1 m) a few frames away."""
+    for track in tracks:
+        stereo = _on_walk([o for o in track if o.disparity_px is not None and o.world_p is not None],
+                          calib, config)
+        for obs in track:
+            if obs.disparity_px is None and obs.world_p is not None and \
+                    not _agrees_with_stereo(obs, stereo, calib, config):
+                obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
+                obs.fallback = None
 
 
 def pixel_at_depth(calib: StereoCalibration, side: str, uv: np.ndarray, depth_m: float) -> np.ndarray:
