@@ -1219,13 +1219,15 @@ def test_a_one_image_range_centre_must_agree_with_the_tracks_stereo_depth():
     assert _agrees_with_stereo(far, [], calib, config)          # a track with no stereo frame: nothing to check
 
 
-def test_a_one_image_centre_on_someone_in_front_is_dropped_once_the_track_is_final():
+def test_centres_off_the_final_tracks_walk_are_taken_back():
     """A walker at ~21 m with sharp LiDAR centres (0.1 m), a loose stereo depth at frame 2 (1 m, 1 m short)
     and a frame paired with someone 1.6 m in front at frame 11 (0.1 m, off the walk).  One-image frames whose
-    cluster is someone 3.5 m in front (frames 3-5) lose their centre, though frame 3's nearest stereo centre
-    (frame 2) allows it; the walker's own one-image centres (frames 1, 8, 10) are kept: the centre off the
-    walk at frame 11 does not count."""
-    from pedx_graph.detections.association import _agrees_with_stereo, drop_stray_range_centres
+    cluster is someone in front lose their centre: 3.5 m at frames 3-5, though frame 3's nearest stereo
+    centre (frame 2) allows it, and 0.75 m at frame 12, which every stereo centre on the walk allows (three
+    frames from the nearest) but the walk does not.  The walker's own one-image centres (frames 1, 8, 10,
+    13, 14) are kept: the centre off the walk at frame 11 does not count.  A LiDAR centre 1.4 m short at
+    frame 17 goes back to the stereo centre it replaced."""
+    from pedx_graph.detections.association import _agrees_with_stereo, settle_centres
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
@@ -1237,23 +1239,29 @@ def test_a_one_image_centre_on_someone_in_front_is_dropped_once_the_track_is_fin
         xy = start + k * step
         return np.array([xy[0] - short_m, xy[1], GROUND_Z + 0.9])
 
-    one_image = {1: 0.0, 3: 3.5, 4: 3.5, 5: 3.5, 8: 0.0, 10: 0.0}
+    one_image = {1: 0.0, 3: 3.5, 4: 3.5, 5: 3.5, 8: 0.0, 10: 0.0, 12: 0.75, 13: 0.0, 14: 0.0}
     for obs in track:
         k = obs.frame
         if k in one_image:
             obs.uv, obs.disparity_px = {"left": obs.uv["left"]}, None
-            obs.world_p, obs.depth_sigma_m = centre(k, one_image[k] + 0.1 * rng.normal()), 0.1
+            obs.world_p, obs.depth_sigma_m = centre(k, one_image[k] + 0.05 * rng.normal()), 0.1
         else:
             obs.world_p, obs.depth_sigma_m = centre(k, 0.05 * rng.normal()), 0.1
     track[2].world_p, track[2].depth_sigma_m = centre(2, 1.0), 1.0
     track[11].world_p = centre(11, 1.6)
+    stereo_17 = centre(17, 0.2)
+    track[17].world_p, track[17].fallback = centre(17, 1.4), (stereo_17, np.zeros(3), 0.6)
     config = AssociationConfig()
     stereo = [o for o in track if o.disparity_px is not None]
     assert _agrees_with_stereo(track[3], [track[2]], calib, config)           # the nearest one allows it
-    drop_stray_range_centres([track], calib, config)
-    assert [o.frame for o in track if o.world_p is None] == [3, 4, 5]
-    assert all(o.world_p is not None for o in stereo)                          # stereo centres stay
+    assert _agrees_with_stereo(track[12], [o for o in stereo if o.frame != 11], calib, config)
+    settle_centres([track], calib, config)
+    assert [o.frame for o in track if o.world_p is None] == [3, 4, 5, 12]
+    assert all(o.world_p is not None for o in stereo)                          # stereo frames keep a centre
     assert np.isinf(track[3].depth_sigma_m) and track[3].fallback is None
+    assert np.array_equal(track[17].world_p, stereo_17) and track[17].depth_sigma_m == 0.6
+    assert track[17].fallback is None
+    assert np.allclose(track[11].world_p, centre(11, 1.6))                     # no stereo centre to go back to
 
 
 def test_a_cut_on_a_neighbour_that_puts_two_people_in_one_place_is_taken_back():

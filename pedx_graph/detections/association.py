@@ -79,8 +79,9 @@ Steps:
    disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
    agrees; a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
    where the track's nearest stereo centre in time allows that depth (:func:`_agrees_with_stereo`); once
-   the pair's tracks are final (below), such a centre some stereo centre on the track's straight walk does
-   not allow is taken back (:func:`drop_stray_range_centres`: the cluster of someone in front).  A
+   the pair's tracks are final (below), every centre is checked against the track's straight walk
+   (:func:`settle_centres`): a LiDAR centre off it goes back to its stereo one, a one-image centre off it,
+   or one a stereo centre on it does not allow, is taken back (the cluster of someone in front).  A
    paired frame whose disparity
    leaves the person's smooth disparity line by more than ``gate_sigmas`` loses the detection of its
    shorter-held tracklet (:func:`drop_disparity_outliers`: a tracklet of someone else paired for a frame or
@@ -136,7 +137,7 @@ import dataclasses
 import functools
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -1124,7 +1125,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
         out.append(track)
     out = repair_swaps(split_reversals(out, calib, config), calib, config)
     if clouds is not None and config.lidar_identity:
-        drop_stray_range_centres(out, calib, config)
+        settle_centres(out, calib, config)
     return out
 
 
@@ -1605,40 +1606,64 @@ def _nearest_in_time(observations: list[Observation], frame: int) -> Observation
     return min(observations, key=lambda o: (abs(o.frame - frame), o.frame))
 
 
-def _on_walk(stereo: list[Observation], calib: StereoCalibration, config: AssociationConfig) -> list[Observation]:
-    """The observations of ``stereo`` whose centre depth lies within ``gate_sigmas`` of the straight walk
-    fitted to the track they make (:func:`_track_walk`: image columns and depths, robust), each depth
-    uncertain as :func:`_image_track` gives it; all of them when fewer than three have a centre."""
+def _depth_walk(stereo: list[Observation], calib: StereoCalibration,
+                config: AssociationConfig) -> Callable[[float], float] | None:
+    """The depth over frames of the straight walk fitted to the track ``stereo`` make (:func:`_track_walk`:
+    image columns and centre depths, robust, depths uncertain as :func:`_image_track` gives them):
+    ``frame -> depth`` along the pair's rectified optical axis, metres; None when fewer than three of them
+    have a centre."""
     seen = _image_track(stereo, calib, config)
     frames, _, _, depth, depth_sigma, _ = seen
     known = np.isfinite(depth)
     if known.sum() < 3:
-        return list(stereo)
+        return None
     _, rate = _track_walk(seen, calib, config)
-    stretch = 1.0 + rate * (frames - 0.5 * (frames.min() + frames.max()))       # Z / Z0 (:func:`_walk_cost`)
+    middle = 0.5 * (frames.min() + frames.max())
+    stretch = 1.0 + rate * (frames - middle)                           # Z / Z0 (:func:`_walk_cost`)
     _, coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], config.gate_sigmas,
                           coefficients=True)
-    fits = np.abs(depth - coef[0, 0] * stretch) <= config.gate_sigmas * depth_sigma      # False where unknown
-    kept = {int(f) for f in frames[fits]}
-    return [obs for obs in stereo if obs.frame in kept]
+    depth_0 = float(coef[0, 0])
+    return lambda frame: depth_0 * (1.0 + rate * (frame - middle))
 
 
-def drop_stray_range_centres(tracks: list[list[Observation]], calib: StereoCalibration,
-                             config: AssociationConfig) -> None:
-    """Take back, in place, the centre of a frame seen in one image (no disparity) whose depth some stereo
-    (or LiDAR) centre of its final track does not allow (:func:`_agrees_with_stereo`), leaving out those off
-    the track's straight walk (:func:`_on_walk`: a neighbour's cut, a frame paired with someone else).
+def _off_walk(obs: Observation, walk: Callable[[float], float], calib: StereoCalibration,
+              config: AssociationConfig) -> bool:
+    """Whether an observation's centre depth lies more than ``gate_sigmas`` from the walk's
+    (:func:`_depth_walk`), uncertain by its depth sigma and how far a walker leaves a straight walk
+    (``swap_motion_m``), as :func:`_image_track` has it."""
+    depth = float(calib.world_to_rect(np.asarray(obs.world_p, dtype=float))[2])
+    sigma = float(np.hypot(float(obs.depth_sigma_m), config.swap_motion_m))
+    return abs(depth - walk(obs.frame)) > config.gate_sigmas * sigma
+
+
+def settle_centres(tracks: list[list[Observation]], calib: StereoCalibration, config: AssociationConfig) -> None:
+    """Check every centre against its final track (after :func:`repair_swaps`), in place.
+
+    The track's straight walk is fitted to its stereo frames (:func:`_depth_walk`: frames seen in both
+    images, their centres stereo or LiDAR).  A stereo frame's LiDAR centre off that walk
+    (:func:`_off_walk`) goes back to the centre it replaced (:attr:`Observation.fallback`: a cut that held
+    someone in front).  A frame seen in one image loses its centre (its detection's LiDAR cluster,
+    :func:`_range_centre`) when it lies off the walk, or when a stereo centre on the walk does not allow its
+    depth (:func:`_agrees_with_stereo`).
 
     Each range centre was checked against the nearest stereo centre in time only, while the tracks could
-    still hold each other's tails (before :func:`repair_swaps`).  Once they are final every centre counts:
-    the cluster of someone in front that a loose stereo depth (1 m) next to it allowed is refused by a
-    sharp one (0.1 m) a few frames away."""
+    still hold each other's tails; once they are final every centre counts: the cluster of someone in
+    front that a loose stereo depth (1 m) next to it allowed is refused by a sharp one (0.1 m) a few
+    frames away, and by the walk the track's other frames follow."""
     for track in tracks:
-        stereo = _on_walk([o for o in track if o.disparity_px is not None and o.world_p is not None],
-                          calib, config)
+        stereo = [o for o in track if o.disparity_px is not None and o.world_p is not None]
+        walk = _depth_walk(stereo, calib, config)
+        if walk is not None:
+            on_walk = [not _off_walk(o, walk, calib, config) for o in stereo]
+            for obs, on in zip(stereo, on_walk):
+                if not on and obs.fallback is not None:
+                    obs.world_p, obs.world_p_camera, obs.depth_sigma_m = obs.fallback
+                    obs.fallback = None
+            stereo = [o for o, on in zip(stereo, on_walk) if on]
         for obs in track:
             if obs.disparity_px is None and obs.world_p is not None and \
-                    not _agrees_with_stereo(obs, stereo, calib, config):
+                    ((walk is not None and _off_walk(obs, walk, calib, config))
+                     or not _agrees_with_stereo(obs, stereo, calib, config)):
                 obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
                 obs.fallback = None
 
