@@ -320,6 +320,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.disparity_smooth_px": NON_NEGATIVE,
     "AssociationConfig.tracklet_switch_cost": NON_NEGATIVE,
     "AssociationConfig.swap_motion_m": NON_NEGATIVE,
+    "AssociationConfig.swap_size_frac": NON_NEGATIVE,
     "AssociationConfig.stitch_max_gap_frames": NON_NEGATIVE_INT,
     "AssociationConfig.min_separation_m": NON_NEGATIVE,
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,

@@ -954,6 +954,70 @@ def test_stretch_exchanged_between_walkers_in_step_and_given_back_is_repaired():
     assert sorted([id(o) for o in t] for t in repaired) == sorted([[id(o) for o in near], [id(o) for o in far]])
 
 
+def _walker_of_height(calib, start_xy, step_xy, frames, rng, scale):
+    """Pair-track observations of a stick walker ``scale`` times the stick's height, each holding its two
+    detections (coco17), so their image heights are known to :func:`repair_swaps`' walk."""
+    out = []
+    for k in frames:
+        points = _person_points((start_xy[0] + step_xy[0] * k, start_xy[1] + step_xy[1] * k), 0.0, 0.5 * k)
+        points[:, 2] = GROUND_Z + scale * (points[:, 2] - GROUND_Z)
+        uv = dict(zip(("left", "right"), calib.project(points)))
+        uv = {side: value + rng.normal(size=value.shape) for side, value in uv.items()}
+        payload = {side: Detection(camera=camera, frame=k, keypoint_set="coco17", image_uv=uv[side],
+                                   confidence=np.full(len(uv[side]), 0.8), score=0.8, source=f"{side}{k}")
+                   for side, camera in zip(("left", "right"), calib.name.split("-"))}
+        disparity = float(np.median(uv["left"][:, 0] - uv["right"][:, 0]))
+        out.append(Observation(frame=k, uv=uv, score=0.8, disparity_px=disparity, payload=payload))
+    return out
+
+
+def test_standing_height_holds_when_the_feet_or_the_head_are_missed():
+    """A detection's standing-template height (:func:`standing_height_px`) stays where it was when the ankles
+    or the face are not detected, where the present keypoints' vertical span shrinks; an upper body alone
+    gives none."""
+    from pedx_graph.detections.association import standing_height_px
+
+    calib = next(iter(_rig().values()))
+    rng = np.random.default_rng(21)
+    uv, _ = calib.project(_person_points((12.0, 0.0), np.pi / 2, 0.3))
+    noisy = uv + rng.normal(size=uv.shape)
+    full, full_se = standing_height_px(noisy, "coco17", 3.0, 4.0)
+    assert 0.0 < full_se < 0.03 * full
+    for missing in ([15, 16], [0, 1, 2, 3, 4]):             # ankles; nose, eyes and ears
+        cut = noisy.copy()
+        cut[missing] = np.nan
+        height, se = standing_height_px(cut, "coco17", 3.0, 4.0)
+        span = np.ptp(cut[np.all(np.isfinite(cut), axis=1), 1])
+        assert abs(height - full) < 3.0 * np.hypot(se, full_se)
+        assert span < 0.9 * np.ptp(noisy[:, 1])
+    assert standing_height_px(np.where(np.arange(17)[:, None] < 7, noisy, np.nan), "coco17", 3.0, 4.0) is None
+
+
+def test_swap_between_two_people_of_different_heights_walking_together_is_repaired_by_their_heights():
+    """A short (1.45 m) and a tall (1.85 m) person walking together at ~20 m, the tall one 0.4 m behind on
+    nearly the same ray: their image columns stay within a few pixels and their stereo depths cannot tell
+    0.4 m apart.  Their tracks were carried on with each other after frame 10.  A person keeps their height,
+    so their image heights follow the walk: each track gets its own walker back.  Without the heights (no
+    detections to measure them on) the walk sees nothing to repair."""
+    from pedx_graph.detections.association import repair_swaps
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(8)
+    frames = range(20)
+    short = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), frames, rng, 1.45 / 1.7)
+    tall = _walker_of_height(calib, (20.4, -1.4 * 20.4 / 20.0), (0.0, 0.14 * 20.4 / 20.0), frames, rng, 1.85 / 1.7)
+    columns = [abs(np.median(short[k].uv["left"][:, 0]) - np.median(tall[k].uv["left"][:, 0])) for k in frames]
+    assert max(columns) < 10.0
+    swapped = [short[:10] + tall[10:], tall[:10] + short[10:]]
+    repaired = repair_swaps(swapped, calib, AssociationConfig())
+    for track, person in zip(repaired, (short, tall)):
+        assert [id(o) for o in track] == [id(o) for o in person]
+    blind = [[dataclasses.replace(o, payload=o.frame) for o in track] for track in swapped]
+    kept = repair_swaps(blind, calib, AssociationConfig())
+    assert [[id(o) for o in t] for t in kept] == [[id(o) for o in t] for t in blind]
+
+
 def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_beside_it():
     """The walkers in step: the near one's track ends at frame 3 and a new one starts at frame 8 (hidden for
     four frames); the far one, unseen before, is found at frame 8 too, in the same image column.  The walk
@@ -1017,7 +1081,7 @@ def test_walk_cost_follows_perspective_near_the_camera():
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
     config = AssociationConfig()
     track = _walker_observations(calib, (4.0, -2.0), (0.15, 0.12), range(20), np.random.default_rng(2))
-    frames, u, sigma, depth, depth_sigma, px_per_m = _image_track(track, calib, config, "left")
+    frames, u, sigma, depth, depth_sigma, _, _, px_per_m = _image_track(track, calib, config, "left")
     speed = np.abs(np.diff(u))
     assert speed[:3].mean() > 2.0 * speed[-3:].mean()
     rate = _depth_rate(px_per_m, calib, config)

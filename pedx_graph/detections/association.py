@@ -90,8 +90,9 @@ Steps:
    Where two of the pair's tracks pass each other in the image, tails exchanged at some frame are
    tried, at their ends a head or tail moved from one to the other, and stretches exchanged where they met and
    given back where they met again (:func:`repair_swaps`): a walker moves
-   on a straight line at constant speed, which the image column (projected: curved near the camera) and the
-   frames' centre depths follow, so the exchange is made when it fits the two tracks to such walks clearly
+   on a straight line at constant speed, which the image column (projected: curved near the camera), the
+   frames' centre depths and the image height (:func:`standing_height_px`: a person keeps their height)
+   follow, so the exchange is made when it fits the two tracks to such walks clearly
    better (a tracker carrying each on with the other while they were missed in turns).  Before that, a person
    the pair lost and found again (hidden, or missed in both images, for up to ``stitch_max_gap_frames``) is
    made one track when one straight walk explains both pieces, each with its stereo depths
@@ -268,6 +269,12 @@ class AssociationConfig:
     """How far a walker's position leaves a straight walk at constant speed over a track (sway, gentle curves,
     pace), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise of the
     image column (at the track's depth) and to the uncertainty of each frame's centre depth."""
+    swap_size_frac: float = 0.03
+    """How far a walker's image height leaves the straight walk's (``s0 / (1 + c tau)``, :func:`_walk_cost`)
+    beyond its fit error (:func:`standing_height_px`), as a fraction of the height (gait, posture): added to
+    that error in quadrature.  On the simulator's detections (seeds 0-2, every format) one person's height
+    changes from frame to frame by a robust 0.031-0.043 in log, ~0.03 per frame; two people walking together
+    differ by a few to 20 %."""
     min_separation_m: float = 0.35
     """Two bodies' centres are never closer than this in the ground plane, metres: a centre taken from the
     LiDAR that lies closer than this to another person's smoothed centre, and nearer to it than to its own
@@ -372,6 +379,41 @@ def _standing_rows(keypoint_set: str) -> np.ndarray:
     (the open body model's mean shape, :func:`~pedx_graph.body.templates.open_standing_keypoints_3d`)."""
     up = open_standing_keypoints_3d(keypoint_set)[:, 1]
     return (up.max() - up) / max(np.ptp(up), 1e-6)
+
+
+def standing_height_px(uv: np.ndarray, keypoint_set: str, gate: float, floor_px: float) -> tuple[float, float] | None:
+    """A detection's height in the image, top keypoint to bottom one of a standing person, pixels, with its
+    standard error: ``(height, se)``, or None with fewer than four present keypoints or where they span less
+    than a third of the body.
+
+    The present keypoints' rows (``uv`` (K, 2) rectified px, NaN where absent) fitted by least squares with
+    :func:`_standing_rows` (``v = top + height * row``), refitted twice without the rows beyond ``gate`` times
+    the residuals' robust spread (at least ``floor_px``: a swinging wrist, a lifted foot).  Unlike the present
+    keypoints' vertical span it does not shrink when the ankles or the head are missed.  The standard error is
+    the fit's own (``s / sqrt(sum (row - mean)^2)``, ``s`` the residuals' RMS): on the simulator's detections
+    the frame-to-frame change of one person's height is about that (normalised, robust spread 0.9-1.04, all
+    formats; 2-3 % of the height per frame)."""
+    rows = _standing_rows(keypoint_set)
+    present = np.flatnonzero(np.all(np.isfinite(uv), axis=1))
+    if len(present) < 4:
+        return None
+    keep = np.ones(len(present), dtype=bool)
+    for iteration in range(3):
+        r = rows[present[keep]]
+        if np.ptp(r) < 1.0 / 3.0:
+            return None
+        design = np.stack([r, np.ones(len(r))], axis=1)
+        (height, top), *_ = np.linalg.lstsq(design, uv[present[keep], 1], rcond=None)
+        residual = uv[present, 1] - (top + height * rows[present])
+        spread = max(1.4826 * float(np.median(np.abs(residual[keep]))), floor_px)
+        new_keep = np.abs(residual) <= gate * spread
+        if iteration == 2 or new_keep.sum() < 4 or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    if not height > 0:
+        return None
+    s = float(np.sqrt(np.sum(residual[keep] ** 2) / max(len(r) - 2, 1)))
+    return float(height), s / float(np.sqrt(np.sum((r - r.mean()) ** 2)))
 
 
 def join_misfit(uv_upper: np.ndarray, uv_lower: np.ndarray, keypoint_set: str) -> tuple[float, float] | None:
@@ -1148,7 +1190,7 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
     disparity = float(np.median(disparities)) if disparities else None
     principal = {"left": float(calib.left_P_rect[0, 2]), "right": float(calib.right_P_rect[0, 2])}
     toward = 1.0 if side == "left" else -1.0             # the other image's columns + this * disparity
-    frames, u, sigma, heights, depth, depth_sigma = [], [], [], [], [], []
+    frames, u, sigma, heights, depth, depth_sigma, size, size_sigma = [], [], [], [], [], [], [], []
     for obs in track:
         seen = side if side in obs.uv else next(iter(obs.uv))
         if seen != side and disparity is None:
@@ -1162,7 +1204,7 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
                 memo[key] = entry
         if entry is None:
             continue
-        column, height, noise, frame_depth, frame_depth_sigma = entry
+        column, height, noise, frame_depth, frame_depth_sigma, frame_size, frame_size_sigma = entry
         if seen != side:         # the disparity at the frame's centre depth, else the track's median
             column += toward * (calib.focal_px * calib.baseline_m / frame_depth if frame_depth > 0
                                 else disparity - (principal["left"] - principal["right"]))
@@ -1172,6 +1214,8 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
         heights.append(height)
         depth.append(frame_depth)
         depth_sigma.append(frame_depth_sigma)
+        size.append(frame_size)
+        size_sigma.append(frame_size_sigma)
     px_per_m = None
     if disparity is not None:
         px_per_m = disparity / calib.baseline_m
@@ -1179,7 +1223,7 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
         px_per_m = float(np.median(heights)) / config.person_height_m
     slack = config.swap_motion_m * (px_per_m or 0.0)
     return (np.array(frames, dtype=float), np.array(u), np.hypot(np.array(sigma), slack), np.array(depth),
-            np.array(depth_sigma), px_per_m)
+            np.array(depth_sigma), np.array(size, dtype=float), np.array(size_sigma, dtype=float), px_per_m)
 
 
 def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: AssociationConfig,
@@ -1191,6 +1235,11 @@ def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: 
     present = obs.uv[seen][np.all(np.isfinite(obs.uv[seen]), axis=1)]
     if len(present) < config.min_shared_keypoints:
         return None
+    detection = obs.payload.get(seen) if isinstance(obs.payload, dict) else None
+    size = None if getattr(detection, "keypoint_set", None) is None else \
+        standing_height_px(obs.uv[seen], detection.keypoint_set, config.gate_sigmas, config.keypoint_sigma_px)
+    size, size_sigma = size if size is not None else (np.nan, np.nan)
+    size_sigma = float(np.hypot(size_sigma, config.swap_size_frac * size))
     centre_p, centre_sigma = obs.world_p, obs.depth_sigma_m
     if stereo and obs.fallback is not None:
         centre_p, _, centre_sigma = obs.fallback
@@ -1199,10 +1248,10 @@ def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: 
     height = float(np.ptp(present[:, 1]))
     noise = (config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present))
     if not known:
-        return float(np.median(present[:, 0])) - principal, height, noise, np.nan, np.nan
+        return float(np.median(present[:, 0])) - principal, height, noise, np.nan, np.nan, size, size_sigma
     depth = float(calib.world_to_rect(np.asarray(centre_p, dtype=float))[2])
     return (float(np.median(present[:, 0])) - principal, height, noise, depth,
-            float(np.hypot(centre_sigma, config.swap_motion_m)))
+            float(np.hypot(centre_sigma, config.swap_motion_m)), size, size_sigma)
 
 
 def _normal_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -1245,33 +1294,39 @@ def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: floa
 
 
 def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
-               depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None) -> float:
+               depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None,
+               size: np.ndarray | None = None, size_sigma: np.ndarray | None = None) -> float:
     """Robust misfit of a track's image columns and depths to one straight walk at constant velocity.
 
     A point moving on a straight line at constant velocity, seen by a rectified camera, has the depth
     ``Z(f) = Z0 (1 + c tau)`` and the column (from the principal column) ``u(f) = (a + b tau) / (1 + c tau)``,
     ``tau = f - f0`` (the track's middle frame; ``c`` the depth's relative rate per frame, shared by both).
     ``|c| <= max_rate`` (the walker's top speed over its depth; 0: the straight line ``u = a + b f`` of a walker
-    far away, whose depth hardly changes).  The misfit is the smallest, over ``c``, of the summed
-    ``min(z^2, gate^2)`` of the normalised residuals of the columns and of the depths (NaN = unknown; used from
-    three known) (:func:`_robust_fit`): ``c`` searched on a grid of 33 rates, then on a grid 16 times finer
-    around the best; 0 for < 3 frames."""
-    return _walk_fit(frames, u, sigma, gate, max_rate, depth, depth_sigma)[0]
+    far away, whose depth hardly changes).  A person keeps their height, so their image height (``size``,
+    :func:`standing_height_px`) is ``s(f) = s0 / (1 + c tau)``.  The misfit is the smallest, over ``c``, of the
+    summed ``min(z^2, gate^2)`` of the normalised residuals of the columns, of the depths and of the sizes
+    (NaN = unknown; depths and sizes used from three known) (:func:`_robust_fit`): ``c`` searched on a grid of
+    33 rates, then on a grid 16 times finer around the best; 0 for < 3 frames."""
+    return _walk_fit(frames, u, sigma, gate, max_rate, depth, depth_sigma, size, size_sigma)[0]
 
 
 def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
-              depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None) -> tuple[float, float]:
+              depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None,
+              size: np.ndarray | None = None, size_sigma: np.ndarray | None = None) -> tuple[float, float]:
     """:func:`_walk_cost`'s misfit and the rate ``c`` it was found at (0 for < 3 frames)."""
     if len(frames) < 3:
         return 0.0, 0.0
     tau = frames - 0.5 * (frames.min() + frames.max())
     known = np.isfinite(depth) if depth is not None else np.zeros(len(frames), dtype=bool)
+    sized = np.isfinite(size) & np.isfinite(size_sigma) if size is not None else np.zeros(len(frames), dtype=bool)
 
     def costs(rates: np.ndarray) -> np.ndarray:
         stretch = 1.0 + rates[:, None] * tau[None, :]                  # Z / Z0, (m, n)
         total = _robust_fit(np.stack([1.0 / stretch, tau / stretch], axis=2), u, sigma, gate)
         if known.sum() >= 3:
             total = total + _robust_fit(stretch[:, known, None], depth[known], depth_sigma[known], gate)
+        if sized.sum() >= 3:
+            total = total + _robust_fit(1.0 / stretch[:, sized, None], size[sized], size_sigma[sized], gate)
         return total
 
     if max_rate * float(np.max(np.abs(tau))) <= 1e-3:
@@ -1288,11 +1343,11 @@ def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float,
 
 
 def _walk_misfits(fit: tuple, rate: float, gate: float, seen: list[tuple]) -> list[np.ndarray]:
-    """Per series of ``seen``, per observation its ``min(z^2, gate^2)`` (column plus depth where both are
+    """Per series of ``seen``, per observation its ``min(z^2, gate^2)`` (column plus depth and size where
     known) against the straight walk fitted once at ``rate`` to ``fit`` (:func:`_walk_fit`); all ``(frames,
-    u, sigma, depth, depth_sigma)`` as :func:`_image_track` gives them, each of ``seen`` with its own noise.
-    Zeros when ``fit`` has fewer than 3 frames."""
-    frames, u, sigma, depth, depth_sigma = fit
+    u, sigma, depth, depth_sigma, size, size_sigma)`` as :func:`_image_track` gives them, each of ``seen``
+    with its own noise.  Zeros when ``fit`` has fewer than 3 frames."""
+    frames, u, sigma, depth, depth_sigma, size, size_sigma = fit
     out = [np.zeros(len(series[0])) for series in seen]
     if len(frames) < 3:
         return out
@@ -1305,7 +1360,12 @@ def _walk_misfits(fit: tuple, rate: float, gate: float, seen: list[tuple]) -> li
     if known.sum() >= 3:
         _, depth_coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], gate,
                                     coefficients=True)
-    for misfit, (s_frames, s_u, s_sigma, s_depth, s_depth_sigma) in zip(out, seen):
+    sized = np.isfinite(size) & np.isfinite(size_sigma)
+    size_coef = None
+    if sized.sum() >= 3:
+        _, size_coef = _robust_fit(1.0 / stretch[None, sized, None], size[sized], size_sigma[sized], gate,
+                                   coefficients=True)
+    for misfit, (s_frames, s_u, s_sigma, s_depth, s_depth_sigma, s_size, s_size_sigma) in zip(out, seen):
         s_tau = s_frames - centre
         s_stretch = 1.0 + rate * s_tau
         misfit += np.minimum(((s_u - (u_coef[0, 0] + u_coef[0, 1] * s_tau) / s_stretch) / s_sigma) ** 2, gate ** 2)
@@ -1313,6 +1373,10 @@ def _walk_misfits(fit: tuple, rate: float, gate: float, seen: list[tuple]) -> li
             s_known = np.isfinite(s_depth)
             z = (s_depth[s_known] - depth_coef[0, 0] * s_stretch[s_known]) / s_depth_sigma[s_known]
             misfit[s_known] += np.minimum(z ** 2, gate ** 2)
+        if size_coef is not None:
+            s_sized = np.isfinite(s_size) & np.isfinite(s_size_sigma)
+            z = (s_size[s_sized] - size_coef[0, 0] / s_stretch[s_sized]) / s_size_sigma[s_sized]
+            misfit[s_sized] += np.minimum(z ** 2, gate ** 2)
     return out
 
 
@@ -1325,11 +1389,16 @@ def _depth_rate(px_per_m: float | None, calib: StereoCalibration, config: Associ
     return config.tracker.max_speed_mps * config.tracker.frame_interval_s * px_per_m / calib.focal_px
 
 
-def _track_walk(seen: tuple, calib: StereoCalibration, config: AssociationConfig) -> tuple[float, float]:
+def _track_walk(seen: tuple, calib: StereoCalibration, config: AssociationConfig,
+                with_size: bool = True) -> tuple[float, float]:
     """:func:`_walk_fit` (misfit, rate) of a track as :func:`_image_track` gives it, at ``gate_sigmas``, its
-    depth rate bounded by a walker's top speed at the track's scale (:func:`_depth_rate`)."""
-    frames, u, sigma, depth, depth_sigma, px_per_m = seen
-    return _walk_fit(frames, u, sigma, config.gate_sigmas, _depth_rate(px_per_m, calib, config), depth, depth_sigma)
+    depth rate bounded by a walker's top speed at the track's scale (:func:`_depth_rate`); without
+    ``with_size``, on columns and depths only."""
+    frames, u, sigma, depth, depth_sigma, size, size_sigma, px_per_m = seen
+    if not with_size:
+        size = size_sigma = None
+    return _walk_fit(frames, u, sigma, config.gate_sigmas, _depth_rate(px_per_m, calib, config), depth, depth_sigma,
+                     size, size_sigma)
 
 
 def _overlapping_frames(track_a: list[Observation], track_b: list[Observation], cover: float = 0.5) -> frozenset:
@@ -1355,7 +1424,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     The per-camera tracker decides frame by frame; when the two are missed in turns while they overlap it can
     carry each track on with the other person.  Over the whole track, a walker's image column follows the
     projection of a straight walk at constant velocity (:func:`_image_track`, :func:`_walk_cost`: a line
-    far away, curved by perspective near the camera); a swap shows as kinks or steps.  For two tracks that
+    far away, curved by perspective near the camera), and so does its image height (a person keeps their
+    height); a swap shows as kinks or steps.  For two tracks that
     come within half a person's height of each other in the image at frames at most 2 apart, every split
     time ``tau`` from the later start to just after the earlier end is tried: heads kept, tails exchanged (at
     the first such time one track's head moves to the other, at the last one track's tail: a track begun
@@ -1422,10 +1492,10 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         switches = [t for t in taus if t <= hi and np.min(np.abs(near_frames - t)) <= 2]
         if len(switches) < 2:
             return found
-        shared = {m: tuple(x[(seen[m][0] >= lo) & (seen[m][0] <= hi)] for x in seen[m][:5]) for m in (a, b)}
+        shared = {m: tuple(x[(seen[m][0] >= lo) & (seen[m][0] <= hi)] for x in seen[m][:7]) for m in (a, b)}
         misfit = {}                         # (walk of k, observations of m): frame -> misfit, on frames both span
         for k in (a, b):
-            for m, values in zip((a, b), _walk_misfits(seen[k][:5], walks[k][1], gate, [shared[a], shared[b]])):
+            for m, values in zip((a, b), _walk_misfits(seen[k][:7], walks[k][1], gate, [shared[a], shared[b]])):
                 misfit[(k, m)] = dict(zip(shared[m][0].astype(int), values))
         span = sorted(set(misfit[(a, a)]) | set(misfit[(b, b)]))
         better = np.array([misfit[(a, a)].get(f, 0.0) + misfit[(b, b)].get(f, 0.0)
@@ -1497,7 +1567,7 @@ def split_reversals(tracks: list[list[Observation]], calib: StereoCalibration,
     while pending:
         track = pending.pop(0)
         series = {sd: _image_track(track, calib, config, sd) for sd in ("left", "right")}
-        frames, u, sigma, _, _, px_per_m = max(series.values(), key=lambda item: len(item[0]))
+        frames, u, sigma, *_, px_per_m = max(series.values(), key=lambda item: len(item[0]))
         split_at = None
         for i in range(1, len(frames) - 2):
             gap = frames[i + 1] - frames[i]
@@ -1529,11 +1599,11 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
 
     A track ending at frame ``e`` and one starting at ``s``, ``e < s <= e + 1 + stitch_max_gap_frames``, are one
     person when one straight walk at constant velocity explains both: the misfit of the joined track
-    (:func:`_walk_fit`: image column and centre depths, robust, in the image where both are seen most,
-    :func:`_image_track`) exceeds the two tracks' own misfits by at most ``gate_sigmas^2`` (joining one
-    walker's pieces leaves an increase about chi-square distributed with four degrees of freedom, one walk's
-    column line, depth and rate fewer: the default gate passes 98 % of them; a piece of someone elsewhere
-    adds up to ``gate_sigmas^2`` per frame).
+    (:func:`_walk_fit`: image column, centre depths and image heights, robust, in the image where both are
+    seen most, :func:`_image_track`) exceeds the two tracks' own misfits by at most ``gate_sigmas^2`` (joining
+    one walker's pieces leaves an increase about chi-square distributed with four degrees of freedom, one
+    walk's column line, depth and rate fewer, five with the heights; a piece of someone elsewhere adds up to
+    ``gate_sigmas^2`` per frame).
     Each track must hold at least three frames (its own walk is measured; through two frames any walk
     passes) of which at least two have a stereo centre: seen in one image, a person cannot be told from
     someone behind it in the same image column.  A join is made only where it is the one that passes both for
@@ -1609,15 +1679,16 @@ def _nearest_in_time(observations: list[Observation], frame: int) -> Observation
 def _depth_walk(stereo: list[Observation], calib: StereoCalibration,
                 config: AssociationConfig) -> Callable[[float], float] | None:
     """The depth over frames of the straight walk fitted to the track ``stereo`` make (:func:`_track_walk`:
-    image columns and centre depths, robust, depths uncertain as :func:`_image_track` gives them):
-    ``frame -> depth`` along the pair's rectified optical axis, metres; None when fewer than three of them
-    have a centre."""
+    image columns and centre depths, robust, depths uncertain as :func:`_image_track` gives them; not the
+    image heights, which tell one person from another but whose 3 % per frame would bend the depth rate of a
+    track holding one frame of someone taller): ``frame -> depth`` along the pair's rectified optical axis,
+    metres; None when fewer than three of them have a centre."""
     seen = _image_track(stereo, calib, config)
-    frames, _, _, depth, depth_sigma, _ = seen
+    frames, _, _, depth, depth_sigma, *_ = seen
     known = np.isfinite(depth)
     if known.sum() < 3:
         return None
-    _, rate = _track_walk(seen, calib, config)
+    _, rate = _track_walk(seen, calib, config, with_size=False)
     middle = 0.5 * (frames.min() + frames.max())
     stretch = 1.0 + rate * (frames - middle)                           # Z / Z0 (:func:`_walk_cost`)
     _, coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], config.gate_sigmas,
