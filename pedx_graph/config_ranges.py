@@ -321,6 +321,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.tracklet_switch_cost": NON_NEGATIVE,
     "AssociationConfig.swap_motion_m": NON_NEGATIVE,
     "AssociationConfig.swap_size_frac": NON_NEGATIVE,
+    "AssociationConfig.min_height_frames": COUNT,
     "AssociationConfig.stitch_max_gap_frames": NON_NEGATIVE_INT,
     "AssociationConfig.min_separation_m": NON_NEGATIVE,
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,

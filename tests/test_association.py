@@ -1018,6 +1018,30 @@ def test_swap_between_two_people_of_different_heights_walking_together_is_repair
     assert [[id(o) for o in t] for t in kept] == [[id(o) for o in t] for t in blind]
 
 
+def test_a_frame_of_a_taller_person_walking_alongside_is_taken_out_of_the_shorter_ones_track():
+    """The short and the tall walker on nearly one ray again: the short one's track holds the tall one's
+    frame 10 (the tracker gave it the wrong detection where they met), the tall one's track misses it.  Its
+    height is far off the short one's walk and on the tall one's: the frame is dropped from the short one's
+    track (not moved: one frame can fit another walk by chance).  Without the tall one's track nothing
+    allows that height elsewhere and the frame stays."""
+    from pedx_graph.detections.association import drop_other_heights
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(9)
+    frames = range(20)
+    short = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), frames, rng, 1.45 / 1.7)
+    tall = _walker_of_height(calib, (20.4, -1.4 * 20.4 / 20.0), (0.0, 0.14 * 20.4 / 20.0), frames, rng, 1.85 / 1.7)
+    mixed = short[:10] + [tall[10]] + short[11:]
+    rest = tall[:10] + tall[11:]
+    kept = drop_other_heights([mixed, rest], calib, AssociationConfig())
+    assert [[id(o) for o in t] for t in kept] == [[id(o) for o in short[:10] + short[11:]], [id(o) for o in rest]]
+    alone = drop_other_heights([mixed], calib, AssociationConfig())
+    assert [[id(o) for o in t] for t in alone] == [[id(o) for o in mixed]]
+    assert [[id(o) for o in t] for t in drop_other_heights([short, tall], calib, AssociationConfig())] == \
+        [[id(o) for o in short], [id(o) for o in tall]]
+
+
 def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_beside_it():
     """The walkers in step: the near one's track ends at frame 3 and a new one starts at frame 8 (hidden for
     four frames); the far one, unseen before, is found at frame 8 too, in the same image column.  The walk

@@ -93,7 +93,9 @@ Steps:
    on a straight line at constant speed, which the image column (projected: curved near the camera), the
    frames' centre depths and the image height (:func:`standing_height_px`: a person keeps their height)
    follow, so the exchange is made when it fits the two tracks to such walks clearly
-   better (a tracker carrying each on with the other while they were missed in turns).  Before that, a person
+   better (a tracker carrying each on with the other while they were missed in turns); after it, a single
+   frame whose image height is off its track's walk and on the walk of another track near it in the image
+   is dropped (:func:`drop_other_heights`).  Before that, a person
    the pair lost and found again (hidden, or missed in both images, for up to ``stitch_max_gap_frames``) is
    made one track when one straight walk explains both pieces, each with its stereo depths
    (:func:`stitch_tracks`).  A person with fewer than
@@ -269,6 +271,10 @@ class AssociationConfig:
     """How far a walker's position leaves a straight walk at constant speed over a track (sway, gentle curves,
     pace), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise of the
     image column (at the track's depth) and to the uncertainty of each frame's centre depth."""
+    min_height_frames: int = 5
+    """A track's frames are checked against the walk of its image heights (:func:`drop_other_heights`) when
+    at least this many of them have a height in one image (a walk through fewer fits the frame it should
+    judge)."""
     swap_size_frac: float = 0.03
     """How far a walker's image height leaves the straight walk's (``s0 / (1 + c tau)``, :func:`_walk_cost`)
     beyond its fit error (:func:`standing_height_px`), as a fraction of the height (gait, posture): added to
@@ -1165,7 +1171,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                                   ranges if config.lidar_identity else None, claimed, others)
                     projections.update({(obs.frame, side): v for side, v in views.items()})
         out.append(track)
-    out = repair_swaps(split_reversals(out, calib, config), calib, config)
+    out = drop_other_heights(repair_swaps(split_reversals(out, calib, config), calib, config), calib, config)
     if clouds is not None and config.lidar_identity:
         settle_centres(out, calib, config)
     return out
@@ -1538,6 +1544,69 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         changed = {a, b}
     return tracks
 
+
+def _height_walks(track: list[Observation], calib: StereoCalibration, config: AssociationConfig) -> dict:
+    """Per image side in which at least ``min_height_frames`` of the track's frames have an image height: the
+    track's straight walk there (:func:`_track_walk`, column and height fitted robustly at its rate) as
+    ``(frames -> (column px, height px, its sigma px), column at frame, height at frame)``."""
+    out = {}
+    for side in ("left", "right"):
+        seen = _image_track(track, calib, config, side)
+        frames, u, sigma, _, _, size, size_sigma, _ = seen
+        sized = np.isfinite(size) & np.isfinite(size_sigma)
+        if sized.sum() < config.min_height_frames:
+            continue
+        _, rate = _track_walk(seen, calib, config)
+        middle = 0.5 * (frames.min() + frames.max())
+        stretch = 1.0 + rate * (frames - middle)
+        _, size_coef = _robust_fit(1.0 / stretch[None, sized, None], size[sized], size_sigma[sized],
+                                   config.gate_sigmas, coefficients=True)
+        _, u_coef = _robust_fit(np.stack([1.0 / stretch, (frames - middle) / stretch], axis=1)[None], u, sigma,
+                                config.gate_sigmas, coefficients=True)
+        (u0, u1), s0 = u_coef[0], float(size_coef[0, 0])
+        out[side] = (dict(zip(frames.astype(int), zip(u, size, size_sigma))),
+                     lambda f, m=middle, c=rate, a=u0, b=u1: (a + b * (f - m)) / (1.0 + c * (f - m)),
+                     lambda f, m=middle, c=rate, h=s0: h / (1.0 + c * (f - m)))
+    return out
+
+
+def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration,
+                       config: AssociationConfig) -> list[list[Observation]]:
+    """Take out of one pair's final tracks the frames that are someone else's by their image height.
+
+    A person keeps their height, so over a track its image height follows the straight walk
+    (:func:`_walk_cost`).  A frame whose height (:func:`standing_height_px`) lies more than ``gate_sigmas``
+    of its uncertainty off its track's walk, in the image where the track has the most heights, while
+    another of the pair's tracks' walk in that image passes within half that height of its column at that
+    frame and allows its height, is that other person's (the per-camera tracker gave it to the wrong track
+    where the two met): its observation is dropped.  Not moved: among the many frames of a scene one frame
+    now and then fits another walk better by chance (:func:`repair_swaps` exchanges two frames at least);
+    a dropped frame costs a frame, a kept one mixes two people.  Tracks need ``min_height_frames`` heights
+    in that image for a walk; a track left empty is removed.  Returns the tracks."""
+    gate = config.gate_sigmas
+    walks = [_height_walks(track, calib, config) for track in tracks]
+    out = []
+    for k, track in enumerate(tracks):
+        if not walks[k]:
+            out.append(track)
+            continue
+        side = max(walks[k], key=lambda sd: len(walks[k][sd][0]))
+        values, _, height_at = walks[k][side]
+        kept = []
+        for obs in track:
+            column, height, height_sigma = values.get(obs.frame, (np.nan, np.nan, np.nan))
+            if not abs(height - height_at(obs.frame)) > gate * height_sigma:      # NaN: no height, kept
+                kept.append(obs)
+                continue
+            other = any(abs(column - column_at(obs.frame)) <= 0.5 * height
+                        and abs(height - other_height_at(obs.frame)) <= gate * height_sigma
+                        for j, walk in enumerate(walks) if j != k and side in walk
+                        for _, column_at, other_height_at in [walk[side]])
+            if not other:
+                kept.append(obs)
+        if kept:
+            out.append(kept)
+    return out
 
 def _velocity(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
     """Slope of the weighted line through ``(frames, u)`` (``sigma`` (n,) each) and its standard error."""
