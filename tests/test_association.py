@@ -971,6 +971,17 @@ def _walker_of_height(calib, start_xy, step_xy, frames, rng, scale):
     return out
 
 
+def _short_and_tall(rng):
+    """A short (1.45 m) and a tall (1.85 m) person walking together at ~20 m, the tall one 0.4 m behind on
+    nearly the same ray, over frames 0-19: the forward pair, and each one's observations."""
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    frames = range(20)
+    short = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), frames, rng, 1.45 / 1.7)
+    tall = _walker_of_height(calib, (20.4, -1.4 * 20.4 / 20.0), (0.0, 0.14 * 20.4 / 20.0), frames, rng, 1.85 / 1.7)
+    return calib, short, tall
+
+
 def test_standing_height_holds_when_the_feet_or_the_head_are_missed():
     """A detection's standing-template height (:func:`standing_height_px`) stays where it was when the ankles
     or the face are not detected, where the present keypoints' vertical span shrinks; an upper body alone
@@ -1001,12 +1012,8 @@ def test_swap_between_two_people_of_different_heights_walking_together_is_repair
     detections to measure them on) the walk sees nothing to repair."""
     from pedx_graph.detections.association import repair_swaps
 
-    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
-    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    rng = np.random.default_rng(8)
+    calib, short, tall = _short_and_tall(np.random.default_rng(8))
     frames = range(20)
-    short = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), frames, rng, 1.45 / 1.7)
-    tall = _walker_of_height(calib, (20.4, -1.4 * 20.4 / 20.0), (0.0, 0.14 * 20.4 / 20.0), frames, rng, 1.85 / 1.7)
     columns = [abs(np.median(short[k].uv["left"][:, 0]) - np.median(tall[k].uv["left"][:, 0])) for k in frames]
     assert max(columns) < 10.0
     swapped = [short[:10] + tall[10:], tall[:10] + short[10:]]
@@ -1026,12 +1033,8 @@ def test_a_frame_of_a_taller_person_walking_alongside_is_taken_out_of_the_shorte
     allows that height elsewhere and the frame stays."""
     from pedx_graph.detections.association import drop_other_heights
 
-    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
-    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    rng = np.random.default_rng(9)
+    calib, short, tall = _short_and_tall(np.random.default_rng(9))
     frames = range(20)
-    short = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), frames, rng, 1.45 / 1.7)
-    tall = _walker_of_height(calib, (20.4, -1.4 * 20.4 / 20.0), (0.0, 0.14 * 20.4 / 20.0), frames, rng, 1.85 / 1.7)
     mixed = short[:10] + [tall[10]] + short[11:]
     rest = tall[:10] + tall[11:]
     kept = drop_other_heights([mixed, rest], calib, AssociationConfig())
