@@ -1180,7 +1180,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
 def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
                  side: str = "left", stereo_frames: frozenset = frozenset(), memo: dict | None = None) -> tuple:
     """A pair track as positions over time seen from one camera (``side``): ``(frames (n,), u (n,) px,
-    sigma (n,) px, depth (n,) m, depth_sigma (n,) m, px_per_m)``.
+    sigma (n,) px, depth (n,) m, depth_sigma (n,) m, size (n,) px, size_sigma (n,) px, px_per_m)``.
 
     ``u`` is the median column of the detection's keypoints in that image, measured from the image's
     principal column; for a frame seen only in the other image, that image's column shifted by the disparity
@@ -1189,7 +1189,10 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
     (``swap_motion_m`` at the track's depth).  ``depth`` is the depth of the frame's centre (``world_p``) in
     the pair's rectified frame, ``depth_sigma`` its uncertainty (``depth_sigma_m``) plus ``swap_motion_m``;
     NaN for a frame without a centre.  In ``stereo_frames`` a centre the LiDAR replaced gives way to the one
-    it replaced (``fallback``).  ``px_per_m`` is the track's scale (``f / depth``: from its median
+    it replaced (``fallback``).  ``size`` is the frame's standing height in the image seen
+    (:func:`standing_height_px`; the other image's for a frame seen there only: rectified, the same),
+    ``size_sigma`` its fit error and ``swap_size_frac`` of it; NaN without a detection to fit.
+    ``px_per_m`` is the track's scale (``f / depth``: from its median
     disparity, else from its median image height and ``person_height_m``), None when it has no frame.
     ``memo`` keeps each observation's own numbers across calls (the observations must not change)."""
     disparities = [o.disparity_px for o in track if o.disparity_px is not None and o.disparity_px > 0]
@@ -1236,8 +1239,10 @@ def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: 
                  stereo: bool) -> tuple | None:
     """One observation's numbers for :func:`_image_track`, seen in image ``seen``: ``(median keypoint column
     from that image's principal column px, keypoint height px, the median's noise px, centre depth m, its
-    uncertainty m)`` (depth NaN without a centre; with ``stereo``, a LiDAR centre gives way to its
-    fallback); None with fewer than ``min_shared_keypoints`` keypoints."""
+    uncertainty m, standing height px, its uncertainty px)`` (depth NaN without a centre; with ``stereo``, a
+    LiDAR centre gives way to its fallback; the standing height, :func:`standing_height_px`, uncertain by
+    its fit error and ``swap_size_frac`` of it, NaN without a detection to fit); None with fewer than
+    ``min_shared_keypoints`` keypoints."""
     present = obs.uv[seen][np.all(np.isfinite(obs.uv[seen]), axis=1)]
     if len(present) < config.min_shared_keypoints:
         return None
