@@ -1353,40 +1353,53 @@ def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float,
     return float(coarse_costs.min()), float(best)
 
 
-def _walk_misfits(fit: tuple, rate: float, gate: float, seen: list[tuple]) -> list[np.ndarray]:
-    """Per series of ``seen``, per observation its ``min(z^2, gate^2)`` (column plus depth and size where
-    known) against the straight walk fitted once at ``rate`` to ``fit`` (:func:`_walk_fit`); all ``(frames,
-    u, sigma, depth, depth_sigma, size, size_sigma)`` as :func:`_image_track` gives them, each of ``seen``
-    with its own noise.  Zeros when ``fit`` has fewer than 3 frames."""
+def _walk_lines(fit: tuple, rate: float, gate: float) -> tuple:
+    """The straight walk fitted once at ``rate`` (:func:`_walk_fit`) to ``fit`` = ``(frames, u, sigma, depth,
+    depth_sigma, size, size_sigma)`` as :func:`_image_track` gives them, robustly at ``gate``: ``(column,
+    depth, size)``, each a function of the frame (column px from the principal column, depth m, image
+    height px), depth and size None with fewer than three known; all None with fewer than 3 frames."""
     frames, u, sigma, depth, depth_sigma, size, size_sigma = fit
-    out = [np.zeros(len(series[0])) for series in seen]
     if len(frames) < 3:
-        return out
+        return None, None, None
     centre = 0.5 * (frames.min() + frames.max())
     tau = frames - centre
     stretch = 1.0 + rate * tau
     _, u_coef = _robust_fit(np.stack([1.0 / stretch, tau / stretch], axis=1)[None], u, sigma, gate, coefficients=True)
+    u0, u1 = float(u_coef[0, 0]), float(u_coef[0, 1])
+    out = [lambda f: (u0 + u1 * (f - centre)) / (1.0 + rate * (f - centre)), None, None]
     known = np.isfinite(depth)
-    depth_coef = None
     if known.sum() >= 3:
         _, depth_coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], gate,
                                     coefficients=True)
+        depth0 = float(depth_coef[0, 0])
+        out[1] = lambda f: depth0 * (1.0 + rate * (f - centre))
     sized = np.isfinite(size) & np.isfinite(size_sigma)
-    size_coef = None
     if sized.sum() >= 3:
         _, size_coef = _robust_fit(1.0 / stretch[None, sized, None], size[sized], size_sigma[sized], gate,
                                    coefficients=True)
+        size0 = float(size_coef[0, 0])
+        out[2] = lambda f: size0 / (1.0 + rate * (f - centre))
+    return tuple(out)
+
+
+def _walk_misfits(fit: tuple, rate: float, gate: float, seen: list[tuple]) -> list[np.ndarray]:
+    """Per series of ``seen``, per observation its ``min(z^2, gate^2)`` (column plus depth and size where
+    known) against the straight walk fitted once at ``rate`` to ``fit`` (:func:`_walk_lines`); all
+    ``(frames, u, sigma, depth, depth_sigma, size, size_sigma)`` as :func:`_image_track` gives them, each of
+    ``seen`` with its own noise.  Zeros when ``fit`` has fewer than 3 frames."""
+    out = [np.zeros(len(series[0])) for series in seen]
+    column, depth, size = _walk_lines(fit, rate, gate)
+    if column is None:
+        return out
     for misfit, (s_frames, s_u, s_sigma, s_depth, s_depth_sigma, s_size, s_size_sigma) in zip(out, seen):
-        s_tau = s_frames - centre
-        s_stretch = 1.0 + rate * s_tau
-        misfit += np.minimum(((s_u - (u_coef[0, 0] + u_coef[0, 1] * s_tau) / s_stretch) / s_sigma) ** 2, gate ** 2)
-        if depth_coef is not None:
+        misfit += np.minimum(((s_u - column(s_frames)) / s_sigma) ** 2, gate ** 2)
+        if depth is not None:
             s_known = np.isfinite(s_depth)
-            z = (s_depth[s_known] - depth_coef[0, 0] * s_stretch[s_known]) / s_depth_sigma[s_known]
+            z = (s_depth[s_known] - depth(s_frames[s_known])) / s_depth_sigma[s_known]
             misfit[s_known] += np.minimum(z ** 2, gate ** 2)
-        if size_coef is not None:
+        if size is not None:
             s_sized = np.isfinite(s_size) & np.isfinite(s_size_sigma)
-            z = (s_size[s_sized] - size_coef[0, 0] / s_stretch[s_sized]) / s_size_sigma[s_sized]
+            z = (s_size[s_sized] - size(s_frames[s_sized])) / s_size_sigma[s_sized]
             misfit[s_sized] += np.minimum(z ** 2, gate ** 2)
     return out
 
@@ -1562,16 +1575,10 @@ def _height_walks(track: list[Observation], calib: StereoCalibration, config: As
         if sized.sum() < config.min_height_frames:
             continue
         _, rate = _track_walk(seen, calib, config)
-        middle = 0.5 * (frames.min() + frames.max())
-        stretch = 1.0 + rate * (frames - middle)
-        _, size_coef = _robust_fit(1.0 / stretch[None, sized, None], size[sized], size_sigma[sized],
-                                   config.gate_sigmas, coefficients=True)
-        _, u_coef = _robust_fit(np.stack([1.0 / stretch, (frames - middle) / stretch], axis=1)[None], u, sigma,
-                                config.gate_sigmas, coefficients=True)
-        (u0, u1), s0 = u_coef[0], float(size_coef[0, 0])
-        out[side] = (dict(zip(frames.astype(int), zip(u, size, size_sigma))),
-                     lambda f, m=middle, c=rate, a=u0, b=u1: (a + b * (f - m)) / (1.0 + c * (f - m)),
-                     lambda f, m=middle, c=rate, h=s0: h / (1.0 + c * (f - m)))
+        column_at, _, height_at = _walk_lines(seen[:7], rate, config.gate_sigmas)
+        if height_at is None:                      # fewer than three heights: no walk to judge by
+            continue
+        out[side] = (dict(zip(frames.astype(int), zip(u, size, size_sigma))), column_at, height_at)
     return out
 
 
@@ -1758,17 +1765,10 @@ def _depth_walk(stereo: list[Observation], calib: StereoCalibration,
     track holding one frame of someone taller): ``frame -> depth`` along the pair's rectified optical axis,
     metres; None when fewer than three of them have a centre."""
     seen = _image_track(stereo, calib, config)
-    frames, _, _, depth, depth_sigma, *_ = seen
-    known = np.isfinite(depth)
-    if known.sum() < 3:
+    if np.isfinite(seen[3]).sum() < 3:
         return None
     _, rate = _track_walk(seen, calib, config, with_size=False)
-    middle = 0.5 * (frames.min() + frames.max())
-    stretch = 1.0 + rate * (frames - middle)                           # Z / Z0 (:func:`_walk_cost`)
-    _, coef = _robust_fit(stretch[None, known, None], depth[known], depth_sigma[known], config.gate_sigmas,
-                          coefficients=True)
-    depth_0 = float(coef[0, 0])
-    return lambda frame: depth_0 * (1.0 + rate * (frame - middle))
+    return _walk_lines(seen[:7], rate, config.gate_sigmas)[1]
 
 
 def _off_walk(obs: Observation, walk: Callable[[float], float], calib: StereoCalibration,
