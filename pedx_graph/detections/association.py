@@ -1450,11 +1450,14 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     projection of a straight walk at constant velocity (:func:`_image_track`, :func:`_walk_cost`: a line
     far away, curved by perspective near the camera), and so does its image height (a person keeps their
     height); a swap shows as kinks or steps.  For two tracks that
-    come within half a person's height of each other in the image at frames at most 2 apart, every split
-    time ``tau`` from the later start to just after the earlier end is tried: heads kept, tails exchanged (at
-    the first such time one track's head moves to the other, at the last one track's tail: a track begun
-    with, or carried on to, the other person; never all of one track).  So are stretches ``[t1, t2)``
-    exchanged, both ends within 2 frames of a frame where the two are that near (people walking together
+    come within half a person's height of each other in the image at frames at most 2 apart, split times
+    ``tau`` from the later start to just after the earlier end are tried: heads kept, tails exchanged.  The
+    tracker can only have carried a track on with the other person where the two were that near, between
+    ``tau`` and the frame before it (across a gap where both were missed), so such a frame lies within 2
+    frames of that interval; or ``tau`` is the first or the last split time (there one track's head moves
+    to the other, or one track's tail: a track begun with, or carried on to, the other person; never all
+    of one track).  So are stretches ``[t1, t2)`` exchanged, both ends within 2 frames of a frame where
+    the two are that near (people walking together
     or meeting twice: the tracker carried each on with the other and back again where they met next): those
     around the runs of frames whose observations fit the other track's walk better than their own
     (:func:`_walk_misfits`, each walk fitted robustly as the track is; a stretch holding all of one track is
@@ -1499,7 +1502,14 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         now = walks[a][0] + walks[b][0]
         found = None
         taus = sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1})
-        for tau in taus:
+        near_frames = np.union1d(fa[near.any(axis=1)], fb[near.any(axis=0)])
+        switches = [t for t in taus if t <= hi and np.min(np.abs(near_frames - t)) <= 2]
+        # a tracker's switch at tau happened between tau and the frame before it (across a gap where both
+        # were missed), so the two were near each other there, give or take 2 frames; and the ends
+        previous = dict(zip(taus[1:], taus[:-1]))
+        splits = [t for t in taus if t in (lo, hi + 1)
+                  or np.any((near_frames >= previous.get(t, t) - 2) & (near_frames <= t + 2))]
+        for tau in splits:
             new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
             new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
             if new_a and new_b:               # else the tracks lie apart in time: that would join them
@@ -1512,8 +1522,6 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         # own (each track's walk fitted as it is, robustly: a stretch of the other person is its outliers);
         # the runs where that sum is positive (:func:`_supported_runs`), their ends give or take 2 frames,
         # are then tried exactly.
-        near_frames = np.union1d(fa[near.any(axis=1)], fb[near.any(axis=0)])
-        switches = [t for t in taus if t <= hi and np.min(np.abs(near_frames - t)) <= 2]
         if len(switches) < 2:
             return found
         shared = {m: tuple(x[(seen[m][0] >= lo) & (seen[m][0] <= hi)] for x in seen[m][:7]) for m in (a, b)}
