@@ -1045,6 +1045,31 @@ def test_a_frame_of_a_taller_person_walking_alongside_is_taken_out_of_the_shorte
         [[id(o) for o in short], [id(o) for o in tall]]
 
 
+def test_the_taller_ones_detection_in_one_image_of_an_unpaired_frame_is_taken_out_and_the_other_image_kept():
+    """The short and the tall walker again; at frame 10 the short one's track holds its own left detection
+    and the tall one's right detection, unpaired (the stereo pairing refused them).  The right image's
+    height is off the short one's walk there and on the tall one's: that detection is dropped, the frame
+    stays with its left one.  Every image with a walk is judged, not only the one with the most heights
+    (here the left: it holds the frame's own detection).  A paired frame loses both, its centre being
+    theirs."""
+    from pedx_graph.detections.association import drop_other_heights
+
+    calib, short, tall = _short_and_tall(np.random.default_rng(9))
+    own, other = short[10], tall[10]
+    unpaired = Observation(frame=10, uv={"left": own.uv["left"], "right": other.uv["right"]}, score=0.8,
+                           payload={"left": own.payload["left"], "right": other.payload["right"]})
+    rest = tall[:10] + tall[11:]
+    kept, kept_rest = drop_other_heights([short[:10] + [unpaired] + short[11:], rest], calib, AssociationConfig())
+    assert [id(o) for o in kept_rest] == [id(o) for o in rest]
+    assert [o.frame for o in kept] == list(range(20))
+    assert set(kept[10].uv) == {"left"} and kept[10].payload == {"left": own.payload["left"]}
+    assert kept[10].uv["left"] is own.uv["left"]
+    assert [id(o) for o in kept[:10] + kept[11:]] == [id(o) for o in short[:10] + short[11:]]
+    paired = dataclasses.replace(unpaired, disparity_px=own.disparity_px, world_p=np.zeros(3), depth_sigma_m=1.0)
+    kept, _ = drop_other_heights([short[:10] + [paired] + short[11:], rest], calib, AssociationConfig())
+    assert [o.frame for o in kept] == [f for f in range(20) if f != 10]
+
+
 def test_a_walker_lost_and_found_again_is_one_track_not_the_neighbour_found_beside_it():
     """The walkers in step: the near one's track ends at frame 3 and a new one starts at frame 8 (hidden for
     four frames); the far one, unseen before, is found at frame 8 too, in the same image column.  The walk

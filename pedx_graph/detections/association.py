@@ -93,9 +93,10 @@ Steps:
    on a straight line at constant speed, which the image column (projected: curved near the camera), the
    frames' centre depths and the image height (:func:`standing_height_px`: a person keeps their height)
    follow, so the exchange is made when it fits the two tracks to such walks clearly
-   better (a tracker carrying each on with the other while they were missed in turns); after it, a single
-   frame whose image height is off its track's walk and on the walk of another track near it in the image
-   is dropped (:func:`drop_other_heights`).  Before that, a person
+   better (a tracker carrying each on with the other while they were missed in turns); after it, a
+   detection whose image height is off its track's walk and on the walk of another track near it in that
+   image is dropped, with its frame unless the frame is unpaired and seen in the other image too
+   (:func:`drop_other_heights`).  Before that, a person
    the pair lost and found again (hidden, or missed in both images, for up to ``stitch_max_gap_frames``) is
    made one track when one straight walk explains both pieces, each with its stereo depths
    (:func:`stitch_tracks`).  A person with fewer than
@@ -1595,38 +1596,48 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
     """Take out of one pair's final tracks the frames that are someone else's by their image height.
 
     A person keeps their height, so over a track its image height follows the straight walk
-    (:func:`_walk_cost`).  A frame whose height (:func:`standing_height_px`) lies more than ``gate_sigmas``
-    of its uncertainty off its track's walk, in the image where the track has the most heights, while
-    another of the pair's tracks' walk in that image passes within half that height of its column at that
-    frame and allows its height, is that other person's (the per-camera tracker gave it to the wrong track
-    where the two met): its observation is dropped.  Not moved: among the many frames of a scene one frame
-    now and then fits another walk better by chance (:func:`repair_swaps` exchanges two frames at least);
-    a dropped frame costs a frame, a kept one mixes two people.  Tracks need ``min_height_frames`` heights
-    in that image for a walk; a track left empty is removed.  Returns the tracks."""
+    (:func:`_walk_cost`).  A frame whose height (:func:`standing_height_px`) in one image lies more than
+    ``gate_sigmas`` of its uncertainty off its track's walk in that image, while another of the pair's
+    tracks' walk there passes within half that height of its column at that frame and allows its height, is
+    that other person's in that image (the per-camera tracker gave it to the wrong track where the two
+    met).  Every image the frame is seen in and the track has ``min_height_frames`` heights in is judged.  An unpaired frame
+    (no centre) seen in both images loses only that image's detection; any other such frame is dropped (a
+    stereo or LiDAR centre made with the other person's detection is not the track's).  Not moved: among
+    the many frames of a scene one frame now and then fits another walk better by chance
+    (:func:`repair_swaps` exchanges two frames at least); a dropped frame costs a frame, a kept one mixes
+    two people.  A track left empty is removed.  Returns the tracks."""
     gate = config.gate_sigmas
     walks = [_height_walks(track, calib, config) for track in tracks]
     out = []
     for k, track in enumerate(tracks):
-        if not walks[k]:
-            out.append(track)
-            continue
-        side = max(walks[k], key=lambda sd: len(walks[k][sd][0]))
-        values, _, height_at = walks[k][side]
         kept = []
         for obs in track:
-            column, height, height_sigma = values.get(obs.frame, (np.nan, np.nan, np.nan))
-            if not abs(height - height_at(obs.frame)) > gate * height_sigma:      # NaN: no height, kept
+            off = {side for side in obs.uv if side in walks[k]
+                   and _someone_elses_height(obs.frame, side, k, walks, gate)}
+            if not off:
                 kept.append(obs)
-                continue
-            other = any(abs(column - column_at(obs.frame)) <= 0.5 * height
-                        and abs(height - other_height_at(obs.frame)) <= gate * height_sigma
-                        for j, walk in enumerate(walks) if j != k and side in walk
-                        for _, column_at, other_height_at in [walk[side]])
-            if not other:
-                kept.append(obs)
+            elif obs.world_p is None and set(obs.uv) - off:    # unpaired: the other image's detection stays
+                keep = [side for side in obs.uv if side not in off]
+                kept.append(dataclasses.replace(obs, uv={side: obs.uv[side] for side in keep},
+                                                payload={side: obs.payload[side] for side in keep}))
         if kept:
             out.append(kept)
     return out
+
+
+def _someone_elses_height(frame: int, side: str, k: int, walks: list[dict], gate: float) -> bool:
+    """Whether track ``k``'s height in image ``side`` at ``frame`` is off its own walk there and allowed by
+    another track's walk passing near it (:func:`drop_other_heights`; ``walks``: :func:`_height_walks` of
+    every track)."""
+    values, _, height_at = walks[k][side]
+    column, height, height_sigma = values.get(frame, (np.nan, np.nan, np.nan))
+    if not abs(height - height_at(frame)) > gate * height_sigma:      # NaN: no height, kept
+        return False
+    return any(abs(column - column_at(frame)) <= 0.5 * height
+               and abs(height - other_height_at(frame)) <= gate * height_sigma
+               for j, walk in enumerate(walks) if j != k and side in walk
+               for _, column_at, other_height_at in [walk[side]])
+
 
 def _velocity(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
     """Slope of the weighted line through ``(frames, u)`` (``sigma`` (n,) each) and its standard error."""
