@@ -1493,9 +1493,13 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
 
         def consider(new_a, new_b):
             nonlocal found
-            gain = now - (_track_walk(_image_track(new_a, calib, config, side, hidden, memo), calib, config)[0]
-                          + _track_walk(_image_track(new_b, calib, config, side, hidden, memo), calib, config)[0])
-            if gain > gate ** 2 and (found is None or gain > found[0]):
+            bar = gate ** 2 if found is None else max(gate ** 2, found[0])
+            cost_a = _track_walk(_image_track(new_a, calib, config, side, hidden, memo), calib, config)[0]
+            if now - cost_a <= bar:           # a misfit is never negative: new_b's cannot make up for it
+                return
+            gain = now - (cost_a + _track_walk(_image_track(new_b, calib, config, side, hidden, memo), calib,
+                                               config)[0])
+            if gain > bar:
                 found = (gain, new_a, new_b)
 
         seen = {k: _image_track(tracks[k], calib, config, side, hidden, memo) for k in (a, b)}
