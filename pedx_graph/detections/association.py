@@ -1472,6 +1472,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     tracks = [list(t) for t in tracks]
     memo: dict = {}
     series: dict[str, dict[int, tuple]] = {"left": {}, "right": {}}
+    spans: dict[int, list[float]] = {}                  # track -> its detections' keypoint spans, px
     offers: dict[tuple[int, int], tuple | None] = {}    # (a, b) -> the pair's best exchange, while both are unchanged
 
     def best_exchange(a: int, b: int) -> tuple | None:
@@ -1483,7 +1484,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         fb, ub = series[side][b][:2]
         if len(fa) < 2 or len(fb) < 2:
             return None
-        heights = [o.height_px(side) for o in tracks[a] + tracks[b] for side in o.uv]
+        heights = spans[a] + spans[b]
         near = (np.abs(fa[:, None] - fb[None, :]) <= 2) & \
             (np.abs(ua[:, None] - ub[None, :]) <= 0.5 * max(np.median(heights), 1.0))
         if not near.any():
@@ -1559,6 +1560,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         for side in ("left", "right"):
             for k in changed:
                 series[side][k] = _image_track(tracks[k], calib, config, side, memo=memo)
+        for k in changed:
+            spans[k] = [o.height_px(side) for o in tracks[k] for side in o.uv]
         for a in range(len(tracks)):
             for b in range(a + 1, len(tracks)):
                 if a in changed or b in changed:
