@@ -1561,7 +1561,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
             for k in changed:
                 series[side][k] = _image_track(tracks[k], calib, config, side, memo=memo)
         for k in changed:
-            spans[k] = [o.height_px(side) for o in tracks[k] for side in o.uv]
+            spans[k] = [o.height_px(seen) for o in tracks[k] for seen in o.uv]
         for a in range(len(tracks)):
             for b in range(a + 1, len(tracks)):
                 if a in changed or b in changed:
