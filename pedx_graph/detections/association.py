@@ -1610,8 +1610,7 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
     met).  Every image the frame is seen in and the track has ``min_height_frames`` heights in is judged.
     An unpaired frame (no centre) seen in both images loses only that image's detection; any other such
     frame is dropped (a stereo or LiDAR centre made with the other person's detection is not the track's).
-    Not moved: among
-    the many frames of a scene one frame now and then fits another walk better by chance
+    Not moved: among the many frames of a scene one frame now and then fits another walk better by chance
     (:func:`repair_swaps` exchanges two frames at least); a dropped frame costs a frame, a kept one mixes
     two people.  A track left empty is removed.  Returns the tracks."""
     gate = config.gate_sigmas
