@@ -1288,12 +1288,24 @@ def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: floa
     """Sums of ``min(z^2, gate^2)`` of the normalised residuals of weighted least-squares fits of ``y`` (n,)
     with standard deviations ``sigma`` (n,) by the columns of each of ``design`` (m, n, k) (one fit per model),
     each fit iterated three times with the residuals beyond ``gate`` left out (as long as ``k`` remain): (m,);
-    with ``coefficients``, also the fits' coefficients (m, k)."""
+    with ``coefficients``, also the fits' coefficients (m, k).  A one-coefficient fit starts from the median
+    of the ratios ``y / design`` (the first fit then leaves out what lies beyond ``gate`` of it); started from
+    every point, two precise points off the rest pull the first fit toward them until they lie inside the
+    gate and stay."""
     weight = 1.0 / sigma
     a = design * weight[None, :, None]
     b = y * weight
     keep = np.ones(design.shape[:2], dtype=bool)
     z = np.zeros(design.shape[:2])
+    if design.shape[2] == 1:               # one coefficient: start from the median ratio, not from every point
+        column = design[:, :, 0]
+        if np.all(column != 0):
+            start = np.median(y[None, :] / column, axis=1)
+        else:                              # a point with a zero design says nothing of the coefficient
+            start = np.nanmedian(np.divide(y[None, :], column, out=np.full(column.shape, np.nan),
+                                           where=column != 0), axis=1)
+        keep = np.abs(b[None, :] - a[:, :, 0] * start[:, None]) <= gate
+        keep[keep.sum(axis=1) == 0] = True
     for _ in range(3):
         ak = a * keep[:, :, None]
         coef = _normal_solve(ak, b)
@@ -1582,7 +1594,9 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
 def _height_walks(track: list[Observation], calib: StereoCalibration, config: AssociationConfig) -> dict:
     """Per image side in which at least ``min_height_frames`` of the track's frames have an image height: the
     track's straight walk there (:func:`_track_walk`, column and height fitted robustly at its rate) as
-    ``(frames -> (column px, height px, its sigma px), column at frame, height at frame)``."""
+    ``(frames -> (column px, height px, its sigma px), column at frame, height at frame)``.  The rate comes
+    from the columns and the centres' depths alone: the heights are what is judged, and a few frames of
+    someone else's height (a smaller person behind, at a track's end) would bend it their way."""
     out = {}
     for side in ("left", "right"):
         seen = _image_track(track, calib, config, side)
@@ -1590,7 +1604,7 @@ def _height_walks(track: list[Observation], calib: StereoCalibration, config: As
         sized = np.isfinite(size) & np.isfinite(size_sigma)
         if sized.sum() < config.min_height_frames:
             continue
-        _, rate = _track_walk(seen, calib, config)
+        _, rate = _track_walk(seen, calib, config, with_size=False)
         column_at, _, height_at = _walk_lines(seen[:7], rate, config.gate_sigmas)
         if height_at is None:                      # fewer than three heights: no walk to judge by
             continue
