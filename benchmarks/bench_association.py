@@ -1,0 +1,188 @@
+"""Benchmark: the id-less association alone (tracks, identity switches, mixed frames) over many seeded scenes.
+
+Method: for every seed, the detection benchmark's two scenes (:func:`bench_detections.scene_configs`:
+``crossing`` on seed ``s`` and ``mixed`` on seed ``s + 1``, as ``bench_detections.py --seed s`` simulates them;
+CMU hold-out motion when ../shared holds it, the procedural gait otherwise) are simulated with detector output
+(OpenPose BODY_25 / BODY_25B and COCO files on distorted raw images, no ids, bystanders, clutter and
+fragments); each format's files go through :func:`pedx_graph.detections.association.associate` with the
+scene's LiDAR clouds, as ``pedx-graph import`` runs it, and the tracks are scored against the simulator's
+``truth/detections`` (:func:`pedx_graph.detections.evaluate.score_tracks`).  No fitting: this is the
+benchmark for changes to the association, which the fit benchmark (``bench_detections.py``, three seeds)
+samples too thinly.  ``--pedestrians 20 --frames 80`` gives the long dense scenes.
+
+Reported per input (seed, scene, format) and summed: tracks, false tracks, bystander tracks, labelled people
+recovered, identity switches (all, and those of people crossing at 5-25 m:
+:func:`bench_detections.crossing_people`), wrong frames, frames mixing two people, fragmentations.  With
+``--baseline OLD.json`` (an earlier run of this script with the same seeds and sizes) the markdown also lists
+the inputs whose counts changed.
+
+    python benchmarks/bench_association.py [--seeds 0-8,17-21] [--pedestrians 10] [--frames 20]
+                                           [--workers 2] [--baseline OLD.json] [--name bench_association]
+                                           [--out benchmarks/results]
+
+Writes ``<name>.json`` and ``<name>.md`` into ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _common import hardware, public_args  # noqa: E402
+from bench_detections import (FORMATS, SHARED_CMU, crossing_people, labelled_instances, read_format,  # noqa: E402
+                              scene_configs)
+from pedx_graph.data.calib import read_calibrations  # noqa: E402
+from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
+from pedx_graph.data.ply import read_ply_points  # noqa: E402
+from pedx_graph.data.reader import read_dataset  # noqa: E402
+from pedx_graph.detections.association import associate  # noqa: E402
+from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
+from pedx_graph.sim.simulate import simulate  # noqa: E402
+from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
+
+#: Counts summed over the inputs, in the tables' order.
+COUNTS = ("tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people", "id_switches",
+          "crossing_id_switches", "wrong_frames", "mixed_frames", "fragmentations")
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-8,17-21"`` -> [0, ..., 8, 17, ..., 21] (comma-separated seeds and inclusive ranges)."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        first, _, last = part.partition("-")
+        seeds.extend(range(int(first), int(last or first) + 1))
+    if not seeds:
+        raise ValueError(f"--seeds: no seed in {text!r}")
+    return seeds
+
+
+def run_seed(seed: int, pedestrians: int, frames: int) -> list[dict]:
+    """The scored inputs of one seed: one row per scene and format (module docstring)."""
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
+        for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames).items()):
+            scene = Path(tmp) / name
+            simulate(scene, cfg, seed=seed + s, workers=1)
+            seq = cfg.scene.sequence
+            labelled = labelled_instances(scene, seq)
+            crossing, _ = crossing_people(read_dataset(scene), labelled)
+            calibs = read_calibrations(scene / "calib")
+            clouds = {int(p.stem.rsplit("_", 1)[1]): read_ply_points(p)
+                      for p in sorted((scene / "pointclouds" / seq).glob(f"{seq}_*.ply"))}
+            ground = ground_from_calibrations(calibs, seq)
+            for fmt in FORMATS:
+                detections = read_format(scene, fmt, seq)
+                t0 = time.perf_counter()
+                tracks = associate(detections, calibs, clouds=clouds, ground=ground)
+                seconds = time.perf_counter() - t0
+                score = score_tracks(tracks, read_detection_truth(scene, seq, fmt), labelled)
+                score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"]
+                                                    if a in crossing or b in crossing)
+                rows.append({"seed": seed, "scene": name, "format": fmt, "detections": len(detections),
+                             "associate_seconds": seconds, **{k: score[k] for k in COUNTS}})
+    return rows
+
+
+def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:
+    """(before, now) of the inputs whose counts differ from the baseline's row of the same seed, scene and
+    format."""
+    before = {(r["seed"], r["scene"], r["format"]): r for r in baseline}
+    out = []
+    for row in rows:
+        old = before.get((row["seed"], row["scene"], row["format"]))
+        if old is not None and any(old.get(k) != row[k] for k in COUNTS):
+            out.append((old, row))
+    return out
+
+
+def markdown(result: dict) -> str:
+    header = ("| seed | scene | format | tracks | false | bystander | recovered / labelled | id switches (crossing) "
+              "| wrong frames | mixed frames | fragmentations |")
+    rule = "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+
+    def line(r: dict, label: str | None = None) -> str:
+        key = label or f"{r['seed']} | {r['scene']} | {r['format']}"
+        return (f"| {key} | {r['tracks']} | {r['false_tracks']} | {r['bystander_tracks']} | "
+                f"{r['recovered']} / {r['labelled_people']} | {r['id_switches']} ({r['crossing_id_switches']}) | "
+                f"{r['wrong_frames']} | {r['mixed_frames']} | {r['fragmentations']} |")
+
+    total = result["totals"]
+    lines = ["# bench_association: the id-less association over many scenes", "",
+             f"Command: `{result['command']}`", "",
+             f"Seeds {result['seeds_text']} ({len(result['seeds'])} seeds x 2 scenes x {len(FORMATS)} formats = "
+             f"{len(result['rows'])} inputs), {result['pedestrians']} pedestrians x {result['frames']} frames per "
+             f"scene, {result['motion']}.  Method: see the script's docstring (the detection benchmark's scenes, "
+             "`associate` as the import runs it, scored against the simulator's truth; no fitting).", "",
+             "## Totals", "", header, rule, line(total, "all | | "), ""]
+    if result.get("changed") is not None:
+        lines += [f"## Changed against the baseline ({result['baseline_command']})", ""]
+        if result["changed"]:
+            lines += ["Each changed input: the baseline's row, then this run's.", "", header, rule]
+            for old, new in result["changed"]:
+                lines += [line(old, f"{old['seed']} | {old['scene']} | {old['format']} (before)"), line(new)]
+        else:
+            lines.append("No input's counts changed.")
+        lines.append("")
+    lines += ["## Per input", "", header, rule] + [line(r) for r in result["rows"]]
+    lines += ["", f"Association time over all inputs: {result['associate_seconds']:.1f} s "
+              f"(wall time {result['total_seconds']:.0f} s with {result['workers']} worker processes).", "",
+              f"Hardware: {result['hardware']}", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", default="0-8,17-21", help="seeds and inclusive ranges, comma-separated")
+    parser.add_argument("--pedestrians", type=int, default=10)
+    parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--workers", type=int, default=2, help="processes, one seed each")
+    parser.add_argument("--baseline", help="an earlier run's JSON to list the changed inputs against")
+    parser.add_argument("--name", default="bench_association", help="file name of the outputs, without suffix")
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
+    args = parser.parse_args(argv)
+    try:
+        seeds = parse_seeds(args.seeds)
+    except ValueError as exc:
+        parser.error(str(exc))
+    baseline = None
+    if args.baseline:
+        try:
+            baseline = json.loads(Path(args.baseline).read_text())
+        except (OSError, ValueError) as exc:
+            parser.error(f"--baseline {args.baseline}: {exc}")
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+        per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds)))
+    rows = [row for seed_rows in per_seed for row in seed_rows]
+    result = {"command": " ".join(["python benchmarks/bench_association.py"] + public_args(argv)),
+              "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
+              "workers": args.workers,
+              "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
+              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS},
+              "associate_seconds": sum(r["associate_seconds"] for r in rows),
+              "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
+    if baseline is not None:
+        result["baseline_command"] = baseline.get("command", args.baseline)
+        result["changed"] = changed_inputs(rows, baseline.get("rows", []))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / f"{args.name}.json", result)
+    atomic_write_text(out / f"{args.name}.md", markdown(result))
+    print(markdown(result).split("## Per input")[0])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
