@@ -61,7 +61,10 @@ def parse_seeds(text: str) -> list[int]:
         if not part:
             continue
         first, _, last = part.partition("-")
-        seeds.extend(range(int(first), int(last or first) + 1))
+        try:
+            seeds.extend(range(int(first), int(last or first) + 1))
+        except ValueError:
+            raise ValueError(f"--seeds: {part!r} is neither a seed nor a range like 17-21") from None
     if not seeds:
         raise ValueError(f"--seeds: no seed in {text!r}")
     return seeds
@@ -120,7 +123,7 @@ def markdown(result: dict) -> str:
     total = result["totals"]
     lines = ["# bench_association: the id-less association over many scenes", "",
              f"Command: `{result['command']}`", "",
-             f"Seeds {result['seeds_text']} ({len(result['seeds'])} seeds x 2 scenes x {len(FORMATS)} formats = "
+             f"Seeds {result['seeds_text']} ({len(result['seeds'])} seed{'s' * (len(result['seeds']) != 1)} x 2 scenes x {len(FORMATS)} formats = "
              f"{len(result['rows'])} inputs), {result['pedestrians']} pedestrians x {result['frames']} frames per "
              f"scene, {result['motion']}.  Method: see the script's docstring (the detection benchmark's scenes, "
              "`associate` as the import runs it, scored against the simulator's truth; no fitting).", "",
@@ -162,11 +165,18 @@ def main(argv: list[str] | None = None) -> int:
             baseline = json.loads(Path(args.baseline).read_text())
         except (OSError, ValueError) as exc:
             parser.error(f"--baseline {args.baseline}: {exc}")
+        if (baseline.get("pedestrians"), baseline.get("frames")) != (args.pedestrians, args.frames):
+            parser.error(f"--baseline {args.baseline}: its scenes are {baseline.get('pedestrians')} pedestrians x "
+                         f"{baseline.get('frames')} frames, this run's {args.pedestrians} x {args.frames}")
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
         per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds)))
     rows = [row for seed_rows in per_seed for row in seed_rows]
-    result = {"command": " ".join(["python benchmarks/bench_association.py"] + public_args(argv)),
+    shown = public_args(argv)                 # the baseline by its file name: no machine paths in the results
+    shown = [Path(a).name if k and shown[k - 1] == "--baseline" else
+             f"--baseline={Path(a.split('=', 1)[1]).name}" if a.startswith("--baseline=") else a
+             for k, a in enumerate(shown)]
+    result = {"command": " ".join(["python benchmarks/bench_association.py"] + shown),
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
               "workers": args.workers,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
