@@ -120,10 +120,10 @@ def markdown(result: dict) -> str:
                 f"{r['recovered']} / {r['labelled_people']} | {r['id_switches']} ({r['crossing_id_switches']}) | "
                 f"{r['wrong_frames']} | {r['mixed_frames']} | {r['fragmentations']} |")
 
-    total = result["totals"]
+    total, seeds = result["totals"], len(result["seeds"])
     lines = ["# bench_association: the id-less association over many scenes", "",
              f"Command: `{result['command']}`", "",
-             f"Seeds {result['seeds_text']} ({len(result['seeds'])} seed{'s' * (len(result['seeds']) != 1)} x 2 scenes x {len(FORMATS)} formats = "
+             f"Seeds {result['seeds_text']} ({seeds} seed{'s' * (seeds != 1)} x 2 scenes x {len(FORMATS)} formats = "
              f"{len(result['rows'])} inputs), {result['pedestrians']} pedestrians x {result['frames']} frames per "
              f"scene, {result['motion']}.  Method: see the script's docstring (the detection benchmark's scenes, "
              "`associate` as the import runs it, scored against the simulator's truth; no fitting).", "",

@@ -1106,7 +1106,7 @@ def _walker_and_the_one_behind(seed: int):
 
 def test_a_track_tail_in_one_image_of_the_person_behind_is_dropped_though_it_would_bend_the_walk():
     """The walker's track ends with two frames holding, in the left image only, the detections of the person
-    standing 1.2 m behind (the tracker carried it on with them; about 15 % smaller in the image), while that
+    standing 1.2 m behind (the tracker carried it on with them; about 13 % smaller in the image), while that
     person's own track misses them.  The walker's image heights shrink as it walks away, so a walk whose
     depth rate followed the heights could take the tail for more of the same; its rate comes from its
     columns and centres, and the tail's heights lie off it: both frames are dropped (on 9 of 10 seeds at
