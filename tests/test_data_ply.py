@@ -1,6 +1,8 @@
 """Point PLY reading and writing: ascii / binary, non-finite masking, malformed files."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -29,6 +31,20 @@ def test_nonfinite_points_masked(tmp_path, binary):
     path = write_ply_points(tmp_path / "inf.ply", points, binary=binary, dtype="float32")
     np.testing.assert_array_equal(read_ply_points(path), [[1, 2, 3], [4, 5, 6]])
     assert read_ply_points(path, mask_nonfinite=False).shape == (4, 3)
+
+
+def test_a_signalling_nan_in_a_binary_float_is_masked_without_a_warning(tmp_path):
+    """A binary float32 whose bits are a signalling NaN (a corrupt or padded file) is a non-finite point like
+    any other: masked, and no RuntimeWarning from quieting it while widening to float64."""
+    body = np.array([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]], dtype="<f4")
+    body.view("<u4")[1, 0] = 0x7F800001                     # exponent all ones, quiet bit clear
+    header = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\nproperty float y\n" \
+             b"property float z\nend_header\n"
+    path = tmp_path / "snan.ply"
+    path.write_bytes(header + body.tobytes())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(read_ply_points(path), [[1, 2, 3]])
 
 
 def test_extra_properties_big_endian_and_preceding_element(tmp_path):

@@ -171,7 +171,8 @@ def read_ply_points(path: str | os.PathLike, mask_nonfinite: bool = True) -> np.
     for axis in ("x", "y", "z"):
         if axis not in vertices:
             raise DataFormatError(path, axis, f"vertex property '{axis}' missing (have {sorted(vertices)})")
-    points = np.stack([vertices["x"], vertices["y"], vertices["z"]], axis=-1).astype(np.float64)
+    with np.errstate(invalid="ignore"):     # a signalling NaN (a binary float's bits) is quieted: no warning
+        points = np.stack([vertices["x"], vertices["y"], vertices["z"]], axis=-1).astype(np.float64)
     if mask_nonfinite:
         finite = np.all(np.isfinite(points), axis=1)
         if not finite.all():
