@@ -12,7 +12,8 @@ samples too thinly.  ``--pedestrians 20 --frames 80`` gives the long dense scene
 
 Reported per input (seed, scene, format) and summed: tracks, false tracks, bystander tracks, labelled people
 recovered, identity switches (all, and those of people crossing at 5-25 m:
-:func:`bench_detections.crossing_people`), wrong frames, frames mixing two people, fragmentations.  With
+:func:`bench_detections.crossing_people`), wrong frames, frames mixing two people, fragmentations, and
+people's detections on their own person's track and on another's (or a false one).  With
 ``--baseline OLD.json`` (an earlier run of this script with the same seeds and sizes) the markdown also lists
 the inputs whose counts changed.
 
@@ -50,7 +51,8 @@ from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 #: Counts summed over the inputs, in the tables' order.
 COUNTS = ("tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people", "id_switches",
-          "crossing_id_switches", "wrong_frames", "mixed_frames", "fragmentations")
+          "crossing_id_switches", "wrong_frames", "mixed_frames", "fragmentations", "own_detections",
+          "others_detections")
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -99,26 +101,27 @@ def run_seed(seed: int, pedestrians: int, frames: int) -> list[dict]:
 
 def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:
     """(before, now) of the inputs whose counts differ from the baseline's row of the same seed, scene and
-    format."""
+    format (the counts both runs have: a baseline from before a count was added is compared on the rest)."""
     before = {(r["seed"], r["scene"], r["format"]): r for r in baseline}
     out = []
     for row in rows:
         old = before.get((row["seed"], row["scene"], row["format"]))
-        if old is not None and any(old.get(k) != row[k] for k in COUNTS):
+        if old is not None and any(k in old and old[k] != row[k] for k in COUNTS):
             out.append((old, row))
     return out
 
 
 def markdown(result: dict) -> str:
     header = ("| seed | scene | format | tracks | false | bystander | recovered / labelled | id switches (crossing) "
-              "| wrong frames | mixed frames | fragmentations |")
-    rule = "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+              "| wrong frames | mixed frames | fragmentations | own / others' detections |")
+    rule = "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 
     def line(r: dict, label: str | None = None) -> str:
         key = label or f"{r['seed']} | {r['scene']} | {r['format']}"
         return (f"| {key} | {r['tracks']} | {r['false_tracks']} | {r['bystander_tracks']} | "
                 f"{r['recovered']} / {r['labelled_people']} | {r['id_switches']} ({r['crossing_id_switches']}) | "
-                f"{r['wrong_frames']} | {r['mixed_frames']} | {r['fragmentations']} |")
+                f"{r['wrong_frames']} | {r['mixed_frames']} | {r['fragmentations']} | "
+                f"{r.get('own_detections', '-')} / {r.get('others_detections', '-')} |")
 
     total, seeds = result["totals"], len(result["seeds"])
     lines = ["# bench_association: the id-less association over many scenes", "",

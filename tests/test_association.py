@@ -191,7 +191,8 @@ def test_tracker_birth_and_death():
 def test_scoring_counts_switches_fragments_and_false_tracks():
     """:func:`score_tracks`: a track going on with another person is a switch charged to both, a person in two
     tracks a fragmentation, a track of clutter a false track, a track of an unlabelled person a bystander's;
-    the frames of someone other than a track's owner are its wrong frames."""
+    the frames of someone other than a track's owner are its wrong frames, and its detections of others
+    (as are a false track's detections of people) others' detections."""
     from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
     from pedx_graph.detections.evaluate import score_tracks
 
@@ -220,10 +221,14 @@ def test_scoring_counts_switches_fragments_and_false_tracks():
     assert score["recovered"] == 1 and score["labelled_people"] == 2      # only b owns a track
     assert score["fragmentations"] == 2                   # a in t1 and t3, b in t1 and t2
     assert score["wrong_frames"] == 2                     # t1's two frames of a (t3 is no one's track)
+    # people's detections on their own person's track (t1's three of b, t2's two, t4's two) and on someone
+    # else's or a false one (t1's two of a, t3's one); clutter counts for neither
+    assert score["own_detections"] == 7 and score["others_detections"] == 3
     # a neighbour's one frame inside a track: two switches (in and out), one wrong frame
     score = score_tracks([track("t5", [(0, "person", "a"), (1, "person", "b"), (2, "person", "a")])], records,
                          labelled)
     assert score["id_switches"] == 2 and score["wrong_frames"] == 1
+    assert score["own_detections"] == 2 and score["others_detections"] == 1
 
 
 def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():

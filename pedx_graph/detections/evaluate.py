@@ -21,6 +21,9 @@ or clutter.  :func:`detection_truth` finds the record of a read detection from i
 * **wrong frames**: frames of a track with an owner whose person (as for the switches) is someone else —
   how many frames a switch or a swap left on the wrong track: a neighbour's stretch inside a track counts
   its frames once, where the switches count two (in and out) however short it is;
+* **own / others' detections**: people's detections (clutter and fragments left out) on a track their
+  person owns, and on a track someone else owns or a false one — the detections a switch or a swap put
+  on the wrong track, where the wrong frames count frames;
 * **fragmentation**: per labelled person, the number of
   distinct tracks holding its detections beyond the first (a person lost and found again, or seen by two
   pairs whose tracks were not merged).
@@ -99,13 +102,15 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     records; ``labelled``: tracking id -> {frame: horizontal distance (m)} of the labelled instances.
     Returns ``{"tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people",
     "id_switches", "fragmentations", "owners": {track id: owner}, "switches_by_person": {tid: count},
-    "switches": [(track id, frame, from person, to person)], "mixed_frames", "wrong_frames"}``.
+    "switches": [(track id, frame, from person, to person)], "mixed_frames", "wrong_frames",
+    "own_detections", "others_detections"}``: the last two count people's detections (clutter and
+    fragments left out) on a track their person owns, and on a track someone else owns or a false one.
     """
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     owners, false, bystander, switches = {}, 0, 0, 0
     by_person: dict[str, int] = {}
     switch_list: list[tuple[str, int, str, str]] = []
-    mixed_frames, wrong_frames = 0, 0
+    mixed_frames, wrong_frames, own, others = 0, 0, 0, 0
     tracks_of: dict[str, set] = defaultdict(set)
     for track in tracks:
         votes = Counter()
@@ -131,11 +136,15 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
             previous = current
         owner, count = max(votes.items(), key=lambda kv: (kv[1], kv[0] is not None, str(kv[0])))
         purity = count / max(sum(votes.values()), 1)
+        people_votes = sum(n for who, n in votes.items() if who is not None)
         if owner is None or purity < min_purity:
             false += 1
+            others += people_votes
             owners[track.track_id] = None
             continue
         owners[track.track_id] = owner
+        own += votes[owner]
+        others += people_votes - votes[owner]
         wrong_frames += sum(1 for person in frame_people.values() if person != owner)
         if owner not in labelled:
             bystander += 1
@@ -150,4 +159,5 @@ def score_tracks(tracks: list, records: list[dict], labelled: dict[str, dict[int
     return {"tracks": len(tracks), "false_tracks": false, "bystander_tracks": bystander,
             "recovered": recovered, "labelled_people": eligible, "id_switches": switches,
             "fragmentations": fragmentations, "owners": owners, "switches_by_person": by_person,
-            "switches": switch_list, "mixed_frames": mixed_frames, "wrong_frames": wrong_frames}
+            "switches": switch_list, "mixed_frames": mixed_frames, "wrong_frames": wrong_frames,
+            "own_detections": own, "others_detections": others}
