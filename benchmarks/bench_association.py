@@ -39,10 +39,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _common import hardware, public_args  # noqa: E402
 from bench_detections import (FORMATS, SHARED_CMU, crossing_people, labelled_instances, read_format,  # noqa: E402
-                              scene_configs)
+                              scene_clouds, scene_configs)
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
-from pedx_graph.data.ply import read_ply_points  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
@@ -83,8 +82,7 @@ def run_seed(seed: int, pedestrians: int, frames: int) -> list[dict]:
             labelled = labelled_instances(scene, seq)
             crossing, _ = crossing_people(read_dataset(scene), labelled)
             calibs = read_calibrations(scene / "calib")
-            clouds = {int(p.stem.rsplit("_", 1)[1]): read_ply_points(p)
-                      for p in sorted((scene / "pointclouds" / seq).glob(f"{seq}_*.ply"))}
+            clouds = scene_clouds(scene, seq)
             ground = ground_from_calibrations(calibs, seq)
             for fmt in FORMATS:
                 detections = read_format(scene, fmt, seq)

@@ -28,10 +28,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _common import hardware, public_args  # noqa: E402
-from bench_detections import labelled_instances, read_format, scene_configs  # noqa: E402
+from bench_detections import labelled_instances, read_format, scene_clouds, scene_configs  # noqa: E402
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
-from pedx_graph.data.ply import read_ply_points  # noqa: E402
 from pedx_graph.detections import association  # noqa: E402
 from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
@@ -52,8 +51,7 @@ def run_size(people: int, frames: int, seed: int, work: Path, repeats: int) -> d
     simulate_s = time.perf_counter() - t0
     seq = cfg.scene.sequence
     calibs = read_calibrations(scene / "calib")
-    clouds = {int(p.stem.rsplit("_", 1)[1]): read_ply_points(p)
-              for p in sorted((scene / "pointclouds" / seq).glob(f"{seq}_*.ply"))}
+    clouds = scene_clouds(scene, seq)
     detections = read_format(scene, FORMAT, seq)
     ground = ground_from_calibrations(calibs, seq)
     times = []

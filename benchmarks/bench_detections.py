@@ -166,6 +166,13 @@ def read_format(scene: Path, fmt: str, sequence: str) -> list:
     return read_openpose(scene / "detections" / fmt / sequence, keypoint_set=DETECTOR_FORMATS[fmt])
 
 
+def scene_clouds(scene: Path, sequence: str) -> dict[int, np.ndarray]:
+    """Frame -> the scene's LiDAR cloud (``pointclouds/<seq>/``), every frame read up front (the association
+    is timed without the reading)."""
+    return {int(p.stem.rsplit("_", 1)[1]): read_ply_points(p)
+            for p in sorted((scene / "pointclouds" / sequence).glob(f"{sequence}_*.ply"))}
+
+
 def labelled_instances(scene: Path, sequence: str) -> dict[str, dict[int, float]]:
     """Tracking id -> {frame: horizontal distance (m)} of every labelled instance (``truth/<seq>/*.json``)."""
     out: dict[str, dict[int, float]] = defaultdict(dict)
@@ -339,8 +346,7 @@ def run_scene(name: str, cfg: SimConfig, seed: int, work: Path, workers: int, fi
     manual = read_dataset(scene)
     ground = manual[0].ground if manual else ground_from_calibrations(calibs, seq)
     crossing, events = crossing_people(manual, labelled)
-    clouds = {int(p.stem.rsplit("_", 1)[1]): read_ply_points(p)
-              for p in sorted((scene / "pointclouds" / seq).glob(f"{seq}_*.ply"))}
+    clouds = scene_clouds(scene, seq)
     result = {"simulated": {k: sim_summary[k] for k in ("pedestrians", "labelled_tracks", "labelled_instances",
                                                        "detections")},
               "crossing_people": len(crossing), "crossing_events": events, "association": {}, "accuracy": {},
