@@ -1296,16 +1296,11 @@ def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: floa
     a = design * weight[None, :, None]
     b = y * weight
     keep = np.ones(design.shape[:2], dtype=bool)
-    z = np.zeros(design.shape[:2])
     if design.shape[2] == 1:               # one coefficient: start from the median ratio, not from every point
-        column = design[:, :, 0]
-        if np.all(column != 0):
-            start = np.median(y[None, :] / column, axis=1)
-        else:                              # a point with a zero design says nothing of the coefficient
-            start = np.nanmedian(np.divide(y[None, :], column, out=np.full(column.shape, np.nan),
-                                           where=column != 0), axis=1)
-        keep = np.abs(b[None, :] - a[:, :, 0] * start[:, None]) <= gate
-        keep[keep.sum(axis=1) == 0] = True
+        with np.errstate(divide="ignore", invalid="ignore"):
+            start = np.median(y[None, :] / design[:, :, 0], axis=1)
+            keep = np.abs(b[None, :] - a[:, :, 0] * start[:, None]) <= gate
+        keep[keep.sum(axis=1) == 0] = True     # no finite start (a zero design): from every point
     for _ in range(3):
         ak = a * keep[:, :, None]
         coef = _normal_solve(ak, b)
