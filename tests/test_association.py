@@ -1309,6 +1309,42 @@ def test_a_cluster_that_would_lift_the_person_off_the_ground_is_not_its_range():
     assert abs(ranges[id(det)] - float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])) < 0.3
 
 
+def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
+    """A person at 22 m whose own points the LiDAR does not see, in front of a building's wall 2.5 m behind
+    (a facade 8 m wide, 4 m high): at the wall's range the person's feet sink only ~0.2 m into the ground,
+    within the feet test, so the wall's cluster is the detection's range (it still tells people apart) — but
+    it goes on past the silhouette, so the detection is marked ``unconfined`` and a one-image observation gets
+    no centre from it.  The person's own points in front of an open background are its confined range."""
+    from pedx_graph.detections.association import _range_centre, detection_ranges
+
+    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    ground = _ground(calibs)
+    uv = calib.project(ahead)[0]
+    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv,
+                    confidence=np.full(len(uv), 0.9), score=0.9, source="test")
+    grid = np.stack(np.meshgrid(np.arange(-4.0, 4.0, 0.1), np.arange(0.1, 4.0, 0.3)), -1).reshape(-1, 2)
+    wall = np.c_[np.full(len(grid), 24.5), grid[:, 0], GROUND_Z + grid[:, 1]]
+    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
+    person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
+                             for h in np.arange(0.2, 1.7, 0.3)])
+    config = AssociationConfig()
+    unconfined = set()
+    ranges = detection_ranges([(det, uv)], calib, "left", wall, ground, config, unconfined)
+    wall_range = float(calib.world_to_rect(np.array([24.5, 0.0, GROUND_Z + 0.9]))[2])
+    assert abs(ranges[id(det)] - wall_range) < 0.3 and unconfined == {id(det)}
+    obs = Observation(frame=0, uv={"left": uv}, score=0.9, payload={"left": det})
+    _range_centre(obs, calib, ranges, unconfined)
+    assert obs.world_p is None
+    _range_centre(obs, calib, ranges)                       # what the wall's range alone would have placed
+    assert obs.world_p is not None and obs.world_p[0] > 24.0
+    unconfined = set()
+    ranges = detection_ranges([(det, uv)], calib, "left", person, ground, config, unconfined)
+    assert abs(ranges[id(det)] - float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])) < 0.3
+    assert not unconfined
+
+
 def test_a_pairing_whose_depth_lifts_the_person_off_the_ground_is_gated():
     """A left detection of someone at 22 m and a right detection of someone else 0.35 m to the side: their
     disparity puts the person at ~13 m, where its feet would float ~0.8 m above the ground.  With the ground

@@ -112,6 +112,27 @@ def test_segments_in_the_release_layout(tmp_path):
     assert counts == {"segments": 0, "points": 0, "frames_without_cloud": 1}
 
 
+def test_a_frame_the_association_could_not_place_gets_no_points(tmp_path):
+    """A track frame without a centre (seen in one image, no LiDAR cluster of its own) writes no segment:
+    the nearest cluster in its hull is a guess the association refused (a wall behind a person the LiDAR
+    misses).  The same frame with its centre gets the person's points."""
+    from pedx_graph.detections.lidar_cut import track_frame_indices
+
+    calib = make_calibration(SimConfig().cameras.forward)
+    cloud, labels = _scene(np.random.default_rng(1))
+    _, det = _detection(calib)
+    ground = make_ground_frame(UP, (1, 0, 0), np.zeros(3), GROUND_Z, source="config")
+    unplaced = DetectedTrackFrame(frame=3, detections={det.camera: det})
+    assert unplaced.world_p is None
+    assert len(track_frame_indices(unplaced, {calib.name: calib}, cloud, ground)) == 0
+    track = DetectedTrack(track_id="det000001", frames=[unplaced], pairs=(calib.name,))
+    counts = write_track_segments(tmp_path, "20991231T1200", [track], {calib.name: calib}, ground, lambda f: cloud)
+    assert counts["segments"] == 0
+    placed = DetectedTrackFrame(frame=3, detections={det.camera: det}, world_p=np.array([12.0, 0.0, GROUND_Z + 0.9]))
+    kept = labels[track_frame_indices(placed, {calib.name: calib}, cloud, ground)]
+    assert (kept == "person").sum() > 250 and (kept == "person").mean() > 0.97
+
+
 def test_a_hidden_person_leaves_the_neighbours_points_to_the_neighbour(tmp_path):
     """A person hidden from the LiDAR 0.8 m behind a near one: its hull holds the near one's points, and its
     uncertain depth (0.3 m) gates them in.  Each point goes to one person, the one whose centre is nearest

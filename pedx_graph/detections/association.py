@@ -244,6 +244,14 @@ class AssociationConfig:
     lidar_support_margin: float = 0.2
     """A detection whose two best clusters' supports (fraction of the cluster inside its hull) differ by less
     than this gets no LiDAR range."""
+    lidar_context_frac: float = 0.5
+    """The silhouette's surroundings: the hull's rows, widened on both sides by this fraction of the person's
+    image height (~0.8 m at the person's depth; clipped to the image) ..."""
+    lidar_min_support: float = 0.5
+    """... a detection's LiDAR cluster that, clustered again with the surroundings' scene points, is less than
+    this fraction of its component goes on past the silhouettes (:func:`detection_ranges`): its range does not
+    place a person seen in one image (a wall behind someone the LiDAR does not see passes the feet test a few
+    metres too far at 20 m)."""
     feet_tolerance_m: float = 0.4
     """People stand on the ground: a LiDAR cluster is a detection's person, and a left and a right detection
     are one person, only at a depth (the cluster's range; the pairing's median disparity) where the
@@ -619,7 +627,8 @@ def match_stereo(left: list[tuple[Detection, np.ndarray]], right: list[tuple[Det
 # ---------------------------------------------------------------------------------------------- LiDAR ranges
 
 def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCalibration, side: str,
-                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig) -> dict[int, float]:
+                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig,
+                     unconfined: set[int] | None = None) -> dict[int, float]:
     """Id of a detection -> the range of the LiDAR cluster that is its person, metres (median depth along the
     pair's rectified optical axis, the same in both images), for one image's ``(detection, rectified uv)``.
 
@@ -634,11 +643,14 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     overlap of the near one: detections and clusters are matched one to one maximising the summed support
     (Hungarian); a detection gets no range when its cluster's support is within ``lidar_support_margin`` of
     its next candidate's or of another detection's support for the same cluster (nothing tells which is its
-    person: e.g. the far person fully hidden, one cluster in two overlapping hulls)."""
-    from scipy.sparse.csgraph import connected_components
-    from scipy.sparse import coo_matrix
-    from scipy.spatial import cKDTree
+    person: e.g. the far person fully hidden, one cluster in two overlapping hulls).
 
+    ``unconfined``: where given, the ids of detections whose range's cluster goes on past the silhouettes are
+    added to it — clustered again with the scene points in the silhouettes' surroundings
+    (:func:`_surroundings`), it is less than ``lidar_min_support`` of its component.  A person's points end at
+    its silhouette; a wall's or a parked car's, seen through the silhouette of someone the LiDAR misses, go on
+    past it.  Such a range still tells people apart (a person merged with someone undetected beside it is at
+    the right range) but places no one (:func:`_range_centre`)."""
     from pedx_graph.detections.lidar_cut import hull_polygon, project_cloud
     from pedx_graph.data.segment_cut import segment_indices_from_projection
 
@@ -651,18 +663,18 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     uv, depth = project_cloud(calib, side, cloud)
     uv = np.where(np.isfinite(uv), uv, -1e9)
     depth = np.where(np.isfinite(depth), depth, -1.0)
-    inside = []
+    inside, around = [], []
     for _, rect_uv in items:
         polygon = hull_polygon(rect_uv, config.lidar_cut)
         inside.append(np.zeros(0, dtype=np.int64) if polygon is None else
                       segment_indices_from_projection(uv, depth, polygon, config.lidar_cut.min_depth_m))
+        if polygon is not None:
+            around.append(_surroundings(polygon, rect_uv, uv, depth, calib.image_size, config))
     used = np.unique(np.concatenate(inside)) if inside else np.zeros(0, dtype=np.int64)
     if not len(used):
         return {}
-    flat = ground.to_level(cloud[used])[:, :2]
-    pairs = cKDTree(flat).query_pairs(config.lidar_cluster_gap_m, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(used), len(used)))
-    n_clusters, label_of = connected_components(graph, directed=False)
+    label_of = _ground_clusters(ground.to_level(cloud[used])[:, :2], config.lidar_cluster_gap_m)
+    n_clusters = int(label_of.max()) + 1
     label = np.full(len(cloud), -1)
     label[used] = label_of
     cluster_size = np.bincount(label_of, minlength=n_clusters)
@@ -670,6 +682,14 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     for i, index in enumerate(inside):
         counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
         support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
+    # clustered again with the silhouettes' surroundings: a cluster that is a small part of its component
+    # there goes on past the silhouettes (a wall, a parked car, or a person beside someone undetected)
+    context = np.union1d(used, np.concatenate(around)) if around else used
+    context_label = _ground_clusters(ground.to_level(cloud[context])[:, :2], config.lidar_cluster_gap_m)
+    first = np.zeros(n_clusters, dtype=np.int64)
+    first[label_of] = np.arange(len(used))                      # a point of each cluster
+    component_size = np.bincount(context_label)[context_label[np.searchsorted(context, used[first])]]
+    confined = cluster_size >= config.lidar_min_support * component_size
     cluster_range = {int(c): float(np.median(depth[used[label_of == c]]))
                      for c in np.flatnonzero(support.max(axis=0, initial=0.0) > 0)}
     for i, (det, rect_uv) in enumerate(items):
@@ -689,7 +709,36 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
                for x in (others, rivals)):
             continue
         out[id(items[i][0])] = cluster_range[int(c)]
+        if unconfined is not None and not confined[c]:
+            unconfined.add(id(items[i][0]))
     return out
+
+
+def _ground_clusters(level_xy: np.ndarray, gap_m: float) -> np.ndarray:
+    """(N,) cluster label of each of N ground-plane positions (N, 2): connected components of the points closer
+    than ``gap_m``, labels 0, 1, ..."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(level_xy).query_pairs(gap_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(level_xy), len(level_xy)))
+    return connected_components(graph, directed=False)[1]
+
+
+def _surroundings(polygon: np.ndarray, rect_uv: np.ndarray, uv: np.ndarray, depth: np.ndarray,
+                  image_size: tuple[int, int], config: AssociationConfig) -> np.ndarray:
+    """Rows of the projected points ``uv`` (N, 2) (``depth`` (N,) along the optical axis) beside a detection's
+    hull ``polygon``: its rows, its columns widened on both sides by ``lidar_context_frac`` of the keypoints'
+    image height (``rect_uv``), inside the image (``image_size`` = width, height) and in front of the camera
+    (:func:`detection_ranges`)."""
+    present = rect_uv[np.all(np.isfinite(rect_uv), axis=1)]
+    pad = config.lidar_context_frac * float(np.ptp(present[:, 1]))
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    u, v = uv[:, 0], uv[:, 1]
+    near = (u >= max(lo[0] - pad, 0.0)) & (u < min(hi[0] + pad, float(image_size[0]))) & \
+        (v >= max(lo[1], 0.0)) & (v < min(hi[1], float(image_size[1]))) & (depth > config.lidar_cut.min_depth_m)
+    return np.flatnonzero(near)
 
 
 # ---------------------------------------------------------------------------------------------- tracklets
@@ -1117,12 +1166,13 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             frames[frame] = join_split_parts(items, config)
     tracklets = {}
     ranges: dict[int, float] = {}
+    unconfined: set[int] = set()              # ranges of clusters going on past the silhouettes
     for side, frames in per_image.items():
         deduplicated = {frame: drop_duplicates(items, config) for frame, items in sorted(frames.items())}
         if clouds is not None and config.lidar_identity:
             for frame, items in deduplicated.items():
                 if frame in clouds and items:
-                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
+                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config, unconfined))
         tracklets[side] = camera_tracklets(deduplicated, config, ranges)
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     candidates = []
@@ -1157,7 +1207,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             stereo = [obs for obs in track if obs.world_p is not None]
             for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
                 if obs.world_p is None and config.lidar_identity:
-                    _range_centre(obs, calib, ranges)
+                    _range_centre(obs, calib, ranges, unconfined)
                     if obs.world_p is not None and stereo and \
                             not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib, config):
                         obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
@@ -1886,13 +1936,16 @@ def _foot_rows(keypoint_set: str) -> tuple[int, ...]:
     return tuple(i for i, name in enumerate(names) if any(part in name.lower() for part in ("ankl", "heel", "toe")))
 
 
-def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float]) -> None:
+def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float],
+                  unconfined: frozenset | set = frozenset()) -> None:
     """Give an observation seen in one image only a centre where its detection has its own LiDAR cluster
     (:func:`detection_ranges`), in place: the median keypoint pixel's viewing ray at that cluster's range,
     with a loose 1 m uncertainty (a median pixel is not the body's centre); :func:`_lidar_centre` then
-    replaces it by the cut's median, or slides it to the range, as for a stereo centre."""
+    replaces it by the cut's median, or slides it to the range, as for a stereo centre.  Not where the
+    cluster goes on past the silhouettes (``unconfined``: a wall behind someone the LiDAR missed)."""
     side = next(iter(obs.uv))
-    if not isinstance(obs.payload, dict) or id(obs.payload.get(side)) not in ranges:
+    if not isinstance(obs.payload, dict) or id(obs.payload.get(side)) not in ranges or \
+            id(obs.payload.get(side)) in unconfined:
         return
     present = obs.uv[side][np.all(np.isfinite(obs.uv[side]), axis=1)]
     if len(present) == 0:

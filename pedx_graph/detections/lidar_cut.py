@@ -27,7 +27,7 @@ polygon is the detection's *hull*:
 the release layout (``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply``), one file per track and frame
 with points (union over the pairs that saw the person, each pair's left keypoints completed by its right
 image's at the person's disparity: where the detector found only part of the body in one image, the other
-image's detection adds the rest), each point
+image's detection adds the rest; none for a frame the association gave no centre), each point
 given to one person only (:func:`exclusive_cuts`: the nearest centre among those claiming it).
 """
 from __future__ import annotations
@@ -327,10 +327,16 @@ def track_frame_indices(frame, calibrations: Mapping[str, StereoCalibration], wo
     it of one cut per pair, gated around its centre's depth — where both images of a pair saw the person, the
     left image's keypoints completed by the right image's at the person's disparity (a detection that found
     only the head and shoulders in one image is completed by the other's; the right one's silhouette alone
-    would add its own fringe of background); else the one image's."""
+    would add its own fringe of background); else the one image's.  A frame without a centre gets no points:
+    the association placed it neither by stereo nor by a LiDAR cluster of its own
+    (:func:`~pedx_graph.detections.association.detection_ranges` found none, or none it could tell from the
+    background), so the nearest points in its hull are as likely a wall behind it or someone in front; the
+    fit places it by its body's size instead."""
     from pedx_graph.detections.undistort import find_camera, rectified
 
     config = config or LidarCutConfig()
+    if frame.world_p is None:
+        return np.zeros(0, dtype=np.int64)
     rectify = rectify or rectified
     pairs: dict[str, dict] = {}
     for camera, det in sorted(frame.detections.items()):
