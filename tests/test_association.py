@@ -1345,6 +1345,31 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     assert not unconfined
 
 
+def test_one_keypoint_misplaced_in_one_image_does_not_gate_a_stereo_match():
+    """A person at 19 m of whom the detector found, in both images, only the head, the shoulders and one
+    wrist, the right image's wrist put 0.6 m lower (on the hip): the spans of the shared keypoints differ by a
+    factor ~2, but the rows of every other keypoint agree, so the size compares the spans over those — the
+    match passes.  The same detections with every keypoint's row off by the same factor (someone else, of
+    another size) are still gated."""
+    ahead = _person_points((19.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    config = AssociationConfig()
+    left, right = calib.project(ahead)
+    seen = np.zeros(len(left), dtype=bool)
+    seen[[0, 1, 2, 5, 6, 9]] = True                   # nose, eyes, shoulders, left wrist
+    left, right = np.where(seen[:, None], left, np.nan), np.where(seen[:, None], right, np.nan)
+    assert stereo_cost(left, right, calib, config, "coco17") < 1e9
+    wrong = right.copy()
+    wrong[9, 1] += 0.6 * calib.focal_px / 19.0        # the wrist 0.6 m lower in the right image
+    assert abs(np.log(np.nanmax(wrong[:, 1]) - np.nanmin(wrong[:, 1]))
+               - np.log(np.nanmax(left[:, 1]) - np.nanmin(left[:, 1]))) > config.gate_sigmas * config.size_sigma
+    assert stereo_cost(left, wrong, calib, config, "coco17") < 1e9
+    taller = right.copy()
+    taller[:, 1] = np.nanmean(right[:, 1]) + 2.0 * (right[:, 1] - np.nanmean(right[:, 1]))
+    assert stereo_cost(left, taller, calib, config, "coco17") >= 1e9
+
+
 def test_a_pairing_whose_depth_lifts_the_person_off_the_ground_is_gated():
     """A left detection of someone at 22 m and a right detection of someone else 0.35 m to the side: their
     disparity puts the person at ~13 m, where its feet would float ~0.8 m above the ground.  With the ground

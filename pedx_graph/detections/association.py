@@ -45,7 +45,9 @@ Steps:
      (the standard error of a median of differences of two detections), ``sigma = keypoint_sigma_px +
      keypoint_sigma_frac * h``;
    - disparity spread ``1.4826 MAD(u_l - u_r) / (sqrt(2) sigma)`` (a person's points share one depth);
-   - size ``log(span_l / span_r) / size_sigma`` (keypoint spans: vertical extents of the shared keypoints);
+   - size ``log(span_l / span_r) / size_sigma`` (keypoint spans: vertical extents of the shared keypoints whose
+     rows agree to ``gate_sigmas`` of ``sqrt(2) sigma`` about the median row offset, when they are most of
+     them: a keypoint misplaced in one image does not stretch one span);
    - person height: the nose-to-ankle height the pairing implies (pixel span x baseline / disparity,
      :func:`implied_height_m`) against ``person_height_m``, ``log`` ratio over ``person_height_sigma``
      (a disparity borrowed from someone at another depth implies a giant or a dwarf);
@@ -559,7 +561,13 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
         if not _feet_on_ground(keypoint_set, uv_left, calib, "left", depth, ground, config, slack):
             return _GATED
     spread = 1.4826 * float(np.median(np.abs(disparity - d_med))) / (np.sqrt(2.0) * sigma)
-    span_l, span_r = np.ptp(left[:, 1]), np.ptp(right[:, 1])
+    # the spans over the keypoints whose rows agree: one keypoint misplaced in one image (a wrist put on
+    # the hip) stretches one span, not the person's size
+    offset = left[:, 1] - right[:, 1]
+    agree = np.abs(offset - np.median(offset)) <= config.gate_sigmas * np.sqrt(2.0) * sigma
+    if agree.sum() < max(config.min_shared_keypoints, 0.5 * len(left) + 0.5):
+        agree[:] = True
+    span_l, span_r = np.ptp(left[agree, 1]), np.ptp(right[agree, 1])
     size = float(np.log(max(span_l, 1.0) / max(span_r, 1.0))) / config.size_sigma if min(span_l, span_r) > 4 else 0.0
     terms = [row, spread, size]
     height_m = implied_height_m(uv_left, uv_right, calib, keypoint_set)
