@@ -1313,9 +1313,10 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     """A person at 22 m whose own points the LiDAR does not see, in front of a building's wall 2.5 m behind
     (a facade 8 m wide, 4 m high): at the wall's range the person's feet sink only ~0.2 m into the ground,
     within the feet test, so the wall's cluster is the detection's range (it still tells people apart) — but
-    it goes on past the silhouette, so the detection is marked ``unconfined`` and a one-image observation gets
-    no centre from it.  The person's own points in front of an open background are its confined range."""
-    from pedx_graph.detections.association import _range_centre, detection_ranges
+    it goes on past the silhouette (:func:`ends_at_silhouette` False), so a one-image track of that person
+    gets no centre from it.  The person's own points in front of the same wall end at its silhouette; alone in
+    its hull they place it."""
+    from pedx_graph.detections.association import detection_ranges, ends_at_silhouette, pair_tracks
 
     ahead = _person_points((22.0, 0.0), 0.0, 0.0)
     calibs = _rig()
@@ -1330,19 +1331,26 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
                              for h in np.arange(0.2, 1.7, 0.3)])
     config = AssociationConfig()
-    unconfined = set()
-    ranges = detection_ranges([(det, uv)], calib, "left", wall, ground, config, unconfined)
+    ranges = detection_ranges([(det, uv)], calib, "left", wall, ground, config)
     wall_range = float(calib.world_to_rect(np.array([24.5, 0.0, GROUND_Z + 0.9]))[2])
-    assert abs(ranges[id(det)] - wall_range) < 0.3 and unconfined == {id(det)}
-    obs = Observation(frame=0, uv={"left": uv}, score=0.9, payload={"left": det})
-    _range_centre(obs, calib, ranges, unconfined)
-    assert obs.world_p is None
-    _range_centre(obs, calib, ranges)                       # what the wall's range alone would have placed
-    assert obs.world_p is not None and obs.world_p[0] > 24.0
-    unconfined = set()
-    ranges = detection_ranges([(det, uv)], calib, "left", person, ground, config, unconfined)
-    assert abs(ranges[id(det)] - float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])) < 0.3
-    assert not unconfined
+    assert abs(ranges[id(det)] - wall_range) < 0.3
+    assert not ends_at_silhouette(uv, calib, "left", wall, ground, ranges[id(det)], config)
+    with_person = np.concatenate([wall, person])
+    person_range = float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])
+    assert ends_at_silhouette(uv, calib, "left", with_person, ground, person_range, config)
+    # a walker seen in the left image only, over 6 frames, in front of the wall: no centre
+    dets, clouds = [], {}
+    for k in range(6):
+        points = _person_points((22.0, 0.13 * k), np.pi / 2, 0.6 * k)
+        dets.append(Detection(camera=calib.name.split("-")[0], frame=k, keypoint_set="coco17",
+                              image_uv=calib.project(points)[0], confidence=np.full(17, 0.9), score=0.9,
+                              source=f"test#{k}"))
+        clouds[k] = wall
+    tracks = pair_tracks(dets, calib, config, ground, clouds)
+    assert len(tracks) == 1 and all(obs.world_p is None for obs in tracks[0])
+    # its own points, alone in the hull (the wall too would leave two clusters, nothing telling which): placed
+    tracks = pair_tracks(dets, calib, config, ground, {k: person + [0.0, 0.13 * k, 0.0] for k in range(6)})
+    assert len(tracks) == 1 and all(obs.world_p is not None for obs in tracks[0])
 
 
 def test_one_keypoint_misplaced_in_one_image_does_not_gate_a_stereo_match():

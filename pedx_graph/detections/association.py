@@ -80,7 +80,9 @@ Steps:
    paired frames' disparities), without gating on it.  Paired frames are triangulated at their median
    disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
    agrees; a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
-   where the track's nearest stereo centre in time allows that depth (:func:`_agrees_with_stereo`); once
+   where that cluster ends at the silhouettes (not a wall seen through someone the LiDAR misses,
+   ``lidar_min_support``) and the track's nearest stereo centre in time allows that depth
+   (:func:`_agrees_with_stereo`); once
    the pair's tracks are final (below), every centre is checked against the track's straight walk
    (:func:`settle_centres`): a LiDAR centre off it goes back to its stereo one, a one-image centre off it,
    or one a stereo centre on it does not allow, is taken back (the cluster of someone in front).  A
@@ -246,14 +248,17 @@ class AssociationConfig:
     lidar_support_margin: float = 0.2
     """A detection whose two best clusters' supports (fraction of the cluster inside its hull) differ by less
     than this gets no LiDAR range."""
+    lidar_body_width_frac: float = 0.3
+    """A person's LiDAR points lie within its keypoints' columns widened to this fraction of its image height
+    (~0.5 m: a walker seen from the side has its keypoints on one line, its chest and arms around it) ..."""
     lidar_context_frac: float = 0.5
-    """The silhouette's surroundings: the hull's rows, widened on both sides by this fraction of the person's
-    image height (~0.8 m at the person's depth; clipped to the image) ..."""
+    """... its surroundings reach this fraction of its image height further on both sides (~0.8 m at its
+    depth; inside the image) ..."""
     lidar_min_support: float = 0.5
     """... a detection's LiDAR cluster that, clustered again with the surroundings' scene points, is less than
-    this fraction of its component goes on past the silhouettes (:func:`detection_ranges`): its range does not
-    place a person seen in one image (a wall behind someone the LiDAR does not see passes the feet test a few
-    metres too far at 20 m)."""
+    this fraction of its component goes on past the silhouettes (:func:`ends_at_silhouette`): its range still
+    tells people apart but does not place a person seen in one image (a wall behind someone the LiDAR does
+    not see passes the feet test a few metres too far at 20 m)."""
     feet_tolerance_m: float = 0.4
     """People stand on the ground: a LiDAR cluster is a detection's person, and a left and a right detection
     are one person, only at a depth (the cluster's range; the pairing's median disparity) where the
@@ -635,8 +640,7 @@ def match_stereo(left: list[tuple[Detection, np.ndarray]], right: list[tuple[Det
 # ---------------------------------------------------------------------------------------------- LiDAR ranges
 
 def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCalibration, side: str,
-                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig,
-                     unconfined: set[int] | None = None) -> dict[int, float]:
+                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig) -> dict[int, float]:
     """Id of a detection -> the range of the LiDAR cluster that is its person, metres (median depth along the
     pair's rectified optical axis, the same in both images), for one image's ``(detection, rectified uv)``.
 
@@ -651,14 +655,7 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     overlap of the near one: detections and clusters are matched one to one maximising the summed support
     (Hungarian); a detection gets no range when its cluster's support is within ``lidar_support_margin`` of
     its next candidate's or of another detection's support for the same cluster (nothing tells which is its
-    person: e.g. the far person fully hidden, one cluster in two overlapping hulls).
-
-    ``unconfined``: where given, the ids of detections whose range's cluster goes on past the silhouettes are
-    added to it — clustered again with the scene points in the silhouettes' surroundings
-    (:func:`_surroundings`), it is less than ``lidar_min_support`` of its component.  A person's points end at
-    its silhouette; a wall's or a parked car's, seen through the silhouette of someone the LiDAR misses, go on
-    past it.  Such a range still tells people apart (a person merged with someone undetected beside it is at
-    the right range) but places no one (:func:`_range_centre`)."""
+    person: e.g. the far person fully hidden, one cluster in two overlapping hulls)."""
     from pedx_graph.detections.lidar_cut import hull_polygon, project_cloud
     from pedx_graph.data.segment_cut import segment_indices_from_projection
 
@@ -671,13 +668,11 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     uv, depth = project_cloud(calib, side, cloud)
     uv = np.where(np.isfinite(uv), uv, -1e9)
     depth = np.where(np.isfinite(depth), depth, -1.0)
-    inside, around = [], []
+    inside = []
     for _, rect_uv in items:
         polygon = hull_polygon(rect_uv, config.lidar_cut)
         inside.append(np.zeros(0, dtype=np.int64) if polygon is None else
                       segment_indices_from_projection(uv, depth, polygon, config.lidar_cut.min_depth_m))
-        if polygon is not None:
-            around.append(_surroundings(polygon, rect_uv, uv, depth, calib.image_size, config))
     used = np.unique(np.concatenate(inside)) if inside else np.zeros(0, dtype=np.int64)
     if not len(used):
         return {}
@@ -690,14 +685,6 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     for i, index in enumerate(inside):
         counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
         support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
-    # clustered again with the silhouettes' surroundings: a cluster that is a small part of its component
-    # there goes on past the silhouettes (a wall, a parked car, or a person beside someone undetected)
-    context = np.union1d(used, np.concatenate(around)) if around else used
-    context_label = _ground_clusters(ground.to_level(cloud[context])[:, :2], config.lidar_cluster_gap_m)
-    first = np.zeros(n_clusters, dtype=np.int64)
-    first[label_of] = np.arange(len(used))                      # a point of each cluster
-    component_size = np.bincount(context_label)[context_label[np.searchsorted(context, used[first])]]
-    confined = cluster_size >= config.lidar_min_support * component_size
     cluster_range = {int(c): float(np.median(depth[used[label_of == c]]))
                      for c in np.flatnonzero(support.max(axis=0, initial=0.0) > 0)}
     for i, (det, rect_uv) in enumerate(items):
@@ -717,8 +704,6 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
                for x in (others, rivals)):
             continue
         out[id(items[i][0])] = cluster_range[int(c)]
-        if unconfined is not None and not confined[c]:
-            unconfined.add(id(items[i][0]))
     return out
 
 
@@ -734,19 +719,52 @@ def _ground_clusters(level_xy: np.ndarray, gap_m: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def _surroundings(polygon: np.ndarray, rect_uv: np.ndarray, uv: np.ndarray, depth: np.ndarray,
-                  image_size: tuple[int, int], config: AssociationConfig) -> np.ndarray:
-    """Rows of the projected points ``uv`` (N, 2) (``depth`` (N,) along the optical axis) beside a detection's
-    hull ``polygon``: its rows, its columns widened on both sides by ``lidar_context_frac`` of the keypoints'
-    image height (``rect_uv``), inside the image (``image_size`` = width, height) and in front of the camera
-    (:func:`detection_ranges`)."""
+def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str, cloud: np.ndarray,
+                       ground: GroundFrame, range_m: float, config: AssociationConfig,
+                       projection: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
+    """Whether the LiDAR cluster a detection's range comes from (:func:`detection_ranges`) ends at the
+    person's silhouette.  The silhouette here is the box of the keypoints' rows and of their columns widened
+    to at least ``lidar_body_width_frac`` of their image height (a walker seen from the side has its keypoints
+    on one line, its body's points a chest's depth across); its surroundings are the same rows
+    ``lidar_context_frac`` of that height further on both sides, inside the image.  The scene points above
+    the ground in the silhouette are clustered in the ground plane (``lidar_cluster_gap_m``), the cluster
+    whose median depth is nearest ``range_m`` taken; clustered again with the surroundings' points, it must be
+    at least ``lidar_min_support`` of its component.  A person's points end at its silhouette; a wall's or a
+    parked car's, seen through the silhouette of someone the LiDAR misses, go on past it (as do a person's
+    merged with someone undetected beside it: the range is right, but nothing tells).  True when nothing can
+    be judged (too few keypoints, no points).  ``rect_uv``: (K, 2) rectified pixels in the pair's ``side``
+    image; ``cloud``: (N, 3) world points; ``projection``: ``cloud`` projected into that image
+    (:func:`~pedx_graph.detections.lidar_cut.project_cloud`), when already done."""
+    from pedx_graph.detections.lidar_cut import project_cloud
+
+    rect_uv = np.asarray(rect_uv, dtype=float)
     present = rect_uv[np.all(np.isfinite(rect_uv), axis=1)]
-    pad = config.lidar_context_frac * float(np.ptp(present[:, 1]))
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    u, v = uv[:, 0], uv[:, 1]
-    near = (u >= max(lo[0] - pad, 0.0)) & (u < min(hi[0] + pad, float(image_size[0]))) & \
-        (v >= max(lo[1], 0.0)) & (v < min(hi[1], float(image_size[1]))) & (depth > config.lidar_cut.min_depth_m)
-    return np.flatnonzero(near)
+    cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
+    if len(present) < max(config.lidar_cut.min_keypoints, 3) or not len(cloud):
+        return True
+    uv, depth = projection if projection is not None else project_cloud(calib, side, cloud)
+    lo, hi = present.min(axis=0), present.max(axis=0)
+    height = float(hi[1] - lo[1])
+    grow = config.lidar_cut.dilate_frac * height + config.lidar_cut.dilate_px      # as the cut's hull
+    half = max(0.5 * float(hi[0] - lo[0]) + grow, 0.5 * config.lidar_body_width_frac * height)
+    centre = 0.5 * float(lo[0] + hi[0])
+    pad = config.lidar_context_frac * height
+    with np.errstate(invalid="ignore"):
+        rows = (uv[:, 1] >= max(lo[1] - grow, 0.0)) & (uv[:, 1] < min(hi[1] + grow, float(calib.image_size[1]))) & \
+            (depth > config.lidar_cut.min_depth_m)
+        offset = np.abs(uv[:, 0] - centre)
+        near = np.flatnonzero(rows & (offset <= half + pad) & (uv[:, 0] >= 0.0) & (uv[:, 0] < calib.image_size[0]))
+    if ground.ground_offset_m is not None and len(near):
+        near = near[ground.height(cloud[near]) >= config.lidar_cut.ground_clearance_m]
+    inside = near[offset[near] <= half]
+    if not len(inside):
+        return True
+    own = _ground_clusters(ground.to_level(cloud[inside])[:, :2], config.lidar_cluster_gap_m)
+    medians = [float(np.median(depth[inside[own == c]])) for c in range(int(own.max()) + 1)]
+    cluster = inside[own == int(np.argmin(np.abs(np.asarray(medians) - range_m)))]
+    grown = _ground_clusters(ground.to_level(cloud[near])[:, :2], config.lidar_cluster_gap_m)
+    component = grown[np.searchsorted(near, cluster[0])]
+    return len(cluster) >= config.lidar_min_support * int(np.sum(grown == component))
 
 
 # ---------------------------------------------------------------------------------------------- tracklets
@@ -1174,13 +1192,12 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             frames[frame] = join_split_parts(items, config)
     tracklets = {}
     ranges: dict[int, float] = {}
-    unconfined: set[int] = set()              # ranges of clusters going on past the silhouettes
     for side, frames in per_image.items():
         deduplicated = {frame: drop_duplicates(items, config) for frame, items in sorted(frames.items())}
         if clouds is not None and config.lidar_identity:
             for frame, items in deduplicated.items():
                 if frame in clouds and items:
-                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config, unconfined))
+                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
         tracklets[side] = camera_tracklets(deduplicated, config, ranges)
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     candidates = []
@@ -1215,9 +1232,14 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             stereo = [obs for obs in track if obs.world_p is not None]
             for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
                 if obs.world_p is None and config.lidar_identity:
-                    _range_centre(obs, calib, ranges, unconfined)
-                    if obs.world_p is not None and stereo and \
-                            not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib, config):
+                    _range_centre(obs, calib, ranges)
+                    seen = next(iter(obs.uv))
+                    if obs.world_p is not None and (
+                            stereo and not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib,
+                                                               config)
+                            or obs.frame in clouds and not ends_at_silhouette(
+                                obs.uv[seen], calib, seen, clouds[obs.frame], ground, ranges[id(obs.payload[seen])],
+                                config, projections.get((obs.frame, seen)))):
                         obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
                         obs.fallback = None
                 if obs.world_p is not None and obs.frame in clouds:
@@ -1944,16 +1966,14 @@ def _foot_rows(keypoint_set: str) -> tuple[int, ...]:
     return tuple(i for i, name in enumerate(names) if any(part in name.lower() for part in ("ankl", "heel", "toe")))
 
 
-def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float],
-                  unconfined: frozenset | set = frozenset()) -> None:
+def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float]) -> None:
     """Give an observation seen in one image only a centre where its detection has its own LiDAR cluster
     (:func:`detection_ranges`), in place: the median keypoint pixel's viewing ray at that cluster's range,
     with a loose 1 m uncertainty (a median pixel is not the body's centre); :func:`_lidar_centre` then
-    replaces it by the cut's median, or slides it to the range, as for a stereo centre.  Not where the
-    cluster goes on past the silhouettes (``unconfined``: a wall behind someone the LiDAR missed)."""
+    replaces it by the cut's median, or slides it to the range, as for a stereo centre (:func:`pair_tracks`
+    takes it back where the cluster goes on past the silhouette, :func:`ends_at_silhouette`)."""
     side = next(iter(obs.uv))
-    if not isinstance(obs.payload, dict) or id(obs.payload.get(side)) not in ranges or \
-            id(obs.payload.get(side)) in unconfined:
+    if not isinstance(obs.payload, dict) or id(obs.payload.get(side)) not in ranges:
         return
     present = obs.uv[side][np.all(np.isfinite(obs.uv[side]), axis=1)]
     if len(present) == 0:
