@@ -1353,6 +1353,35 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     assert len(tracks) == 1 and all(obs.world_p is not None for obs in tracks[0])
 
 
+def test_ids_from_the_files_place_a_one_image_track_by_its_own_lidar_cluster_only():
+    """Detections whose ids come from the files (:func:`tracks_from_ids`), a walker at 22 m seen in the left
+    image only: with the scene clouds holding its own points every frame gets a centre on it (as the
+    association's one-image frames do); with only a wall behind it (the LiDAR misses the walker) none does,
+    so no segment is cut from the wall."""
+    from pedx_graph.detections.association import tracks_from_ids
+
+    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    ground = _ground(calibs)
+    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
+    person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
+                             for h in np.arange(0.2, 1.7, 0.3)])
+    grid = np.stack(np.meshgrid(np.arange(-4.0, 4.0, 0.1), np.arange(0.1, 4.0, 0.3)), -1).reshape(-1, 2)
+    wall = np.c_[np.full(len(grid), 24.5), grid[:, 0], GROUND_Z + grid[:, 1]]
+    camera = calib.name.split("-")[0]
+    frames = {k: {camera: Detection(camera=camera, frame=k, keypoint_set="coco17", score=0.9, source=f"t#{k}",
+                                    image_uv=calib.project(_person_points((22.0, 0.13 * k), np.pi / 2, 0.6 * k))[0],
+                                    confidence=np.full(17, 0.9))} for k in range(6)}
+    placed = tracks_from_ids({"7": frames}, calibs, AssociationConfig(), ground,
+                             clouds={k: person + [0.0, 0.13 * k, 0.0] for k in range(6)})
+    for k, fr in enumerate(placed[0].frames):
+        assert fr.world_p is not None and np.linalg.norm(fr.world_p[:2] - [22.0, 0.13 * k]) < 0.4
+    walled = tracks_from_ids({"7": frames}, calibs, AssociationConfig(), ground, clouds={k: wall for k in range(6)})
+    assert all(fr.world_p is None for fr in walled[0].frames)
+    assert all(fr.world_p is None for fr in tracks_from_ids({"7": frames}, calibs, AssociationConfig(), ground)[0].frames)
+
+
 def test_one_keypoint_misplaced_in_one_image_does_not_gate_a_stereo_match():
     """A person at 19 m of whom the detector found, in both images, only the head, the shoulders and one
     wrist, the right image's wrist put 0.6 m lower (on the hip): the spans of the shared keypoints differ by a

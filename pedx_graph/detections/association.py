@@ -1232,14 +1232,11 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             stereo = [obs for obs in track if obs.world_p is not None]
             for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
                 if obs.world_p is None and config.lidar_identity:
-                    _range_centre(obs, calib, ranges)
                     seen = next(iter(obs.uv))
-                    if obs.world_p is not None and (
-                            stereo and not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib,
-                                                               config)
-                            or obs.frame in clouds and not ends_at_silhouette(
-                                obs.uv[seen], calib, seen, clouds[obs.frame], ground, ranges[id(obs.payload[seen])],
-                                config, projections.get((obs.frame, seen)))):
+                    _range_centre(obs, calib, ranges, clouds[obs.frame] if obs.frame in clouds else None, ground,
+                                  config, projections.get((obs.frame, seen)))
+                    if obs.world_p is not None and stereo and \
+                            not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib, config):
                         obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
                         obs.fallback = None
                 if obs.world_p is not None and obs.frame in clouds:
@@ -1966,20 +1963,29 @@ def _foot_rows(keypoint_set: str) -> tuple[int, ...]:
     return tuple(i for i, name in enumerate(names) if any(part in name.lower() for part in ("ankl", "heel", "toe")))
 
 
-def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float]) -> None:
+def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[int, float],
+                  cloud: np.ndarray | None = None, ground: GroundFrame | None = None,
+                  config: AssociationConfig | None = None,
+                  projection: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Give an observation seen in one image only a centre where its detection has its own LiDAR cluster
     (:func:`detection_ranges`), in place: the median keypoint pixel's viewing ray at that cluster's range,
     with a loose 1 m uncertainty (a median pixel is not the body's centre); :func:`_lidar_centre` then
-    replaces it by the cut's median, or slides it to the range, as for a stereo centre (:func:`pair_tracks`
-    takes it back where the cluster goes on past the silhouette, :func:`ends_at_silhouette`)."""
+    replaces it by the cut's median, or slides it to the range, as for a stereo centre.  With the frame's
+    scene ``cloud`` (and ``ground``, ``config``; ``projection``: the cloud projected into the observation's
+    image, when done), not where the cluster goes on past the silhouette (:func:`ends_at_silhouette`: a wall
+    behind someone the LiDAR misses)."""
     side = next(iter(obs.uv))
     if not isinstance(obs.payload, dict) or id(obs.payload.get(side)) not in ranges:
+        return
+    range_m = ranges[id(obs.payload[side])]
+    if cloud is not None and not ends_at_silhouette(obs.uv[side], calib, side, cloud, ground, range_m,
+                                                    config or AssociationConfig(), projection):
         return
     present = obs.uv[side][np.all(np.isfinite(obs.uv[side]), axis=1)]
     if len(present) == 0:
         return
     obs.fallback = (obs.world_p, obs.world_p_camera, obs.depth_sigma_m)
-    obs.world_p = pixel_at_depth(calib, side, np.median(present, axis=0), ranges[id(obs.payload[side])])
+    obs.world_p = pixel_at_depth(calib, side, np.median(present, axis=0), range_m)
     obs.world_p_camera = calib.camera_centre(side)
     obs.depth_sigma_m = 1.0
 
@@ -2545,14 +2551,22 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
 
 def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                     calibrations: Mapping[str, StereoCalibration], config: AssociationConfig | None = None,
-                    ground: GroundFrame | None = None) -> list[DetectedTrack]:
+                    ground: GroundFrame | None = None,
+                    clouds: Mapping[int, np.ndarray] | None = None) -> list[DetectedTrack]:
     """:class:`DetectedTrack` s of detections grouped by ids the files carry (``groups``: id -> frame -> camera
     -> detection), with each frame's centre triangulated from the pair that saw the person in both images
     (:func:`triangulate_centre`, the smallest depth uncertainty of the pairs) and smoothed over the track
-    (:func:`smooth_centres`) — what the LiDAR cut's depth gate needs when the ids come from the files."""
+    (:func:`smooth_centres`) — what the LiDAR cut's depth gate needs when the ids come from the files.  With
+    the scene ``clouds``, a frame no pair saw in both images is placed as the association places one
+    (:func:`_range_centre`: its detection's own LiDAR cluster among those of every detection of that image,
+    :func:`detection_ranges`, where the cluster ends at the silhouette)."""
     config = config or AssociationConfig()
     ground = ground or ground_from_calibrations(dict(calibrations))
+    if clouds is not None:
+        ground = ground_with_plane(ground, calibrations, clouds)
     sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
+    ranges = _file_id_ranges(groups, calibrations, config, ground, clouds) \
+        if clouds is not None and config.lidar_identity else {}
     out = []
     for track_id in sorted(groups):
         frames = []
@@ -2571,12 +2585,43 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                 world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, sigma_disparity)
                 if sigma < entry.depth_sigma_m:
                     entry.world_p, entry.depth_sigma_m = world_p, sigma
+            for camera, det in sorted(cams.items()):
+                if entry.world_p is not None or id(det) not in ranges:
+                    continue
+                calib, side = find_camera(calibrations, camera)
+                obs = Observation(frame=frame, uv={side: _usable(rectified(det, calib), det.confidence,
+                                                                 config.min_confidence)},
+                                  score=float(det.score), payload={side: det})
+                _range_centre(obs, calib, ranges, clouds[frame], ground, config)
+                entry.world_p, entry.depth_sigma_m = obs.world_p, obs.depth_sigma_m
             frames.append(entry)
         smooth_centres(frames, ground, config)
         pairs = tuple(sorted({name for name, calib in calibrations.items()
                               if any(cam in name.split("-") for fr in frames for cam in fr.detections)}))
         out.append(DetectedTrack(track_id=track_id, frames=frames, pairs=pairs))
     return out
+
+
+def _file_id_ranges(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
+                    calibrations: Mapping[str, StereoCalibration], config: AssociationConfig, ground: GroundFrame,
+                    clouds: Mapping[int, np.ndarray]) -> dict[int, float]:
+    """:func:`detection_ranges` of every calibrated image of ``groups`` (id -> frame -> camera -> detection)
+    whose frame has a cloud, over all its detections: id of a detection -> its LiDAR range."""
+    images = defaultdict(list)
+    for frames in groups.values():
+        for frame, cams in frames.items():
+            for camera, det in cams.items():
+                images[(frame, camera)].append(det)
+    ranges: dict[int, float] = {}
+    for (frame, camera), dets in sorted(images.items()):
+        try:
+            calib, side = find_camera(calibrations, camera)
+        except KeyError:
+            continue
+        if frame in clouds:
+            items = [(det, _usable(rectified(det, calib), det.confidence, config.min_confidence)) for det in dets]
+            ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
+    return ranges
 
 
 # ---------------------------------------------------------------------------------------------- entry point

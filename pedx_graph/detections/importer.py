@@ -3,8 +3,9 @@
 Steps: read the files (:mod:`.openpose`, :mod:`.coco`; camera and frame from the file / image names,
 :mod:`.naming`) -> group them into people: the file's own ids with ``use_file_ids`` (OpenPose ``person_id``,
 COCO ``track_id``; every detection must have one), else :func:`pedx_graph.detections.association.associate`
-(stereo, over frames, across pairs; with file ids each frame's centre is triangulated,
-:func:`~pedx_graph.detections.association.tracks_from_ids`) -> per person, frame and camera, undistort + rectify the keypoints
+(stereo, over frames, across pairs; with file ids each frame's centre is triangulated, or, seen in one image,
+taken from its detection's own LiDAR cluster, :func:`~pedx_graph.detections.association.tracks_from_ids`)
+-> per person, frame and camera, undistort + rectify the keypoints
 (:func:`pedx_graph.detections.undistort.rectified`), drop those below the confidence threshold and turn the
 confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoiseConfig`) -> write
 ``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` with ``keypoint_set`` and per-keypoint
@@ -218,7 +219,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
             for det in sorted(dets, key=lambda d: (d.frame, d.camera, -d.score)):
                 frames[det.frame].setdefault(det.camera, det)
             people[tid] = frames
-        tracks = tracks_from_ids(people, calibrations, config.association, ground)     # centres for the cut
+        tracks = tracks_from_ids(people, calibrations, config.association, ground,     # centres for the cut
+                                 clouds=clouds or None)
     else:
         tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground)
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
