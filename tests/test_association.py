@@ -1379,7 +1379,8 @@ def test_ids_from_the_files_place_a_one_image_track_by_its_own_lidar_cluster_onl
         assert fr.world_p is not None and np.linalg.norm(fr.world_p[:2] - [22.0, 0.13 * k]) < 0.4
     walled = tracks_from_ids({"7": frames}, calibs, AssociationConfig(), ground, clouds={k: wall for k in range(6)})
     assert all(fr.world_p is None for fr in walled[0].frames)
-    assert all(fr.world_p is None for fr in tracks_from_ids({"7": frames}, calibs, AssociationConfig(), ground)[0].frames)
+    without_clouds = tracks_from_ids({"7": frames}, calibs, AssociationConfig(), ground)
+    assert all(fr.world_p is None for fr in without_clouds[0].frames)
 
 
 def test_one_keypoint_misplaced_in_one_image_does_not_gate_a_stereo_match():
