@@ -1285,24 +1285,42 @@ def test_a_centre_comes_from_the_detections_own_lidar_cluster():
     assert np.linalg.norm(obs.world_p[:2] - far) < 0.3
 
 
+def _someone_at_22m():
+    """A standing person 22 m ahead (+x) of the rig's forward pair: ``(calibs, calib, ground, uv, det)`` with
+    its left-image detection (COCO, every keypoint)."""
+    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
+    calibs = _rig()
+    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    uv = calib.project(ahead)[0]
+    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv,
+                    confidence=np.full(len(uv), 0.9), score=0.9, source="test")
+    return calibs, calib, _ground(calibs), uv, det
+
+
+def _lidar_person(x: float = 22.0) -> np.ndarray:
+    """(45, 3) LiDAR points of a person at ``(x, 0)``: the half-cylinder (0.2 m radius) facing the sensor, 5
+    scan rings."""
+    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
+    return np.concatenate([np.c_[x + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
+                           for h in np.arange(0.2, 1.7, 0.3)])
+
+
+def _facade(x: float = 24.5) -> np.ndarray:
+    """LiDAR points of a building's wall facing the sensor at ``x``: 8 m wide, 4 m high."""
+    grid = np.stack(np.meshgrid(np.arange(-4.0, 4.0, 0.1), np.arange(0.1, 4.0, 0.3)), -1).reshape(-1, 2)
+    return np.c_[np.full(len(grid), x), grid[:, 0], GROUND_Z + grid[:, 1]]
+
+
 def test_a_cluster_that_would_lift_the_person_off_the_ground_is_not_its_range():
     """A person at 22 m whose own points the LiDAR does not see, and a box 1.2 m high at 15 m inside its
     silhouette (a car's flank): at 15 m the person's feet would float ~0.6 m above the ground, so the box's
     cluster is not its range.  With the person's own points present, they are."""
     from pedx_graph.detections.association import detection_ranges
 
-    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
-    calibs = _rig()
-    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    ground = _ground(calibs)
-    uv = calib.project(ahead)[0]
-    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv,
-                    confidence=np.full(len(uv), 0.9), score=0.9, source="test")
+    calibs, calib, ground, uv, det = _someone_at_22m()
     grid = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 7), np.linspace(0.3, 1.2, 6)), -1).reshape(-1, 2)
     box = np.c_[np.full(len(grid), 15.0), grid[:, 0], GROUND_Z + grid[:, 1]]
-    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
-    person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
-                             for h in np.arange(0.2, 1.7, 0.3)])
+    person = _lidar_person()
     config = AssociationConfig()
     assert detection_ranges([(det, uv)], calib, "left", box, ground, config) == {}
     ranges = detection_ranges([(det, uv)], calib, "left", np.concatenate([box, person]), ground, config)
@@ -1318,18 +1336,9 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     its hull they place it."""
     from pedx_graph.detections.association import detection_ranges, ends_at_silhouette, pair_tracks
 
-    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
-    calibs = _rig()
-    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    ground = _ground(calibs)
-    uv = calib.project(ahead)[0]
-    det = Detection(camera=calib.name.split("-")[0], frame=0, keypoint_set="coco17", image_uv=uv,
-                    confidence=np.full(len(uv), 0.9), score=0.9, source="test")
-    grid = np.stack(np.meshgrid(np.arange(-4.0, 4.0, 0.1), np.arange(0.1, 4.0, 0.3)), -1).reshape(-1, 2)
-    wall = np.c_[np.full(len(grid), 24.5), grid[:, 0], GROUND_Z + grid[:, 1]]
-    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
-    person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
-                             for h in np.arange(0.2, 1.7, 0.3)])
+    calibs, calib, ground, uv, det = _someone_at_22m()
+    wall = _facade()
+    person = _lidar_person()
     config = AssociationConfig()
     ranges = detection_ranges([(det, uv)], calib, "left", wall, ground, config)
     wall_range = float(calib.world_to_rect(np.array([24.5, 0.0, GROUND_Z + 0.9]))[2])
@@ -1360,15 +1369,9 @@ def test_ids_from_the_files_place_a_one_image_track_by_its_own_lidar_cluster_onl
     so no segment is cut from the wall."""
     from pedx_graph.detections.association import tracks_from_ids
 
-    ahead = _person_points((22.0, 0.0), 0.0, 0.0)
-    calibs = _rig()
-    calib = next(c for c in calibs.values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    ground = _ground(calibs)
-    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, 9)
-    person = np.concatenate([np.c_[22.0 + 0.2 * np.cos(angles), 0.2 * np.sin(angles), np.full(9, GROUND_Z + h)]
-                             for h in np.arange(0.2, 1.7, 0.3)])
-    grid = np.stack(np.meshgrid(np.arange(-4.0, 4.0, 0.1), np.arange(0.1, 4.0, 0.3)), -1).reshape(-1, 2)
-    wall = np.c_[np.full(len(grid), 24.5), grid[:, 0], GROUND_Z + grid[:, 1]]
+    calibs, calib, ground, _, _ = _someone_at_22m()
+    person = _lidar_person()
+    wall = _facade()
     camera = calib.name.split("-")[0]
     frames = {k: {camera: Detection(camera=camera, frame=k, keypoint_set="coco17", score=0.9, source=f"t#{k}",
                                     image_uv=calib.project(_person_points((22.0, 0.13 * k), np.pi / 2, 0.6 * k))[0],
