@@ -735,7 +735,7 @@ def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str,
     be judged (too few keypoints, no points).  ``rect_uv``: (K, 2) rectified pixels in the pair's ``side``
     image; ``cloud``: (N, 3) world points; ``projection``: ``cloud`` projected into that image
     (:func:`~pedx_graph.detections.lidar_cut.project_cloud`), when already done."""
-    from pedx_graph.detections.lidar_cut import project_cloud
+    from pedx_graph.detections.lidar_cut import border_margin_px, project_cloud
 
     rect_uv = np.asarray(rect_uv, dtype=float)
     present = rect_uv[np.all(np.isfinite(rect_uv), axis=1)]
@@ -745,7 +745,7 @@ def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str,
     uv, depth = projection if projection is not None else project_cloud(calib, side, cloud)
     lo, hi = present.min(axis=0), present.max(axis=0)
     height = float(hi[1] - lo[1])
-    grow = config.lidar_cut.dilate_frac * height + config.lidar_cut.dilate_px      # as the cut's hull
+    grow = border_margin_px(rect_uv, config.lidar_cut)             # the cut's hull's dilation
     half = max(0.5 * float(hi[0] - lo[0]) + grow, 0.5 * config.lidar_body_width_frac * height)
     centre = 0.5 * float(lo[0] + hi[0])
     pad = config.lidar_context_frac * height
