@@ -439,6 +439,34 @@ def test_smoothed_centres_follow_the_majority_not_one_confident_outlier():
     assert max(gaps) < 0.6, np.round(gaps, 2)
 
 
+def test_smoothed_centres_weigh_precise_centres_a_second_away_over_noisy_ones_close_by():
+    """Walks at 1.4 m/s at 22 m: LiDAR centres (0.1 m) at frames 0-6, none at 7-13 (hidden), stereo centres
+    (0.8-1.8 m) at 14-19.  The late frames' smoothed centres use the early LiDAR centres too, each weighed
+    by how far a walker leaves its line in that time: over 200 walks their RMS error is 0.44 m at this seed
+    (0.67 m fitted to the noisy centres near them alone), and their claimed sigmas cover the error."""
+    from pedx_graph.detections.association import DetectedTrackFrame, smooth_centres
+
+    ground = _ground(_rig())
+    rng = np.random.default_rng(7)
+    errors, covered = [], []
+    for _ in range(200):
+        heading = rng.uniform(0, 2 * np.pi)
+        velocity = 0.14 * np.array([np.cos(heading), np.sin(heading), 0.0])           # metres per frame
+        start = np.array([22.0, -2.0, GROUND_Z + 0.9])
+        frames = [DetectedTrackFrame(frame=k, detections={}) for k in range(20)]
+        for fr in frames[:7] + frames[14:]:
+            sigma = 0.1 if fr.frame < 7 else rng.uniform(0.8, 1.8)
+            fr.world_p = start + fr.frame * velocity + np.r_[sigma * rng.normal(size=2), 0.0]
+            fr.depth_sigma_m = sigma
+        smooth_centres(frames, ground, AssociationConfig())
+        for fr in frames[14:]:
+            error = (fr.world_p - start - fr.frame * velocity)[:2]
+            errors.append(np.linalg.norm(error))
+            covered.append(bool(np.all(np.abs(error) <= 2 * fr.depth_sigma_m)))
+    assert np.sqrt(np.mean(np.square(errors))) < 0.6, np.sqrt(np.mean(np.square(errors)))
+    assert np.mean(covered) > 0.9, np.mean(covered)
+
+
 def test_a_track_that_turns_back_across_a_gap_is_split_there():
     """A one-image track whose first two frames are a walker going one way at 21 m and whose frames after a
     three-frame gap are another walker going the other way (the tracker carried it across the gap while the

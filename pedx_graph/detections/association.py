@@ -123,9 +123,11 @@ Steps:
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
-   becomes the weighted line fit, in the ground plane, of the track's centres within
-   ``smooth_window_frames`` (at least the ``smooth_min_centres`` nearest; weights: each centre's depth
-   uncertainty and ``smooth_motion_m`` in quadrature; the line's velocity drawn to the person's velocity over
+   becomes the weighted line fit, in the ground plane, of the ``2 smooth_window_frames + 1`` centres of the
+   track that tell most about it (weights: each centre's depth uncertainty, ``smooth_motion_m`` and how far
+   a walker leaves its line in the time between, half of ``tracker.accel_sigma_mps`` times that time
+   squared, in quadrature: the nearest centres where every frame has a precise one, a LiDAR centre a second
+   away rather than a few noisy stereo depths close by; the line's velocity drawn to the person's velocity over
    a wider stretch, so that a track's end is not extrapolated from two noisy centres, and that velocity
    drawn toward standing by ``walking_speed_mps``, so that a few noisy centres do not set it), started from the
    centres the best-supported line explains (:func:`_consensus`: most
@@ -302,11 +304,15 @@ class AssociationConfig:
     LiDAR that lies closer than this to another person's smoothed centre, and nearer to it than to its own
     person's, is the neighbour's and is taken back (:func:`separate_people`)."""
     smooth_window_frames: int = 5
-    """Each frame's centre is the track's centres within this many frames fitted by a line in time
-    (step 7), frames."""
+    """Each frame's centre is a line in time fitted to as many of the track's centres as a window of this many
+    frames on each side holds (``2 W + 1``): those that tell most about the frame, each centre's uncertainty
+    grown by how far a walker leaves its line in the time between (half of ``tracker.accel_sigma_mps`` times
+    that time squared) — the nearest ones where every frame has a precise centre (step 7), frames."""
     smooth_min_centres: int = 4
-    """... but at least this many of the track's centres, the nearest in time (at a track's end or after a
-    stretch seen in one image, a line through two noisy centres would carry their noise frames beyond them)."""
+    """The walking velocity a track's lines are drawn to is fitted to its centres within four
+    ``smooth_window_frames``, but at least this many of them, the nearest in time (at a track's end or after a
+    stretch seen in one image, a line through two noisy centres would carry their noise frames beyond
+    them)."""
     smooth_motion_m: float = 0.15
     """How far a walker leaves a straight line within that window (added to each centre's uncertainty in
     quadrature), metres."""
@@ -2343,8 +2349,11 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
     """Replace every frame's centre and its uncertainty by the track's smoothed ones (module docstring, step 7;
     :func:`_offset_sigma`), in place; with ``only``, just those frames' (every frame's centre still counts).
 
-    Each frame's line is fitted to the centres within ``smooth_window_frames`` (at least the
-    ``smooth_min_centres`` nearest), its velocity drawn to the person's walking velocity over four windows
+    Each frame's line is fitted to the ``2 smooth_window_frames + 1`` centres that tell most about it, each
+    weighed by its uncertainty, ``smooth_motion_m`` and a walker's drift off its line over the time between
+    (``0.5 tracker.accel_sigma_mps t^2``) in quadrature (where a person was hidden for a while and is seen
+    again by stereo only, the precise LiDAR centres before count as well as the noisy ones after), its
+    velocity drawn to the person's walking velocity over four windows
     (:func:`_trend`) with the weight of a walker's velocity change over one window
     (``tracker.accel_sigma_mps``): at a track's end or after a stretch seen in one image, a line through two
     noisy centres is not carried frames beyond them."""
@@ -2360,21 +2369,26 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
     dt = config.tracker.frame_interval_s
     max_step = config.tracker.max_speed_mps * dt
     velocity_sigma = max(config.tracker.accel_sigma_mps * dt * max(config.smooth_window_frames, 1) * dt, 1e-6)
+    count = max(2 * config.smooth_window_frames + 1, config.smooth_min_centres)
     for fr in frames:
         if only is not None and fr.frame not in only:
             continue
-        near = np.abs(t - fr.frame) <= config.smooth_window_frames
-        if near.sum() < config.smooth_min_centres:
-            near = np.zeros(len(t), dtype=bool)
-            near[np.lexsort((t, np.abs(t - fr.frame)))[:config.smooth_min_centres]] = True
-        x, y, w = t[near] - fr.frame, level[near, :2], 1.0 / sigma[near] ** 2
+        # each centre as evidence of this frame's: its own uncertainty and how far a walker leaves its line
+        # over the time between them (a velocity change of accel_sigma_mps per second), the ``count`` most
+        # telling kept (the nearest ones where every frame has a precise centre; a LiDAR centre a second
+        # away rather than a few noisy stereo depths close by)
+        seconds = np.abs(t - fr.frame) * dt
+        telling = np.hypot(sigma, 0.5 * config.tracker.accel_sigma_mps * seconds ** 2)
+        near = np.zeros(len(t), dtype=bool)
+        near[np.lexsort((t, seconds, telling))[:count]] = True
+        x, y, w = t[near] - fr.frame, level[near, :2], 1.0 / telling[near] ** 2
         trend, trend_variance = _trend(t - fr.frame, level[:, :2], sigma, config)
         prior = (trend, 1.0 / velocity_sigma ** 2)
-        keep = _consensus(x, y, sigma[near], config.gate_sigmas, max_step)
+        keep = _consensus(x, y, telling[near], config.gate_sigmas, max_step)
         for _ in range(3):                       # weighted line per axis; outlying centres left out
             coef = _walking_line(x[keep], y[keep], w[keep], max_step, prior)
             fitted = keep                        # the centres this line was fitted to
-            residual = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) / sigma[near]
+            residual = np.linalg.norm(y - (coef[0] + x[:, None] * coef[1]), axis=1) / telling[near]
             new_keep = residual <= config.gate_sigmas
             if not new_keep.any() or np.array_equal(new_keep, keep):
                 break
