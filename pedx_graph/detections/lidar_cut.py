@@ -381,11 +381,15 @@ def exclusive_cuts(cuts: list[np.ndarray], world_points: np.ndarray, centres: li
     one person only.  A point is claimed by every person whose cut holds it, and by every person whose
     centre (``centres``: (3,) world points or None, uncertain by ``sigmas`` metres) is known to within
     ``claim_sigma_m`` and lies within ``body_radius_m`` of it on the ground plane; it stays with the
-    claimant whose centre is nearest on the ground plane, whether or not that person's own cut held it (a
-    claimant without a centre keeps it only when it is the only one; shared by claimants none of whom has a
-    centre, it goes to no one).  Two people one behind the other in an image
-    share the hull's points; the near one's body is where they lie, whether or not that image saw all of
-    the near one."""
+    claimant whose body most likely holds it, whether or not that person's own cut held it: the point's
+    ground-plane distance ``d`` from each claimant's centre under a 2D normal of variance ``s^2 = (body_radius_m
+    / 2)^2 + sigma^2`` (a body's points about its centre, and where that centre may be), the smallest
+    ``d^2 / s^2 + 2 ln s^2`` winning — among equally sure centres the nearest, while a centre placed to within
+    a decimetre keeps its body's points against one that lies as near only by a guess (a stereo depth at
+    range on top of a neighbour's LiDAR centre).  A claimant without a centre keeps a point only when it is
+    the only one; shared by claimants none of whom has a centre, it goes to no one.  Two people one behind
+    the other in an image share the hull's points; the near one's body is where they lie, whether or not
+    that image saw all of the near one."""
     flat_centres = [None if c is None else ground.to_level(np.asarray(c, dtype=float))[:2] for c in centres]
     confident = [p for p, (c, s) in enumerate(zip(flat_centres, sigmas))
                  if c is not None and s is not None and s <= config.claim_sigma_m]
@@ -402,7 +406,11 @@ def exclusive_cuts(cuts: list[np.ndarray], world_points: np.ndarray, centres: li
         claims[p, np.searchsorted(used, index)] = True
     for p in confident:
         claims[p] |= gap[p] <= config.body_radius_m
-    claimed_gap = np.where(claims, gap, np.inf)
+    # a centre without a finite uncertainty still ranks, behind every placed one
+    sure = np.array([min(float(s), 1e3) if s is not None and not np.isnan(s) else 1e3 for s in sigmas])
+    spread = ((0.5 * config.body_radius_m) ** 2 + sure ** 2)[:, None]
+    likely = np.where(np.isfinite(gap), gap ** 2 / spread + 2.0 * np.log(spread), np.inf)
+    claimed_gap = np.where(claims, likely, np.inf)
     winner = np.argmin(claimed_gap, axis=0)
     winner = np.where(np.isfinite(claimed_gap.min(axis=0)), winner, -1)   # shared, no claimant placed: no one's
     winner = np.where(claims.sum(axis=0) == 1, np.argmax(claims, axis=0), winner)
