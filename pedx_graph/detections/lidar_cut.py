@@ -79,7 +79,8 @@ class LidarCutConfig:
     """Only points at least this far in front of the camera are projected, metres."""
     body_radius_m: float = 0.4
     """A person whose centre is known (:attr:`claim_sigma_m`) claims the cut points within this horizontal
-    distance of it, metres (a body's LiDAR points lie within ~0.3 m of its centre)."""
+    distance of it, metres (a body's LiDAR points lie within ~0.3 m of its centre); half of it is the spread
+    of a body's points about its centre by which :func:`exclusive_cuts` ranks the claimants of a point."""
     claim_sigma_m: float = 0.3
     """A centre known to within this (its depth uncertainty) claims points by :attr:`body_radius_m`, metres."""
     beyond_border_m: float = 1.0
