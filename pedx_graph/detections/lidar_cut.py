@@ -410,10 +410,10 @@ def exclusive_cuts(cuts: list[np.ndarray], world_points: np.ndarray, centres: li
     # a centre without a finite uncertainty still ranks, behind every placed one
     sure = np.array([min(float(s), 1e3) if s is not None and not np.isnan(s) else 1e3 for s in sigmas])
     spread = ((0.5 * config.body_radius_m) ** 2 + sure ** 2)[:, None]
-    likely = np.where(np.isfinite(gap), gap ** 2 / spread + 2.0 * np.log(spread), np.inf)
-    claimed_gap = np.where(claims, likely, np.inf)
-    winner = np.argmin(claimed_gap, axis=0)
-    winner = np.where(np.isfinite(claimed_gap.min(axis=0)), winner, -1)   # shared, no claimant placed: no one's
+    cost = np.where(np.isfinite(gap), gap ** 2 / spread + 2.0 * np.log(spread), np.inf)   # -2 ln likelihood
+    claimed_cost = np.where(claims, cost, np.inf)
+    winner = np.argmin(claimed_cost, axis=0)
+    winner = np.where(np.isfinite(claimed_cost.min(axis=0)), winner, -1)  # shared, no claimant placed: no one's
     winner = np.where(claims.sum(axis=0) == 1, np.argmax(claims, axis=0), winner)
     return [used[winner == p] for p in range(len(cuts))]
 
