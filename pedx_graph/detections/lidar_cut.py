@@ -28,7 +28,7 @@ the release layout (``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply``), on
 with points (union over the pairs that saw the person, each pair's left keypoints completed by its right
 image's at the person's disparity: where the detector found only part of the body in one image, the other
 image's detection adds the rest; none for a frame the association gave no centre), each point
-given to one person only (:func:`exclusive_cuts`: the nearest centre among those claiming it).
+given to one person only (:func:`exclusive_cuts`: the claimant whose body most likely holds it).
 """
 from __future__ import annotations
 
