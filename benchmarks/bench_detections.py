@@ -20,7 +20,10 @@ ground plane is counted as *misplaced*, without an MPJPE).  A body placed on a n
 person whose detections it was fitted to, not a good fit of the neighbour.  Reported per input and distance bin
 (horizontal distance of the true pelvis from the LiDAR): global MPJPE and root-relative MPJPE (13 evaluation joints,
 after similarity alignment for the latter; the global one also per joint), mean keypoint NEES / 3 dof and the 95 %
-ellipsoid coverage of the 18 fitted keypoints (covariance status ``ok``).
+ellipsoid coverage of the 18 fitted keypoints (covariance status ``ok``).  The limb joints' (knees, ankles,
+shoulders, elbows, wrists: points of every keypoint set) error at 5-25 m is also split by how many images'
+keypoints held the joint at the frame (0, 1, 2, 3+): where a detector input's excess comes from — joints it
+missed (the manual labels hardly miss any) rather than its pixel noise.
 
 Association (per detector format, run as the import runs it, scored against ``truth/detections``,
 :mod:`pedx_graph.detections.evaluate`): tracks, false tracks (made of clutter / fragments or of several
@@ -95,7 +98,7 @@ from pedx_graph.detections.importer import ImportConfig, import_detections  # no
 from pedx_graph.detections.openpose import read_openpose  # noqa: E402
 from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin, eval_joints, joint_errors  # noqa: E402
-from pedx_graph.keypoints import EVAL_JOINTS  # noqa: E402
+from pedx_graph.keypoints import EVAL_JOINTS, load_keypoint_set  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
 from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig  # noqa: E402
 from pedx_graph.sim.detections import coco_paths  # noqa: E402
@@ -112,6 +115,11 @@ CHI2_3_95 = 7.815
 MATCH_RADIUS_M = 1.0
 #: The range of the goals, metres.
 GOAL_RANGE_M = (5.0, 25.0)
+#: The evaluation joints every keypoint set holds as a point of its own (``pedx_equivalent``): the limbs'.  The
+#: head, neck and mid-hip are other points in COCO and OpenPose, so no image "holds" them alike.
+LIMB_JOINTS = tuple(j for j in EVAL_JOINTS if j not in ("head", "neck", "hip"))
+#: Bins of :func:`joint_views`: the number of images whose keypoints held a limb joint at a frame.
+VIEW_BINS = ("0", "1", "2", "3+")
 
 
 def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1.0,
@@ -236,6 +244,18 @@ def frame_owners(tracks, records: list[dict]) -> dict[tuple[str, int], str]:
             for frame, owner in track_frame_owners(track, records, index).items()}
 
 
+def joint_views(frame) -> np.ndarray:
+    """(len(LIMB_JOINTS),) how many of a track frame's images hold each limb joint as a keypoint of their own
+    set (labelled: a detection's keypoint above the import's confidence threshold, an annotator's click)."""
+    counts = np.zeros(len(LIMB_JOINTS), dtype=int)
+    for _, _, view in frame.labelled_views():
+        kps = load_keypoint_set(view.keypoint_set)
+        for j, name in enumerate(LIMB_JOINTS):
+            k = kps.index_of(name)
+            counts[j] += int(k is not None and k < len(view.keypoints) and np.all(np.isfinite(view.keypoints[k])))
+    return counts
+
+
 def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dict, ground, by_id: bool,
              owners: dict | None = None) -> tuple:
     """Per scored frame: distance, global / root-relative MPJPE (mm), keypoint NEES (18,); plus failures and
@@ -252,6 +272,7 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
         if result is None:
             failures += 1
             continue
+        track_frames = {f.frame: f for f in track.frames}
         for record in (result.extra_track or {}).get("mirrored_labels", []):
             exchanges["whole_images" if record["keypoints"] == "all" else "pairs"] += 1
         for i, frame in enumerate(result.frames):
@@ -283,7 +304,8 @@ def fit_rows(tracks, config: FitConfig, workers: int, truth: dict, labelled: dic
                 nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
             rows.append({"distance_m": labelled[tid][frame], "mpjpe_mm": 1000 * float(np.mean(glob)),
                          "rel_mpjpe_mm": 1000 * float(np.mean(rel)), "nees": nees,
-                         "joint_mm": 1000 * np.asarray(glob, dtype=float).reshape(-1)})
+                         "joint_mm": 1000 * np.asarray(glob, dtype=float).reshape(-1),
+                         "limb_views": joint_views(track_frames[frame])})
     return rows, failures, exchanges
 
 
@@ -298,7 +320,24 @@ def _stats(rows: list[dict]) -> dict:
             "rel_mpjpe_mm": float(np.mean([r["rel_mpjpe_mm"] for r in rows])),
             "keypoint_nees_over_dof": float(nees.mean() / 3) if len(nees) else None,
             "keypoint_coverage95": float(np.mean(nees <= CHI2_3_95)) if len(nees) else None,
-            "joint_mpjpe_mm": dict(zip(EVAL_JOINTS, np.mean([r["joint_mm"] for r in rows], axis=0).tolist()))}
+            "joint_mpjpe_mm": dict(zip(EVAL_JOINTS, np.mean([r["joint_mm"] for r in rows], axis=0).tolist())),
+            "limbs_by_views": _limbs_by_views(rows)}
+
+
+def _limbs_by_views(rows: list[dict]) -> dict:
+    """Limb joints' global error by how many images held them (VIEW_BINS): share of the limb joint-frames,
+    mean error (mm) and that bin's part of the summed limb error — where the error comes from: joints the
+    fit saw in two images, in one (depth from the body alone), or in none (the priors')."""
+    limb = [EVAL_JOINTS.index(j) for j in LIMB_JOINTS]
+    err = np.concatenate([r["joint_mm"][limb] for r in rows])
+    views = np.minimum(np.concatenate([r["limb_views"] for r in rows]), len(VIEW_BINS) - 1)
+    out = {}
+    for k, label in enumerate(VIEW_BINS):
+        sel = views == k
+        out[label] = {"joint_frames": int(sel.sum()), "share": float(sel.mean()),
+                      "mpjpe_mm": float(err[sel].mean()) if sel.any() else None,
+                      "error_share": float(err[sel].sum() / max(err.sum(), 1e-12))}
+    return out
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -482,6 +521,20 @@ def markdown(result: dict, command: str) -> str:
         joints = summary[key].get("joint_mpjpe_mm")
         if joints:
             lines.append(f"| {source} | " + " | ".join(f"{joints[j]:.1f}" for j in EVAL_JOINTS) + " |")
+    lines += ["", f"## Limb joints at {key} m by the images that held them (both scenes)", "",
+              "How many images' keypoints held each limb joint (" + ", ".join(LIMB_JOINTS) + ") at a scored frame: "
+              "the share of the limb joint-frames, their mean global error and that bin's part of the summed "
+              "limb error.  A joint held by no image is placed by the pose and motion priors alone, one held by "
+              "one image has its depth along that image's ray from the rest of the body only: those two bins are "
+              "the detector's misses (of a keypoint, or of the person in an image), not its pixel noise.", "",
+              "| input | " + " | ".join(f"{b} images: share, mm (part of error)" for b in VIEW_BINS) + " |",
+              "|---|" + "---|" * len(VIEW_BINS)]
+    for source, summary in result["accuracy"].items():
+        by_views = summary[key].get("limbs_by_views")
+        if by_views:
+            lines.append(f"| {source} | " + " | ".join(
+                f"{v['share']:.2f}, {cell(v['mpjpe_mm'], '.1f')} ({v['error_share']:.2f})"
+                for v in by_views.values()) + " |")
     lines += ["", f"Frames are scored against their labelled person (detector tracks: the person most of the frame's "
               f"detections belong to); the {key} m row is the goal's range.  A detector track's frame fitted farther "
               f"than {MATCH_RADIUS_M:g} m from that person is counted as misplaced and left out of the MPJPE (a body "

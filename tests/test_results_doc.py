@@ -57,3 +57,27 @@ def test_joint_table_pools_the_seeds_by_frames():
     assert [line for line in text.splitlines() if line.startswith("| coco | 4 |")] == ["| coco | 4 | 32.5 | 65.0 |"]
     assert "| input | frames | rknee | hip |" in text and "seeds 0, 1" in text
     assert "per joint" not in detections_section([run(0, 1, 10.0, joints=False)])
+
+
+def test_views_table_pools_the_seeds_by_joint_frames():
+    """The limbs-by-views table sums each bin's joint-frames over the seeds: share of all joint-frames, mean
+    error weighted by joint-frames, part of the summed error; runs without the split add no table."""
+    from pedx_graph.eval.benchmark_tables import detections_section
+
+    def run(seed, bins):
+        stats = {"frames": 1, "mpjpe_mm": 30.0, "rel_mpjpe_mm": 20.0}
+        if bins is not None:
+            stats = dict(stats, limbs_by_views={label: {"joint_frames": n, "mpjpe_mm": mm if n else None}
+                                                for label, (n, mm) in bins.items()})
+        goal = {"mpjpe_ratio_5_25": 1.0, "within_1.5x": True, "crossing_id_switches": 0, "false_tracks": 0}
+        scene = {"association": {"coco": {"recovered": 1, "labelled_people": 1}}}
+        return {"seed": seed, "command": f"bench --seed {seed}", "goals": {"coco": goal}, "scenes": {"crossing": scene},
+                "accuracy": {"manual": {"5-25": stats}, "coco": {"5-25": stats}}}
+
+    text = detections_section([run(0, {"0": (1, 100.0), "1": (3, 40.0), "2": (0, None)}),
+                               run(1, {"0": (1, 60.0), "1": (1, 40.0), "2": (4, 25.0)})])
+    # joint-frames 2 / 4 / 4 of 10; errors 160 / 160 / 100 of 420 mm summed
+    row = [line for line in text.splitlines() if line.startswith("| coco | 0.20")]
+    assert row == ["| coco | 0.20, 80.0 (0.38) | 0.40, 40.0 (0.38) | 0.40, 25.0 (0.24) |"]
+    assert "| input | 0 images | 1 image | 2 images |" in text and "seeds 0, 1 pooled" in text
+    assert "held them" not in detections_section([run(0, None)])

@@ -135,6 +135,7 @@ def detections_section(runs: list[dict]) -> str:
         lines += ["", "Over the seeds together (each seed's 5-25 m MPJPE weighted by its frames), ratio to the manual "
                   "labels: " + ", ".join(f"{fmt} {_f(ratio, 2)}" for fmt, ratio in pooled.items()) + "."]
     lines += _joint_table(runs)
+    lines += _views_table(runs)
     return "\n".join(lines)
 
 
@@ -184,6 +185,34 @@ def _joint_table(runs: list[dict]) -> list[str]:
     for source, acc in sums.items():
         lines.append(f"| {source} | {frames[source]} | "
                      + " | ".join(_f(acc[j] / frames[source]) for j in joints) + " |")
+    return lines
+
+
+def _views_table(runs: list[dict]) -> list[str]:
+    """Markdown lines: the limb joints' global error at 5-25 m per input by how many images held the joint
+    (``limbs_by_views``), pooled over the seeds (joint-frames summed): share, mean error and part of the summed
+    error per bin; empty when no run reports it."""
+    pooled: dict[str, dict[str, list[float]]] = {}
+    for run in runs:
+        for source, summary in run["accuracy"].items():
+            for label, b in ((summary.get("5-25") or {}).get("limbs_by_views") or {}).items():
+                acc = pooled.setdefault(source, {}).setdefault(label, [0.0, 0.0])
+                acc[0] += b["joint_frames"]
+                acc[1] += (b["mpjpe_mm"] or 0.0) * b["joint_frames"]
+    if not pooled:
+        return []
+    bins = list(next(iter(pooled.values())))
+    seeds = ", ".join(str(run["seed"]) for run in runs)
+    lines = ["", f"Limb joints (knees, ankles, shoulders, elbows, wrists) at 5-25 m by how many images' keypoints "
+             f"held them (seeds {seeds} pooled): share of the joint-frames, mean global error (mm) and that "
+             "bin's part of the summed error.  None: placed by the priors; one: depth from the rest of the body.",
+             "", "| input | " + " | ".join(f"{b} image" + ("" if b == "1" else "s") for b in bins) + " |", "|---|" + "---:|" * len(bins)]
+    for source, by_bin in pooled.items():
+        count = sum(v[0] for v in by_bin.values())
+        error = sum(v[1] for v in by_bin.values())
+        lines.append(f"| {source} | " + " | ".join(
+            f"{_f(by_bin[b][0] / count, 2)}, {_f(by_bin[b][1] / by_bin[b][0]) if by_bin[b][0] else '-'} "
+            f"({_f(by_bin[b][1] / error, 2)})" for b in bins) + " |")
     return lines
 
 
