@@ -13,7 +13,9 @@ samples too thinly.  ``--pedestrians 20 --frames 80`` gives the long dense scene
 Reported per input (seed, scene, format) and summed: tracks, false tracks, bystander tracks, labelled people
 recovered, identity switches (all, and those of people crossing at 5-25 m:
 :func:`bench_detections.crossing_people`), wrong frames, frames mixing two people, fragmentations, and
-people's detections on their own person's track and on another's (or a false one).  With
+people's detections on their own person's track and on another's (or a false one); and the import's identity
+review (:mod:`pedx_graph.detections.review`): its stretches, the share of track frames they flag and how many
+of the identity switches lie inside them.  With
 ``--baseline OLD.json`` (an earlier run of this script with the same seeds and sizes) the markdown also lists
 the inputs whose counts changed.
 
@@ -45,6 +47,7 @@ from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
+from pedx_graph.detections.review import flagged_frames, review_stretches  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
@@ -52,6 +55,8 @@ from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 COUNTS = ("tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people", "id_switches",
           "crossing_id_switches", "wrong_frames", "mixed_frames", "fragmentations", "own_detections",
           "others_detections")
+#: The identity review's counts (:func:`review_counts`), summed like :data:`COUNTS`, not compared to a baseline.
+REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "switches_in_review")
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -93,8 +98,21 @@ def run_seed(seed: int, pedestrians: int, frames: int) -> list[dict]:
                 score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"]
                                                     if a in crossing or b in crossing)
                 rows.append({"seed": seed, "scene": name, "format": fmt, "detections": len(detections),
-                             "associate_seconds": seconds, **{k: score[k] for k in COUNTS}})
+                             "associate_seconds": seconds, **{k: score[k] for k in COUNTS},
+                             **review_counts(tracks, ground, score["switches"])})
     return rows
+
+
+def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
+    """The import's identity review (:func:`pedx_graph.detections.review.review_stretches`, default config)
+    against the truth: its stretches, the track frames they flag of all, and the identity switches
+    (``(track, frame, from, to)`` of :func:`score_tracks`) whose frame lies in a stretch naming their track."""
+    stretches = review_stretches(tracks, ground)
+    flagged = flagged_frames(tracks, stretches)
+    inside = sum(1 for tid, frame, _, _ in switches
+                 if any(tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in stretches))
+    return {"review_stretches": len(stretches), "review_flagged_frames": sum(len(v) for v in flagged.values()),
+            "track_frames": sum(len(t.frames) for t in tracks), "switches_in_review": inside}
 
 
 def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:
@@ -129,6 +147,16 @@ def markdown(result: dict) -> str:
              f"scene, {result['motion']}.  Method: see the script's docstring (the detection benchmark's scenes, "
              "`associate` as the import runs it, scored against the simulator's truth; no fitting).", "",
              "## Totals", "", header, rule, line(total, "all | | "), ""]
+    if "switches_in_review" in total:
+        lines += ["## Identity review", "",
+                  f"The import lists where two tracks came close (`import_summary.json`, "
+                  f"`identity_review`; pedx_graph.detections.review, default config): {total['review_stretches']} "
+                  f"stretches over the inputs, flagging {total['review_flagged_frames']} of "
+                  f"{total['track_frames']} track frames "
+                  f"({total['review_flagged_frames'] / max(total['track_frames'], 1):.0%}).  Identity switches "
+                  f"whose frame lies in a stretch naming their track: {total['switches_in_review']} of "
+                  f"{total['id_switches']}.",
+                  ""]
     if result.get("changed") is not None:
         lines += [f"## Changed against the baseline ({result['baseline_command']})", ""]
         if result["changed"]:
@@ -181,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
               "workers": args.workers,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
-              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS},
+              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + REVIEW_COUNTS},
               "associate_seconds": sum(r["associate_seconds"] for r in rows),
               "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
     if baseline is not None:

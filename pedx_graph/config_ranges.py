@@ -369,6 +369,12 @@ RULES: dict[str, Range | Choice] = {
     # pedx_graph.detections.importer.ImportConfig, noise.DetectionNoiseConfig (SigmaCurve checks itself)
     "ImportConfig.min_keypoints": COUNT,
     "ImportConfig.min_stereo_samples": COUNT,
+    "ReviewConfig.column_frac": NON_NEGATIVE,
+    "ReviewConfig.max_height_ratio": Range(1.0),
+    "ReviewConfig.ground_m": NON_NEGATIVE,
+    "ReviewConfig.pad_frames": NON_NEGATIVE_INT,
+    "ReviewConfig.frame_step": NON_NEGATIVE_INT,
+    "ReviewConfig.min_confidence": FRACTION,
     "DetectionNoiseConfig.min_confidence": FRACTION,
     "DetectionNoiseConfig.annotation_sigma_px": POSITIVE,
     "DetectionNoiseConfig.occluded_sigma_factor": POSITIVE,

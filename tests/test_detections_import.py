@@ -70,6 +70,10 @@ def test_import_openpose_with_file_ids(tmp_path):
     assert main(["import", "openpose", str(files), "--calib", str(root), "--out", str(out), "--use-file-ids"]) == 0
     summary = json.loads((out / "import_summary.json").read_text())
     assert summary["keypoint_sets"] == ["body25"] and (out / "pointclouds").exists()
+    for record in summary["sequences"].values():            # the identity review rides along (review.py)
+        review = record["identity_review"]
+        assert 0 <= review["flagged_track_frames"] <= review["track_frames"] and review["track_frames"] > 0
+        assert all(len(s["tracks"]) == 2 and s["first_frame"] <= s["last_frame"] for s in review["stretches"])
     saved = load_config(ImportConfig, out / "import_config.yaml")          # the resolved config beside the output
     assert saved.use_file_ids and to_dict(saved) == to_dict(dataclasses.replace(ImportConfig(), use_file_ids=True))
     tracks = read_dataset(out)

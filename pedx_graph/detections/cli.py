@@ -73,6 +73,11 @@ def _run_import(args: argparse.Namespace) -> int:
     labels = sum(s["labels_written"] for s in summary["sequences"].values())
     print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")
     for seq, record in sorted(summary["sequences"].items()):
+        review = record.get("identity_review")
+        if review and review["stretches"]:
+            print(f"  {seq}: {len(review['stretches'])} stretches where two tracks came close "
+                  f"({review['flagged_track_frames']} of {review['track_frames']} track frames): check who is "
+                  f"who there (import_summary.json, sequences.{seq}.identity_review)")
         check = record.get("stereo_noise_check")
         if check and check.get("scale") is not None:
             print(f"  {seq}: stereo rows show {check['scale']:.2f}x the noise model's keypoint noise "

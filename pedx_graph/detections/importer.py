@@ -12,8 +12,9 @@ confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoise
 ``confidence`` and ``sigma_px`` (:mod:`pedx_graph.data.labels2d`), copy ``calib/`` (and ``timestamps/``),
 link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
 (:func:`pedx_graph.detections.lidar_cut.write_track_segments`, with the cut of ``association.lidar_cut``)
-when the source dataset has them.  A summary goes to ``<out>/import_summary.json``, the resolved config to
-``<out>/import_config.yaml``.
+when the source dataset has them.  A summary goes to ``<out>/import_summary.json`` (with the stretches of
+frames where two tracks came close, to check who is who there: :mod:`pedx_graph.detections.review`), the
+resolved config to ``<out>/import_config.yaml``.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
+from pedx_graph.detections.review import ReviewConfig, flagged_frames, review_stretches
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.utils import atomic_write_json
@@ -70,6 +72,10 @@ class ImportConfig:
     from below.  The factor goes to ``import_summary.json`` (``sequences.<seq>.stereo_noise_check``)."""
     min_stereo_samples: int = 200
     """Fewer keypoints seen in both images of a pair than this: no check (the model's sigmas as they are)."""
+    review: ReviewConfig = field(default_factory=ReviewConfig)
+    """Which stretches of frames ``import_summary.json`` lists for a second look at who is who
+    (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground,
+    :mod:`pedx_graph.detections.review`)."""
 
 
 def calibration_dir(source: str | os.PathLike) -> Path:
@@ -228,6 +234,10 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                                     config.association.tracker.frame_interval_s)
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
+    stretches = review_stretches(tracks, ground, config.review)
+    flagged = flagged_frames(tracks, stretches)
+    review = {"flagged_track_frames": sum(len(v) for v in flagged.values()),
+              "track_frames": sum(len(t.frames) for t in tracks), "stretches": stretches}
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
@@ -252,7 +262,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
               "left_right_swapped_back": flipped,
               "uncalibrated_cameras": uncalibrated,
-              "stereo_noise_check": check.record() if check is not None else None}
+              "stereo_noise_check": check.record() if check is not None else None,
+              "identity_review": review}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,

@@ -1,0 +1,147 @@
+"""Where the association's identities deserve a second look: stretches of frames where two tracks came close.
+
+An id-less association decides who is who from positions, sizes and depths; where two people overlap in an
+image or walk within a metre of each other it can carry one person's track on with the other
+(docs/detections.md lists the cases).  Those places are known without any truth: this module lists them, so
+that a team building a dataset checks a few stretches instead of every frame.
+
+Two tracks are *close* at a frame when
+
+* **in an image** both have a detection in, at that frame or up to ``frame_step`` frames apart (a track that
+  took another's detection where its own person was missed sits where the other was a frame before): their
+  keypoints' median columns differ by at most
+  ``column_frac`` times the taller one's keypoint height, their keypoint rows overlap and their heights
+  differ by at most ``max_height_ratio`` (one stands in front of the other at a similar distance: the
+  tracker's and the swap repair's confusion), or
+* **on the ground**: both have a 3D centre and the two lie within ``ground_m`` of each other in the ground
+  plane (the merging of pairs' tracks and the LiDAR cut can confuse them there).
+
+Each close frame is widened by ``pad_frames`` on both sides, and on across a gap of either track to the
+frame where it is seen again (a track can take the other's person across frames where its own was missed);
+the frames of each pair of tracks are joined into stretches.  Pixels are the raw images' (an
+overlap test: the lens distortion does not matter at this tolerance), metres the world (LiDAR) frame's.
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from pedx_graph.data.ground import GroundFrame
+
+
+@dataclass
+class ReviewConfig:
+    """When two tracks count as close (module docstring).  Defaults: on ``benchmarks/bench_association.py``'s
+    inputs (crossings and walking groups) the stretches hold 36 of the 37 identity switches and flag 31 % of
+    the track frames; wider tests flag more for little more (docs/detections.md, "Where to check who is
+    who")."""
+
+    column_frac: float = 0.2
+    """Two detections in one image are close when their median keypoint columns differ by at most this
+    fraction of the taller one's keypoint height (about a body's width: one stands in front of the other)."""
+    max_height_ratio: float = 1.2
+    """... and the taller one's keypoint height is at most this many times the other's (people at very
+    different depths overlap in the image but are not taken for each other: their sizes differ)."""
+    frame_step: int = 1
+    """Detections up to this many frames apart are compared too (a track that took, in a frame where its own
+    person was missed, the detection of someone another track holds the frame before or after)."""
+    ground_m: float = 0.7
+    """Two tracks' centres within this distance of each other in the ground plane are close (people walking
+    side by side), metres."""
+    pad_frames: int = 1
+    """Each close frame also flags this many frames before and after it."""
+    min_confidence: float = 0.1
+    """Keypoints below this confidence are left out of the columns and heights."""
+
+
+def _extent(uv: np.ndarray, confidence: np.ndarray, min_confidence: float) -> tuple[float, float, float] | None:
+    """(median column, top row, bottom row) of a detection's confident keypoints, or None with fewer than 2."""
+    ok = np.all(np.isfinite(uv), axis=1) & (np.asarray(confidence) >= min_confidence)
+    if ok.sum() < 2:
+        return None
+    return float(np.median(uv[ok, 0])), float(uv[ok, 1].min()), float(uv[ok, 1].max())
+
+
+def _close_in_image(a: tuple[float, float, float], b: tuple[float, float, float], column_frac: float,
+                    max_height_ratio: float) -> bool:
+    """Two detections' (median column, top row, bottom row) in one image: close (module docstring)."""
+    ha, hb = max(a[2] - a[1], 1.0), max(b[2] - b[1], 1.0)
+    rows_overlap = min(a[2], b[2]) >= max(a[1], b[1])
+    return (rows_overlap and abs(a[0] - b[0]) <= column_frac * max(ha, hb)
+            and max(ha, hb) <= max_height_ratio * min(ha, hb))
+
+
+def close_frames(tracks: list, ground: GroundFrame | None = None,
+                 config: ReviewConfig | None = None) -> dict[tuple[str, str], set[int]]:
+    """``(track id a, track id b)`` (a < b) -> the frames at which the two were close (module docstring;
+    without the padding).  ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack` s; ``ground``
+    for the ground-plane test (None: the world's x-y plane)."""
+    config = config or ReviewConfig()
+    by_image: dict[tuple[str, int], list[tuple[str, tuple]]] = defaultdict(list)
+    centres: dict[int, list[tuple[str, np.ndarray]]] = defaultdict(list)
+    for track in tracks:
+        for fr in track.frames:
+            for camera, det in fr.detections.items():
+                extent = _extent(np.asarray(det.image_uv, dtype=float), det.confidence, config.min_confidence)
+                if extent is not None:
+                    by_image[(camera, fr.frame)].append((track.track_id, extent))
+            if fr.world_p is not None and np.all(np.isfinite(fr.world_p)):
+                p = np.asarray(fr.world_p, dtype=float)
+                centres[fr.frame].append((track.track_id, (ground.to_level(p) if ground is not None else p)[:2]))
+    out: dict[tuple[str, str], set[int]] = defaultdict(set)
+    for (camera, frame), items in by_image.items():
+        for step in range(config.frame_step + 1):          # the same frame, and the next ones
+            later = items if step == 0 else by_image.get((camera, frame + step), [])
+            for i, (ta, ea) in enumerate(items):
+                for tb, eb in (later[i + 1:] if step == 0 else later):
+                    if ta != tb and _close_in_image(ea, eb, config.column_frac, config.max_height_ratio):
+                        out[tuple(sorted((ta, tb)))].update((frame, frame + step))
+    for frame, items in centres.items():
+        for i in range(len(items)):
+            for j in range(i + 1, len(items)):
+                (ta, pa), (tb, pb) = items[i], items[j]
+                if ta != tb and np.linalg.norm(pa - pb) <= config.ground_m:
+                    out[tuple(sorted((ta, tb)))].add(frame)
+    return dict(out)
+
+
+def review_stretches(tracks: list, ground: GroundFrame | None = None,
+                     config: ReviewConfig | None = None) -> list[dict]:
+    """The stretches to check: ``{"tracks": [a, b], "first_frame", "last_frame", "close_frames"}`` per run of
+    frames where tracks ``a`` and ``b`` were close, each close frame widened by ``pad_frames`` and on to the
+    nearest frames where each of the two is seen (a track can take the other's person across frames where
+    its own was missed), within the frames either spans (a < b; sorted by tracks, then frame)."""
+    config = config or ReviewConfig()
+    seen = {t.track_id: {fr.frame for fr in t.frames} for t in tracks}
+    out = []
+    for (a, b), frames in sorted(close_frames(tracks, ground, config).items()):
+        first = min(min(seen[a]), min(seen[b]))
+        last = max(max(seen[a]), max(seen[b]))
+        flagged = set()
+        for f in frames:
+            lo, hi = f - config.pad_frames, f + config.pad_frames
+            for own in (seen[a], seen[b]):      # on through a track's gap, to where it is seen again
+                lo = min(lo, max((g for g in own if g <= f - config.pad_frames), default=lo))
+                hi = max(hi, min((g for g in own if g >= f + config.pad_frames), default=hi))
+            flagged.update(range(max(lo, first), min(hi, last) + 1))
+        flagged = sorted(flagged)
+        start = previous = flagged[0]
+        for frame in flagged[1:] + [None]:
+            if frame is None or frame != previous + 1:
+                out.append({"tracks": [a, b], "first_frame": int(start), "last_frame": int(previous),
+                            "close_frames": sorted(int(f) for f in frames if start <= f <= previous)})
+                start = frame
+            previous = frame if frame is not None else previous
+    return out
+
+
+def flagged_frames(tracks: list, stretches: list[dict]) -> dict[str, set[int]]:
+    """Track id -> its own frames inside one of ``stretches`` that names it."""
+    own = {t.track_id: {fr.frame for fr in t.frames} for t in tracks}
+    out: dict[str, set[int]] = {tid: set() for tid in own}
+    for stretch in stretches:
+        for tid in stretch["tracks"]:
+            out[tid] |= {f for f in own.get(tid, ()) if stretch["first_frame"] <= f <= stretch["last_frame"]}
+    return out

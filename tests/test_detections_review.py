@@ -1,0 +1,82 @@
+"""The import's identity review: stretches where two tracks came close in an image or on the ground, none elsewhere."""
+import numpy as np
+
+from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+from pedx_graph.detections.review import ReviewConfig, close_frames, flagged_frames, review_stretches
+from pedx_graph.detections.types import Detection
+
+
+def _person(u: float, height: float, foot_v: float = 900.0) -> np.ndarray:
+    """(17, 2) COCO-like keypoints of a standing person: a column at ``u`` (+-5 % of the height), ``height``
+    pixels tall, feet on row ``foot_v``."""
+    rows = np.linspace(0.0, 1.0, 17)
+    return np.c_[u + 0.05 * height * np.sin(7.0 * rows), foot_v - height + rows * height]
+
+
+def _track(tid: str, columns: dict[int, float], height: float = 200.0, centres: dict | None = None,
+           camera: str = "camL") -> DetectedTrack:
+    frames = []
+    for frame, u in sorted(columns.items()):
+        det = Detection(camera=camera, frame=frame, keypoint_set="coco17", image_uv=_person(u, height),
+                        confidence=np.full(17, 0.8), score=0.8, source=f"{tid}#{frame}")
+        centre = None if centres is None or frame not in centres else np.asarray(centres[frame], dtype=float)
+        frames.append(DetectedTrackFrame(frame=frame, detections={camera: det}, world_p=centre))
+    return DetectedTrack(track_id=tid, frames=frames, pairs=("camL-camR",))
+
+
+def test_two_walkers_passing_in_one_image_flag_the_frames_around_the_crossing():
+    """Two people of one size walk towards each other in an image: their columns come within a fifth of their
+    height at frames 17 and 18 only; the stretch is those frames widened by one (and cut at the tracks' last
+    frame, 19), for both tracks; a third person elsewhere is flagged nowhere."""
+    a = _track("a", {f: 300.0 + 20.0 * f for f in range(20)})
+    b = _track("b", {f: 1000.0 - 20.0 * f for f in range(20)})
+    far = _track("c", {f: 3000.0 for f in range(20)})
+    same_frame = ReviewConfig(frame_step=0)
+    assert close_frames([a, b, far], config=same_frame) == {("a", "b"): {17, 18}}
+    stretches = review_stretches([a, b, far], config=same_frame)
+    assert stretches == [{"tracks": ["a", "b"], "first_frame": 16, "last_frame": 19, "close_frames": [17, 18]}]
+    assert flagged_frames([a, b, far], stretches) == {"a": {16, 17, 18, 19}, "b": {16, 17, 18, 19}, "c": set()}
+    wider = ReviewConfig(pad_frames=3, frame_step=0)
+    assert review_stretches([a, b, far], config=wider)[0]["first_frame"] == 14
+
+
+def test_a_detection_taken_where_the_own_person_was_missed_is_flagged_across_the_gap():
+    """Track ``b`` is missed at frames 5-8 and at frame 7 holds a detection where ``a``'s person stood at
+    frames 6 and 8 (``a`` has none at 7: ``b`` took it).  Never close to ``a`` at one frame, ``b`` is close
+    one frame apart; the stretch runs on through ``b``'s gap to where each is seen again (4 to 9)."""
+    a = _track("a", {f: 500.0 + 10.0 * f for f in range(12) if f != 7})
+    b = _track("b", {f: 1500.0 for f in range(12) if not 5 <= f <= 8})
+    b.frames.insert(5, _track("b", {7: 570.0}).frames[0])
+    assert close_frames([a, b], config=ReviewConfig(frame_step=0)) == {}
+    assert close_frames([a, b]) == {("a", "b"): {6, 7, 8}}
+    assert review_stretches([a, b]) == [{"tracks": ["a", "b"], "first_frame": 4, "last_frame": 9,
+                                         "close_frames": [6, 7, 8]}]
+
+
+def test_overlap_of_people_of_very_different_size_or_rows_is_not_close():
+    """A person twice as tall (twice as near) passing in front of another is not taken for it; nor is one
+    whose keypoint rows do not overlap the other's (a person on a balcony above)."""
+    near = _track("near", {f: 100.0 + 50.0 * f for f in range(20)}, height=400.0)
+    far = _track("far", {f: 1100.0 - 50.0 * f for f in range(20)}, height=200.0)
+    assert close_frames([near, far]) == {}
+    above = _track("above", {f: 1100.0 - 50.0 * f for f in range(20)})
+    for fr in above.frames:
+        for det in fr.detections.values():
+            det.image_uv[:, 1] -= 500.0
+    assert close_frames([_track("a", {f: 100.0 + 50.0 * f for f in range(20)}), above]) == {}
+    # the same two in different cameras are never compared in the image
+    other_camera = _track("b", {f: 1100.0 - 50.0 * f for f in range(20)}, camera="camX")
+    assert close_frames([_track("a", {f: 100.0 + 50.0 * f for f in range(20)}), other_camera]) == {}
+
+
+def test_people_walking_side_by_side_on_the_ground_are_close_however_they_look():
+    """Centres 0.5 m apart on the ground are close at every frame where both have one (two stretches around
+    a gap), even where the images keep them apart; 1.5 m apart they are not."""
+    frames = range(12)
+    a = _track("a", {f: 100.0 for f in frames}, centres={f: (10.0 + 0.1 * f, 0.0, 0.0) for f in frames})
+    b = _track("b", {f: 2000.0 for f in frames},
+               centres={f: (10.0 + 0.1 * f, 0.5, 0.0) for f in frames if not 4 <= f <= 7})
+    stretches = review_stretches([a, b])
+    assert [(s["first_frame"], s["last_frame"]) for s in stretches] == [(0, 4), (7, 11)]
+    apart = _track("b", {f: 2000.0 for f in frames}, centres={f: (10.0 + 0.1 * f, 1.5, 0.0) for f in frames})
+    assert review_stretches([a, apart]) == []
