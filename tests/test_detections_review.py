@@ -80,3 +80,46 @@ def test_people_walking_side_by_side_on_the_ground_are_close_however_they_look()
     assert [(s["first_frame"], s["last_frame"]) for s in stretches] == [(0, 4), (7, 11)]
     apart = _track("b", {f: 2000.0 for f in frames}, centres={f: (10.0 + 0.1 * f, 1.5, 0.0) for f in frames})
     assert review_stretches([a, apart]) == []
+
+
+def test_the_review_reaches_the_fit_record_and_the_results_table(tmp_path, caplog):
+    """A dataset with the import's ``import_summary.json``: the reader gives each track the stretches naming
+    it (both ways), the fit's record lists those overlapping its frames, the results table prints them; a
+    malformed summary warns, naming the file and field, and the labels are read all the same."""
+    import json
+    import logging
+
+    from pedx_graph.data.reader import read_dataset
+    from pedx_graph.eval.results_summary import results_tables
+    from pedx_graph.graph.config import FitConfig
+    from pedx_graph.solvers.fit import fit_task
+    from scene_fixtures import small_scene
+
+    root = small_scene(tmp_path / "scene", pedestrians=2, frames=3, seed=1)
+    tracks = read_dataset(root)
+    assert all(t.identity_review == [] for t in tracks)                     # hand labels: none
+    seq = tracks[0].sequence
+    a, b = sorted(t.tracking_id for t in tracks)[:2]
+    first = min(fr.frame for t in tracks for fr in t.frames)
+    stretches = [{"tracks": [a, b], "first_frame": first, "last_frame": first + 1, "close_frames": [first]},
+                 {"tracks": [a, b], "first_frame": first + 100, "last_frame": first + 101, "close_frames": []}]
+    summary = {"sequences": {seq: {"identity_review": {"stretches": stretches}}}}
+    (root / "import_summary.json").write_text(json.dumps(summary))
+    by_id = {t.tracking_id: t for t in read_dataset(root)}
+    assert by_id[b].identity_review == [{"other": a, "first_frame": first, "last_frame": first + 1},
+                                        {"other": a, "first_frame": first + 100, "last_frame": first + 101}]
+    config = FitConfig()
+    config.covariances = config.diagnostics = False
+    record = fit_task(by_id[a], (config, "lm")).records[0]
+    assert record["identity_review"] == [{"other": b, "first_frame": first, "last_frame": first + 1}]
+    table = results_tables({"residuals": {}, "per_distance": {}, "tracks": [
+        {"sequence": seq, "tracking_id": a, "frames": 3, "final_error": 1.0, "iterations": 2, "mesh_closed": True,
+         "inside_out_frames": 0, "inconsistent_frames": 0, "depth_sources": {}, "max_distance_m": 10.0,
+         "max_abs_beta": 0.5, "identity_review": record["identity_review"]}]})["tracks"]
+    assert f"| {first}-{first + 1} ({b}) |" in table
+    summary["sequences"][seq]["identity_review"]["stretches"] = [{"tracks": [a], "first_frame": 0}]
+    (root / "import_summary.json").write_text(json.dumps(summary))
+    with caplog.at_level(logging.WARNING):
+        again = read_dataset(root)
+    assert len(again) == len(tracks) and all(t.identity_review == [] for t in again)
+    assert "import_summary.json: field sequences." in caplog.text and "identity_review.stretches" in caplog.text

@@ -108,7 +108,8 @@ def baseline_task(track: Track, params: tuple):
     name, config = params
     limit_blas_threads()
     state = _worker_state(name, config)
-    return result_output([run_baseline(name, track, state["model"], config, state["mixture"], state["template"])])
+    return result_output([run_baseline(name, track, state["model"], config, state["mixture"], state["template"])],
+                         track=track)
 
 
 def baseline_warm_up(params: tuple) -> None:

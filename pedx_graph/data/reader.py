@@ -366,11 +366,13 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
         all_frames = {frame for entries in index.values() for frame, _, _ in entries}
         times = frame_times(all_frames, table, config.fps, where=sequence)
         ground = sequence_ground(root, sequence, calibrations, config.ground)
+        review = identity_review(root, sequence)
         order = sorted(index, key=lambda tid: (min(f for f, _, _ in index[tid]), tid))
         for tid in order:
             track = _assemble_track(root, sequence, tid, index[tid], calibrations, sides, times, config, ground,
                                     skipped)
             if track is not None:
+                track.identity_review = review.get(tid, [])
                 n_tracks += 1
                 yield track
     if n_tracks == 0:
@@ -384,6 +386,35 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
                               f"no track could be read (sequences {chosen or available or 'none'}, "
                               f"{n_files} label files of calibrated cameras, categories {list(config.categories)})"
                               + why)
+
+
+def identity_review(root: str | os.PathLike, sequence: str) -> dict[str, list[dict]]:
+    """Track id -> the stretches ``pedx-graph import`` listed for it in ``<root>/import_summary.json``
+    (``sequences.<seq>.identity_review.stretches``, :mod:`pedx_graph.detections.review`), each as
+    ``{"other", "first_frame", "last_frame"}``; empty without the file (hand labels).  A malformed file or
+    entry logs a warning naming the file and field and gives no review (the labels are read all the same)."""
+    path = Path(root) / "import_summary.json"
+    if not path.is_file():
+        return {}
+    from pedx_graph.data.jsonfile import read_json_file
+
+    field_name = f"sequences.{sequence}.identity_review.stretches"
+    try:
+        record = read_json_file(path).get("sequences", {}).get(sequence)
+        stretches = [] if record is None else record.get("identity_review", {}).get("stretches", [])
+        out: dict[str, list[dict]] = defaultdict(list)
+        for stretch in stretches:
+            a, b = (str(t) for t in stretch["tracks"])
+            first, last = int(stretch["first_frame"]), int(stretch["last_frame"])
+            for tid, other in ((a, b), (b, a)):
+                out[tid].append({"other": other, "first_frame": first, "last_frame": last})
+    except DataFormatError as exc:
+        logger.warning("%s; no identity review read", exc)
+        return {}
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        logger.warning("%s: field %s: malformed (%s); no identity review read", path, field_name, exc)
+        return {}
+    return dict(out)
 
 
 def _evenly(items: list, count: int) -> list:

@@ -250,6 +250,10 @@ class Track:
     ground: GroundFrame | None = None
     """The sequence's up axis, ground plane and viewpoint (the reader derives it per sequence from the
     calibration and point clouds); None here = derived from ``calibrations`` alone on construction."""
+    identity_review: list[dict] = field(default_factory=list)
+    """Stretches of frames where ``pedx-graph import`` found this track close to another, so that who is who
+    is worth a check there: ``{"other": track id, "first_frame", "last_frame"}`` (from the dataset's
+    ``import_summary.json``, :mod:`pedx_graph.detections.review`); empty for hand labels."""
 
     def __post_init__(self) -> None:
         if self.ground is None and self.calibrations:

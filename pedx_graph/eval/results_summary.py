@@ -4,7 +4,8 @@
 the chi-square per row summed over tracks; the median keypoint and translation standard deviation (from the
 marginal covariances ``cov_keypoints_3d`` / ``cov_trans``: ``sqrt(trace / 3)``, mm) per distance bin (distance
 of ``trans`` from the sensor in the level frame of the sequence's derived ground; bins without frames left
-out); per track the final error, iterations, mesh checks, depth sources, consistency and plausibility.
+out); per track the final error, iterations, mesh checks, depth sources, consistency, plausibility and the
+stretches the import listed to check who is who (``identity_review``, detector input only).
 :func:`results_tables` renders it as markdown.
 """
 from __future__ import annotations
@@ -83,7 +84,8 @@ def summarise_results(results: str | os.PathLike) -> dict:
                        "inconsistent_frames": diag.get("inconsistent_frames"),
                        "depth_sources": t.get("depth_sources"), "monocular": t.get("monocular"),
                        "max_distance_m": plaus.get("max_distance_m"), "max_abs_beta": plaus.get("max_abs_beta"),
-                       "outlier_fraction": plaus.get("outlier_fraction")})
+                       "outlier_fraction": plaus.get("outlier_fraction"),
+                       "identity_review": t.get("identity_review") or []})
     for acc in residuals.values():
         acc["chi2_per_row"] = acc["chi2"] / acc["rows"] if acc["rows"] else None
     return {"path": str(results), "name": results.name, "tracks": tracks, "frames": frames,
@@ -105,12 +107,15 @@ def results_tables(stats: dict) -> dict[str, str]:
     for key, b in stats["per_distance"].items():
         unc.append(f"| {key} m | {b['frames']} | {_f(b['keypoint_sd_median_mm'])} | {_f(b['trans_sd_median_mm'])} |")
     trk = ["| track | frames | final error | iterations | mesh closed | inside-out frames | inconsistent frames | "
-           "depth sources | max distance (m) | max abs beta |", "|---|---:|---:|---:|:---:|---:|---:|---|---:|---:|"]
+           "depth sources | max distance (m) | max abs beta | check who is who (frames, other track) |",
+           "|---|---:|---:|---:|:---:|---:|---:|---|---:|---:|---|"]
     for t in stats["tracks"]:
         depth = ", ".join(f"{k} {v}" for k, v in (t["depth_sources"] or {}).items()) or "-"
         trk.append(f"| {t['sequence']} {str(t['tracking_id'])[:8]} | {t['frames']} | {_f(t['final_error'])} | "
                    f"{t['iterations'] if t['iterations'] is not None else '-'} | "
                    f"{'yes' if t['mesh_closed'] else 'no'} | {t['inside_out_frames'] if t['inside_out_frames'] is not None else '-'} | "
                    f"{t['inconsistent_frames'] if t['inconsistent_frames'] is not None else '-'} | {depth} | "
-                   f"{_f(t['max_distance_m'])} | {_f(t['max_abs_beta'], 2)} |")
+                   f"{_f(t['max_distance_m'])} | {_f(t['max_abs_beta'], 2)} | "
+                   + ("; ".join(f"{r['first_frame']}-{r['last_frame']} ({r['other']})" for r in t["identity_review"])
+                      or "-") + " |")
     return {"residuals": "\n".join(res) + "\n", "uncertainty": "\n".join(unc) + "\n", "tracks": "\n".join(trk) + "\n"}

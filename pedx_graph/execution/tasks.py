@@ -182,18 +182,26 @@ def result_record(result) -> dict:
 
 
 def result_output(results: list, prefix: str = "", extra_files: list | None = None,
-                  extra_timings: dict | None = None) -> TrackOutput:
+                  extra_timings: dict | None = None, track=None) -> TrackOutput:
     """The :class:`TrackOutput` of one or more ``TrackResult`` pieces of a track: their labels as files,
-    their records (JSON-ready, without timings) and their timings (``pieces``: one dict per piece)."""
+    their records (JSON-ready, without timings) and their timings (``pieces``: one dict per piece).  With the
+    ``track``, a record also lists the track's ``identity_review`` stretches that overlap its frames (where
+    the import found the track close to another: check who is who there)."""
     from pedx_graph.utils import to_jsonable
 
     files = list(extra_files or [])
     records, pieces = [], []
     frames = 0
+    review = list(getattr(track, "identity_review", None) or [])
     for result in results:
         files += label_files(result.to_labels(), prefix)
         frames += len(result.frames)
         kept, times = split_timings(to_jsonable(result_record(result)))
+        if review and result.frames:
+            lo, hi = min(result.frames), max(result.frames)
+            overlapping = [s for s in review if s["first_frame"] <= hi and s["last_frame"] >= lo]
+            if overlapping:
+                kept["identity_review"] = overlapping
         records.append(kept)
         pieces.append(times)
     timings = {"pieces": pieces} if len(pieces) != 1 else dict(pieces[0])

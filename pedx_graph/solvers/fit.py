@@ -82,7 +82,7 @@ def fit_task(track: Track, params: tuple):
     """The task of one track in ``fit_dataset`` (run in a worker): ``params = (config, solver)`` ->
     :class:`~pedx_graph.execution.tasks.TrackOutput` (its labels as bytes, its summary record, timings)."""
     config, solver = params
-    return result_output([_fit_result(track, config, solver)])
+    return result_output([_fit_result(track, config, solver)], track=track)
 
 
 def fit_warm_up(params: tuple) -> None:

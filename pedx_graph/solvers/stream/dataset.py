@@ -81,7 +81,7 @@ def stream_task(track: Track, params: tuple):
     causal_files = label_files([causal_label(track.sequence, e) for e in causal], prefix="causal")
     output = result_output(results, extra_files=causal_files, extra_timings={
         "update_ms": [e.update_seconds * 1e3 for e in causal], "cpu_ms": [e.cpu_seconds * 1e3 for e in causal],
-        "isam_ms": [e.isam_seconds * 1e3 for e in causal]})
+        "isam_ms": [e.isam_seconds * 1e3 for e in causal]}, track=track)
     if failed:
         output.records[0]["failed_updates"] = failed
     return output
