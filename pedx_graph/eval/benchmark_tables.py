@@ -206,7 +206,8 @@ def _views_table(runs: list[dict]) -> list[str]:
     lines = ["", f"Limb joints (knees, ankles, shoulders, elbows, wrists) at 5-25 m by how many images' keypoints "
              f"held them (seeds {seeds} pooled): share of the joint-frames, mean global error (mm) and that "
              "bin's part of the summed error.  None: placed by the priors; one: depth from the rest of the body.",
-             "", "| input | " + " | ".join(f"{b} image" + ("" if b == "1" else "s") for b in bins) + " |", "|---|" + "---:|" * len(bins)]
+             "", "| input | " + " | ".join(f"{b} image" + ("" if b == "1" else "s") for b in bins) + " |",
+             "|---|" + "---:|" * len(bins)]
     for source, by_bin in pooled.items():
         count = sum(v[0] for v in by_bin.values())
         error = sum(v[1] for v in by_bin.values())

@@ -111,7 +111,8 @@ def results_tables(stats: dict) -> dict[str, str]:
            "|---|---:|---:|---:|:---:|---:|---:|---|---:|---:|---|"]
     for t in stats["tracks"]:
         depth = ", ".join(f"{k} {v}" for k, v in (t["depth_sources"] or {}).items()) or "-"
-        trk.append(f"| {t['sequence']} {str(t['tracking_id'])[:8]} | {t['frames']} | {_f(t['final_error'])} | "
+        tid = str(t["tracking_id"])                     # a release's 32-hex id shortened, an import's kept
+        trk.append(f"| {t['sequence']} {tid if len(tid) <= 12 else tid[:8]} | {t['frames']} | {_f(t['final_error'])} | "
                    f"{t['iterations'] if t['iterations'] is not None else '-'} | "
                    f"{'yes' if t['mesh_closed'] else 'no'} | {t['inside_out_frames'] if t['inside_out_frames'] is not None else '-'} | "
                    f"{t['inconsistent_frames'] if t['inconsistent_frames'] is not None else '-'} | {depth} | "
