@@ -117,6 +117,12 @@ def test_the_review_reaches_the_fit_record_and_the_results_table(tmp_path, caplo
          "inside_out_frames": 0, "inconsistent_frames": 0, "depth_sources": {}, "max_distance_m": 10.0,
          "max_abs_beta": 0.5, "identity_review": record["identity_review"]}]})["tracks"]
     assert f"| {first}-{first + 1} ({b}) |" in table
+    row = {"sequence": seq, "frames": 3, "final_error": 1.0, "iterations": 2, "mesh_closed": True,
+           "inside_out_frames": 0, "inconsistent_frames": 0, "depth_sources": {}, "max_distance_m": 10.0,
+           "max_abs_beta": 0.5, "identity_review": []}
+    ids = results_tables({"residuals": {}, "per_distance": {}, "tracks": [
+        dict(row, tracking_id="det000003"), dict(row, tracking_id="0123456789abcdef" * 2)]})["tracks"]
+    assert f"| {seq} det000003 |" in ids and f"| {seq} 01234567 |" in ids     # an import's id whole, a hash cut
     summary["sequences"][seq]["identity_review"]["stretches"] = [{"tracks": [a], "first_frame": 0}]
     (root / "import_summary.json").write_text(json.dumps(summary))
     with caplog.at_level(logging.WARNING):
