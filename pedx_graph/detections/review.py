@@ -9,17 +9,16 @@ Two tracks are *close* at a frame when
 
 * **in an image** both have a detection in, at that frame or up to ``frame_step`` frames apart (a track that
   took another's detection where its own person was missed sits where the other was a frame before): their
-  keypoints' median columns differ by at most
-  ``column_frac`` times the taller one's keypoint height, their keypoint rows overlap and their heights
-  differ by at most ``max_height_ratio`` (one stands in front of the other at a similar distance: the
-  tracker's and the swap repair's confusion), or
+  keypoints' median columns differ by at most ``column_frac`` times the taller one's keypoint height, their
+  keypoint rows overlap and their heights differ by at most ``max_height_ratio`` (one stands in front of the
+  other at a similar distance: the tracker's and the swap repair's confusion), or
 * **on the ground**: both have a 3D centre and the two lie within ``ground_m`` of each other in the ground
   plane (the merging of pairs' tracks and the LiDAR cut can confuse them there).
 
 Each close frame is widened by ``pad_frames`` on both sides, and on across a gap of either track to the
 frame where it is seen again (a track can take the other's person across frames where its own was missed);
-the frames of each pair of tracks are joined into stretches.  Pixels are the raw images' (an
-overlap test: the lens distortion does not matter at this tolerance), metres the world (LiDAR) frame's.
+the frames of each pair of tracks are joined into stretches.  Pixels are the raw images' (an overlap test:
+the lens distortion does not matter at this tolerance), metres the world (LiDAR) frame's.
 """
 from __future__ import annotations
 
@@ -126,14 +125,14 @@ def review_stretches(tracks: list, ground: GroundFrame | None = None,
                 lo = min(lo, max((g for g in own if g <= f - config.pad_frames), default=lo))
                 hi = max(hi, min((g for g in own if g >= f + config.pad_frames), default=hi))
             flagged.update(range(max(lo, first), min(hi, last) + 1))
-        flagged = sorted(flagged)
-        start = previous = flagged[0]
-        for frame in flagged[1:] + [None]:
-            if frame is None or frame != previous + 1:
-                out.append({"tracks": [a, b], "first_frame": int(start), "last_frame": int(previous),
-                            "close_frames": sorted(int(f) for f in frames if start <= f <= previous)})
-                start = frame
-            previous = frame if frame is not None else previous
+        runs: list[list[int]] = []                  # consecutive flagged frames: [first, last]
+        for frame in sorted(flagged):
+            if runs and frame == runs[-1][1] + 1:
+                runs[-1][1] = frame
+            else:
+                runs.append([frame, frame])
+        out += [{"tracks": [a, b], "first_frame": int(start), "last_frame": int(end),
+                 "close_frames": sorted(int(f) for f in frames if start <= f <= end)} for start, end in runs]
     return out
 
 
