@@ -47,7 +47,7 @@ from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
-from pedx_graph.detections.review import flagged_frames, review_stretches  # noqa: E402
+from pedx_graph.detections.review import review_summary  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
@@ -107,12 +107,11 @@ def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
     """The import's identity review (:func:`pedx_graph.detections.review.review_stretches`, default config)
     against the truth: its stretches, the track frames they flag of all, and the identity switches
     (``(track, frame, from, to)`` of :func:`score_tracks`) whose frame lies in a stretch naming their track."""
-    stretches = review_stretches(tracks, ground)
-    flagged = flagged_frames(tracks, stretches)
-    inside = sum(1 for tid, frame, _, _ in switches
-                 if any(tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in stretches))
-    return {"review_stretches": len(stretches), "review_flagged_frames": sum(len(v) for v in flagged.values()),
-            "track_frames": sum(len(t.frames) for t in tracks), "switches_in_review": inside}
+    review = review_summary(tracks, ground)
+    inside = sum(1 for tid, frame, _, _ in switches if any(
+        tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in review["stretches"]))
+    return {"review_stretches": len(review["stretches"]), "review_flagged_frames": review["flagged_track_frames"],
+            "track_frames": review["track_frames"], "switches_in_review": inside}
 
 
 def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:

@@ -36,7 +36,7 @@ from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
-from pedx_graph.detections.review import ReviewConfig, flagged_frames, review_stretches
+from pedx_graph.detections.review import ReviewConfig, review_summary
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.utils import atomic_write_json
@@ -234,10 +234,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                                     config.association.tracker.frame_interval_s)
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
-    stretches = review_stretches(tracks, ground, config.review)
-    flagged = flagged_frames(tracks, stretches)
-    review = {"flagged_track_frames": sum(len(v) for v in flagged.values()),
-              "track_frames": sum(len(t.frames) for t in tracks), "stretches": stretches}
+    review = review_summary(tracks, ground, config.review)
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}

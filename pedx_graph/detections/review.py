@@ -144,3 +144,11 @@ def flagged_frames(tracks: list, stretches: list[dict]) -> dict[str, set[int]]:
         for tid in stretch["tracks"]:
             out[tid] |= {f for f in own.get(tid, ()) if stretch["first_frame"] <= f <= stretch["last_frame"]}
     return out
+
+
+def review_summary(tracks: list, ground: GroundFrame | None = None, config: ReviewConfig | None = None) -> dict:
+    """What the import records (``import_summary.json``, ``sequences.<seq>.identity_review``): the
+    :func:`review_stretches` and how many of the tracks' frames they flag of all."""
+    stretches = review_stretches(tracks, ground, config)
+    return {"flagged_track_frames": sum(len(v) for v in flagged_frames(tracks, stretches).values()),
+            "track_frames": sum(len(t.frames) for t in tracks), "stretches": stretches}
