@@ -37,6 +37,13 @@ frames once, where the switches count it twice), fragmentations (a person split 
 Scenes: ``crossing`` (default rig, everyone on the crosswalks, no groups, labelled at 5-25 m: people cross in
 front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair turned 20 degrees and placed
 0.93 m beside the first as on the real rig, the simulator's walkway mix with groups, labelled at 5-45 m).
+With ``--rig pedx`` both scenes are on the simulator's ``pedx`` preset instead
+(:func:`pedx_graph.sim.config.pedx_rig_config`: the real PedX cameras and distortion-free rectified pairs, the
+z-down LiDAR frame with its tilted ground, and the real labels' quirks in the manual labels: every keypoint
+flagged visible, integer clicks with the measured per-keypoint noise, polygon-only files, a fifth of the
+tracks labelled in one camera): ``crossing`` as above, ``mixed`` the preset's own scene (walkway mix with
+groups, half of them where both pairs see them, labelled at 5-50 m).  Nothing in the import or the fit is
+told the frame: the up axis and the ground come from the data as for any rig.
 
     python benchmarks/bench_detections.py [--seed 0] [--pedestrians 10] [--frames 20] [--workers 2]
                                           [--out benchmarks/results] [--detector-noise-scale 1]
@@ -44,7 +51,7 @@ front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair tu
                                           [--detector-split-prob 0] [--no-join-split-parts]
                                           [--detector-flip-prob 0] [--unflip]
                                           [--detector-swap-prob P] [--detector-swap-keeps-confidence]
-                                          [--no-mirror-screen]
+                                          [--no-mirror-screen] [--rig default|pedx]
 
 ``--detector-noise-scale F`` makes the simulated detector F times as noisy as the one the shipped
 confidence -> noise curves were measured on (a real detector is not ours); ``--no-stereo-noise-check``
@@ -100,7 +107,7 @@ from pedx_graph.detections.tracker import box_iou, keypoint_box  # noqa: E402
 from pedx_graph.eval.metrics import DISTANCE_BINS, distance_bin, eval_joints, joint_errors  # noqa: E402
 from pedx_graph.keypoints import EVAL_JOINTS, load_keypoint_set  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
-from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig  # noqa: E402
+from pedx_graph.sim.config import DETECTOR_FORMATS, SimConfig, pedx_rig_config  # noqa: E402
 from pedx_graph.sim.detections import coco_paths  # noqa: E402
 from pedx_graph.sim.simulate import read_truth_frame, simulate  # noqa: E402
 from pedx_graph.solvers.fit import _context, fit_tracks  # noqa: E402
@@ -120,13 +127,20 @@ GOAL_RANGE_M = (5.0, 25.0)
 LIMB_JOINTS = tuple(j for j in EVAL_JOINTS if j not in ("head", "neck", "hip"))
 #: Bins of :func:`joint_views`: the number of images whose keypoints held a limb joint at a frame.
 VIEW_BINS = ("0", "1", "2", "3+")
+#: ``--rig`` choices: the simulator's default rig, or its ``pedx`` preset (the real cameras, z-down LiDAR frame,
+#: tilted ground, real-label quirks).
+RIGS = ("default", "pedx")
+#: How the markdown names each rig.
+RIG_NAMES = {"default": "simulator's default rig",
+             "pedx": "real PedX rig (z-down LiDAR frame, real-label quirks in the manual labels)"}
 
 
 def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1.0,
                   detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
                   detector_flip_prob: float = 0.0, swap_keeps_confidence: bool = False,
-                  detector_swap_prob: float | None = None) -> dict[str, SimConfig]:
-    """The two scenes (module docstring), detector output on; the simulated detector's keypoint noise
+                  detector_swap_prob: float | None = None, rig: str = "default") -> dict[str, SimConfig]:
+    """The two scenes (module docstring) on ``rig`` (``default`` or ``pedx``), detector output on; the simulated
+    detector's keypoint noise
     (``sigma_px`` and ``sigma_height_frac``) times ``detector_noise_scale``, ``detector_shared_noise`` of its
     variance the same in every camera (``DetectorOutputConfig.stereo_shared_noise``), OpenPose skeletons split
     in two with probability ``detector_split_prob`` (``DetectorOutputConfig.split_prob``), people's left and
@@ -134,18 +148,23 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
     exchanged keypoints scored as confidently as well-placed ones with ``swap_keeps_confidence``
     (``DetectorOutputConfig.swap_keeps_confidence``), each pair exchanged with probability
     ``detector_swap_prob`` (``keypoint_noise.swap_prob``; None: the simulator's default)."""
+    if rig not in RIGS:
+        raise ValueError(f"rig must be one of {RIGS}, got {rig!r}")
     out = {}
-    crossing = SimConfig()
+    crossing = SimConfig() if rig == "default" else pedx_rig_config()
     crossing.scene.crosswalk_prob = 1.0
     crossing.scene.group_prob = 0.0
     crossing.labels.max_distance_m = GOAL_RANGE_M[1]
     out["crossing"] = crossing
-    mixed = SimConfig()
-    fwd, side = mixed.cameras.forward, mixed.cameras.left
-    fwd.focal_px, fwd.baseline_m = 3266.7, 0.329
-    side.focal_px, side.baseline_m = 3332.5, 0.274
-    side.yaw_deg = 20.0
-    side.left_camera_xyz = (0.0, -0.9, -0.08)
+    if rig == "default":
+        mixed = SimConfig()
+        fwd, side = mixed.cameras.forward, mixed.cameras.left
+        fwd.focal_px, fwd.baseline_m = 3266.7, 0.329
+        side.focal_px, side.baseline_m = 3332.5, 0.274
+        side.yaw_deg = 20.0
+        side.left_camera_xyz = (0.0, -0.9, -0.08)
+    else:                                    # the preset's own scene: walkway mix with groups, labelled 5-50 m
+        mixed = pedx_rig_config()
     out["mixed"] = mixed
     for cfg in out.values():
         cfg.scene.n_pedestrians = pedestrians
@@ -429,7 +448,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
         stereo_noise_check: bool = True, detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
         join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = False,
         swap_keeps_confidence: bool = False, mirror_screen: bool = True,
-        detector_swap_prob: float | None = None) -> dict:
+        detector_swap_prob: float | None = None, rig: str = "default") -> dict:
     fit_config = FitConfig()
     if not mirror_screen:
         fit_config.noise.detector_left_right_swap_prob = 0.0
@@ -441,7 +460,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
     import_config.association.join_split_parts = join_split_parts
     import_config.flips.enabled = unflip
     configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob,
-                            detector_flip_prob, swap_keeps_confidence, detector_swap_prob)
+                            detector_flip_prob, swap_keeps_confidence, detector_swap_prob, rig)
     for s, (name, cfg) in enumerate(configs.items()):
         scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx, import_config)
     accuracy = {}
@@ -468,8 +487,8 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
 def markdown(result: dict, command: str) -> str:
     key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
     lines = ["# bench_detections: manual labels vs detector keypoints", "", f"Command: `{command}`", "",
-             f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene, "
-             f"{result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g} "
+             f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene "
+             f"on the {RIG_NAMES[result.get('rig', 'default')]}, {result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g} "
              f"({result.get('detector_shared_noise', 0.0):g} of its variance shared by the cameras), "
              f"OpenPose skeletons split in two with probability {result.get('detector_split_prob', 0.0):g} "
              f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), left and right "
@@ -595,6 +614,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--detector-swap-prob", type=float, default=None,
                         help="probability that the simulated detector exchanges one left/right pair of one "
                              "person in one image (keypoint_noise.swap_prob; default: the simulator's)")
+    parser.add_argument("--rig", choices=RIGS, default="default",
+                        help="the simulated rig: the default one, or the real PedX rig (z-down LiDAR frame, "
+                             "real-label quirks in the manual labels)")
     parser.add_argument("--no-mirror-screen", action="store_true",
                         help="fit without the left/right label screen (noise.detector_left_right_swap_prob 0)")
     args = parser.parse_args(argv)
@@ -604,8 +626,9 @@ def main(argv: list[str] | None = None) -> int:
                      not args.no_stereo_noise_check, args.detector_shared_noise, args.detector_split_prob,
                      not args.no_join_split_parts, args.detector_flip_prob, args.unflip,
                      swap_keeps_confidence=args.detector_swap_keeps_confidence,
-                     mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob)
-    result.update(seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
+                     mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
+                     rig=args.rig)
+    result.update(rig=args.rig, seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
                   detector_shared_noise=args.detector_shared_noise, detector_split_prob=args.detector_split_prob,
                   join_split_parts=not args.no_join_split_parts, detector_flip_prob=args.detector_flip_prob,

@@ -36,6 +36,22 @@ def test_detections_table_matches_the_json():
     assert block.count("| openpose_body25 |") >= 3 and "nan" not in block.lower()
 
 
+def test_pedx_rig_detections_table_matches_the_json():
+    """docs/detections.md's table of the same benchmark on the real PedX rig (``--rig pedx``) is what the JSON
+    committed under benchmarks/results/detections_pedx_rig renders, each command named with its folder."""
+    from pedx_graph.eval.benchmark_tables import (DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END,
+                                                  DETECTIONS_PEDX_FOLDER, detection_runs, detections_block)
+
+    text = (ROOT / "docs" / "detections.md").read_text()
+    block = text[text.index(DETECTIONS_PEDX_BEGIN):text.index(DETECTIONS_PEDX_END) + len(DETECTIONS_PEDX_END)] + "\n"
+    assert block == detections_block(ROOT / DETECTIONS_PEDX_FOLDER, DETECTIONS_PEDX_FOLDER, DETECTIONS_PEDX_BEGIN,
+                                     DETECTIONS_PEDX_END)
+    runs = detection_runs(ROOT / DETECTIONS_PEDX_FOLDER)
+    assert runs and all(run["rig"] == "pedx" and "--rig pedx" in run["command"] for run in runs)
+    assert f"(written to `{DETECTIONS_PEDX_FOLDER}`)" in block and "nan" not in block.lower()
+    assert all(run.get("rig", "default") == "default" for run in detection_runs(ROOT / "benchmarks" / "results"))
+
+
 def test_joint_table_pools_the_seeds_by_frames():
     """The per-joint table and the pooled ratio weight each seed's means by its frames; the table lists every
     input that reports per-joint errors; runs without them add no table."""

@@ -10,7 +10,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pedx_graph.eval.benchmark_tables import (DETECTIONS_BEGIN, DETECTIONS_END, benchmark_block,  # noqa: E402
+from pedx_graph.eval.benchmark_tables import (DETECTIONS_BEGIN, DETECTIONS_END, DETECTIONS_PEDX_BEGIN,  # noqa: E402
+                                              DETECTIONS_PEDX_END, DETECTIONS_PEDX_FOLDER, benchmark_block,
                                               detections_block, replace_block)
 from pedx_graph.utils import atomic_write_text  # noqa: E402
 
@@ -23,7 +24,13 @@ def main() -> int:
     text = path.read_text()
     if DETECTIONS_BEGIN not in text:
         raise SystemExit(f"{path}: no {DETECTIONS_BEGIN} marker")
-    atomic_write_text(path, replace_block(text, detections_block(results), DETECTIONS_BEGIN, DETECTIONS_END))
+    text = replace_block(text, detections_block(results), DETECTIONS_BEGIN, DETECTIONS_END)
+    if DETECTIONS_PEDX_BEGIN not in text:
+        raise SystemExit(f"{path}: no {DETECTIONS_PEDX_BEGIN} marker")
+    text = replace_block(text, detections_block(ROOT / DETECTIONS_PEDX_FOLDER, DETECTIONS_PEDX_FOLDER,
+                                                DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END),
+                         DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END)
+    atomic_write_text(path, text)
     return 0
 
 

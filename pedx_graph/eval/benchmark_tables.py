@@ -18,6 +18,10 @@ from pathlib import Path
 
 BEGIN, END = "<!-- benchmarks -->", "<!-- /benchmarks -->"
 DETECTIONS_BEGIN, DETECTIONS_END = "<!-- detections -->", "<!-- /detections -->"
+#: Markers of docs/detections.md's block of the same benchmark on the real PedX rig (``--rig pedx``).
+DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END = "<!-- detections_pedx_rig -->", "<!-- /detections_pedx_rig -->"
+#: Where ``bench_detections.py --rig pedx`` runs are committed (seed 0 there, other seeds in ``seed*/``).
+DETECTIONS_PEDX_FOLDER = "benchmarks/results/detections_pedx_rig"
 
 
 def _f(value, digits: int = 1) -> str:
@@ -98,12 +102,14 @@ def detection_runs(results_dir: str | os.PathLike) -> list[dict]:
     return sorted(runs, key=lambda r: r["seed"])
 
 
-def detections_section(runs: list[dict]) -> str:
+def detections_section(runs: list[dict], folder: str = "benchmarks/results") -> str:
     """Markdown: per seed and detector format, the issue's goals (MPJPE at 5-25 m against the manual labels,
     identity switches among crossing people, false tracks) with root-relative error, the frames fitted more
     than the match radius from the person whose detections they hold (misplaced: not in the MPJPE; absent
     from older runs), people recovered, the keypoint NEES and the 95 % ellipsoids' coverage (manual / detector:
-    the mean NEES follows its tail — a few frames far off with a confident covariance —, the coverage its bulk)."""
+    the mean NEES follows its tail — a few frames far off with a confident covariance —, the coverage its bulk).
+    ``folder``: where the runs are committed (seed 0 in it, seed N in its ``seedN/``), named beside each command
+    that did not write to the script's default ``benchmarks/results``."""
     lines = ["| seed | input | manual MPJPE 5-25 m, global / root-rel. (mm) | detector MPJPE 5-25 m (mm) | "
              "ratio (goal <= 1.5) | id switches, crossing people (goal 0) | false tracks (goal 0) | "
              "misplaced frames 5-25 m / scored | recovered / labelled people | keypoint NEES / dof | "
@@ -127,9 +133,8 @@ def detections_section(runs: list[dict]) -> str:
     within = sum(g["within_1.5x"] for run in runs for g in run["goals"].values())
     total = sum(len(run["goals"]) for run in runs)
     lines += ["", f"Within 1.5x of the manual labels: {within} of {total} seed-format runs; all three goals met: "
-              f"{len(met)} of {total}.  Commands: " + "; ".join(f"`{run['command']}`" + (
-                  f" (written to `benchmarks/results/seed{run['seed']}`)" if run["seed"] else "")
-                  for run in runs) + "."]
+              f"{len(met)} of {total}.  Commands: " + "; ".join(f"`{run['command']}`" + _written_to(folder, run["seed"])
+                                                                for run in runs) + "."]
     pooled = _pooled_ratios(runs)
     if pooled:
         lines += ["", "Over the seeds together (each seed's 5-25 m MPJPE weighted by its frames), ratio to the manual "
@@ -137,6 +142,12 @@ def detections_section(runs: list[dict]) -> str:
     lines += _joint_table(runs)
     lines += _views_table(runs)
     return "\n".join(lines)
+
+
+def _written_to(folder: str, seed: int) -> str:
+    """`` (written to `<folder>[/seedN]`)`` for a run not in the script's default output folder, else ``""``."""
+    path = folder + (f"/seed{seed}" if seed else "")
+    return "" if path == "benchmarks/results" else f" (written to `{path}`)"
 
 
 def _pooled_ratios(runs: list[dict]) -> dict[str, float]:
@@ -217,9 +228,11 @@ def _views_table(runs: list[dict]) -> list[str]:
     return lines
 
 
-def detections_block(results_dir: str | os.PathLike) -> str:
-    """The generated bench_detections block of docs/detections.md (markers included)."""
-    return "\n".join([DETECTIONS_BEGIN, detections_section(detection_runs(results_dir)), DETECTIONS_END]) + "\n"
+def detections_block(results_dir: str | os.PathLike, folder: str = "benchmarks/results",
+                     begin: str = DETECTIONS_BEGIN, end: str = DETECTIONS_END) -> str:
+    """The generated bench_detections block of docs/detections.md (markers included): the runs in
+    ``results_dir``, committed as ``folder`` (the project-relative path the text names)."""
+    return "\n".join([begin, detections_section(detection_runs(results_dir), folder), end]) + "\n"
 
 
 def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
