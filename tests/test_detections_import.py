@@ -59,6 +59,20 @@ def write_openpose_truth(root, raw_calibs, files, noise_px=None) -> dict:
     return expected
 
 
+def nearest_person_error(result, truth: dict, model) -> float:
+    """Mean keypoint error (m) of a fitted track against the true pedestrian it lies on: the smallest over the
+    people (``read_smpl_labels``) labelled on at least half of its frames."""
+    errors = []
+    for labels in truth.values():
+        by_frame = {lab.frame: lab for lab in labels}
+        common = [i for i, f in enumerate(result.frames) if f in by_frame]
+        if len(common) >= len(result.frames) // 2:
+            errors.append(np.mean([np.linalg.norm(result.world_keypoints[i] - model.keypoints(
+                by_frame[result.frames[i]].pose, by_frame[result.frames[i]].betas,
+                by_frame[result.frames[i]].trans), axis=1).mean() for i in common]))
+    return min(errors)
+
+
 def test_import_openpose_with_file_ids(tmp_path):
     root = small_scene(tmp_path / "scene", pedestrians=2, frames=4, seed=1)
     raw_calibs = distorted_rig(root)
@@ -147,15 +161,7 @@ def test_import_simulated_detector_output_then_fit(tmp_path):
         track_errors = []
         for track in tracks[:2]:
             result = fit_track(track)
-            errors = []
-            for labels in truth.values():
-                by_frame = {lab.frame: lab for lab in labels}
-                common = [i for i, f in enumerate(result.frames) if f in by_frame]
-                if len(common) >= len(result.frames) // 2:
-                    errors.append(np.mean([np.linalg.norm(result.world_keypoints[i] - model.keypoints(
-                        by_frame[result.frames[i]].pose, by_frame[result.frames[i]].betas,
-                        by_frame[result.frames[i]].trans), axis=1).mean() for i in common]))
-            track_errors.append(min(errors))
+            track_errors.append(nearest_person_error(result, truth, model))
         # Seed 0 measured: coco17 0.11 m (one track), body25b 0.17 and 0.30 m (manual labels of the same people:
         # 0.04 and 0.08 m; the detector's noise, misses and one-image frames cost the rest).  A broken reader,
         # undistortion or keypoint definition, or a track mixing two people, is off by far more.
@@ -195,15 +201,7 @@ def test_import_and_fit_detections_on_the_real_pedx_rig(tmp_path):
         for i in range(len(result.frames)):
             kps = model.keypoints(result.pose[i], result.betas, result.trans[i])
             assert (kps[head] - kps[ankles].mean(axis=0)) @ ground.world_up > 1.2
-        errors = []
-        for labels in truth.values():
-            by_frame = {lab.frame: lab for lab in labels}
-            common = [i for i, f in enumerate(result.frames) if f in by_frame]
-            if len(common) >= len(result.frames) // 2:
-                errors.append(np.mean([np.linalg.norm(result.world_keypoints[i] - model.keypoints(
-                    by_frame[result.frames[i]].pose, by_frame[result.frames[i]].betas,
-                    by_frame[result.frames[i]].trans), axis=1).mean() for i in common]))
-        track_errors.append(min(errors))
+        track_errors.append(nearest_person_error(result, truth, model))
     # Seed 0 measured: 0.023 and 0.027 m (the two tracks of ten frames); a body placed on the wrong side of the
     # rig, mirrored, upside down or between two people is off by far more.
     assert max(track_errors) < 0.04, track_errors
