@@ -897,33 +897,6 @@ def test_tracks_swapped_where_two_people_cross_are_repaired():
     assert [id(o) for o in kept[0]] == [id(o) for o in c] and [id(o) for o in kept[1]] == [id(o) for o in d]
 
 
-def test_a_tail_carried_on_with_the_other_person_after_that_ones_track_ended_is_repaired():
-    """Two people walking the same way at ~8 m, 0.7 m apart in depth, the far one faster: it passes behind
-    the near one (same image column at frame 10).  Its track ended when it was hidden (frame 6); the near
-    one's track, after its own person was lost (frame 12), was carried on with it (frames 13-19).  Within the
-    span the two tracks share no split gives the tail back; the far one's walk, carried past its track's end
-    (its centres give it a depth line), passes the near track's column there, and moving that tail onto it
-    fits both walks: each track holds its own person again (frames 7-12 of the far one stay unseen)."""
-    from pedx_graph.detections.association import repair_swaps
-
-    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
-    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
-    rng = np.random.default_rng(0)
-    frames = range(20)
-    people = []
-    for depth_x, start_y, step_y in ((8.0, -1.0, 0.11), (8.7, -1.6, 0.17)):
-        person = _walker_observations(calib, (depth_x, start_y), (0.0, step_y), frames, rng)
-        for obs in person:                               # LiDAR-like centres, 0.1 m
-            obs.world_p = np.array([depth_x, start_y + step_y * obs.frame, GROUND_Z + 1.0])
-            obs.world_p[:2] += rng.normal(scale=0.1, size=2)
-            obs.depth_sigma_m = 0.1
-        people.append(person)
-    near, far = people
-    repaired = repair_swaps([near[:13] + far[13:], far[:7]], calib, AssociationConfig())
-    assert [[id(o) for o in track] for track in repaired] == [[id(o) for o in near[:13]],
-                                                               [id(o) for o in far[:7] + far[13:]]]
-
-
 def _walkers_in_step(calib, rng, frames):
     """Two people walking side by side in step along +y (sim frame), 1.5 m apart in depth at ~20 m, placed so
     that they stand in the same image column at frame 10: pair-track observations of each with LiDAR-like

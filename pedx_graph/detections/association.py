@@ -1532,35 +1532,6 @@ def _overlapping_frames(track_a: list[Observation], track_b: list[Observation], 
     return frozenset(out)
 
 
-def _splits_beyond(seen: dict, walks: dict, pair: tuple[int, int], heights: list[float], gate: float) -> list[int]:
-    """Split times of :func:`repair_swaps` outside the span the two tracks share: where one track (``k``) goes
-    on past the other's end (or began before its start), it may have been carried on with (or begun with)
-    the other person, who was missed in between, wherever that person's walk, carried from its own track's
-    frames, passes within half a person's height (``heights``: the two tracks' keypoint spans, px) of ``k``'s
-    column; only where the other track's walk has a depth line (three of its frames with a centre: a walk
-    of image columns alone, refitted with a tail, bends to whatever it is given).  Returns those ``tau``:
-    ``k``'s frame there for a tail (its frames from ``tau`` on go to the other track), the frame after it for
-    a head (its frames before ``tau``); at least two frames move.
-    ``seen``: track -> :func:`_image_track` in the image compared, ``walks``: track -> its
-    :func:`_track_walk` ``(misfit, rate)``."""
-    half = 0.5 * max(float(np.median(heights)), 1.0) if heights else 0.5
-    out = set()
-    for k, m in (pair, pair[::-1]):
-        frames_k, u_k = seen[k][:2]
-        frames_m, depth_m = seen[m][0], seen[m][3]
-        if np.isfinite(depth_m).sum() < 3 or not len(frames_k):
-            continue                     # m's walk has no depth line: its columns alone, carried, tell little
-        column = _walk_lines(seen[m][:7], walks[m][1], gate)[0]
-        beyond = (frames_k > frames_m.max()) | (frames_k < frames_m.min())
-        near = beyond & (np.abs(u_k - column(frames_k)) <= half)
-        for f in frames_k[near]:          # at least two frames move (one is one noisy column against a walk)
-            if f > frames_m.max() and np.sum(frames_k >= f) >= 2:
-                out.add(int(f))
-            elif f < frames_m.min() and np.sum(frames_k <= f) >= 2:
-                out.add(int(f) + 1)
-    return sorted(out)
-
-
 def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                  config: AssociationConfig) -> list[list[Observation]]:
     """Undo identity swaps between one pair's tracks where two people pass each other in the image.
@@ -1576,10 +1547,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     ``tau`` and the frame before it (across a gap where both were missed), so such a frame lies within 2
     frames of that interval; or ``tau`` is the first or the last split time (there one track's head moves
     to the other, or one track's tail: a track begun with, or carried on to, the other person; never all
-    of one track).  Past the span the two share, where one track goes on after the other ended (or began
-    before it), its tail (head) moves to the other from each frame where the other's walk, carried there,
-    passes within half a height of its column (:func:`_splits_beyond`: the other person, missed in between,
-    taken by this track when seen again).  So are stretches ``[t1, t2)`` exchanged, both ends within 2 frames of a frame where
+    of one track).  So are stretches ``[t1, t2)`` exchanged, both ends within 2 frames of a frame where
     the two are that near (people walking together
     or meeting twice: the tracker carried each on with the other and back again where they met next): those
     around the runs of frames whose observations fit the other track's walk better than their own
@@ -1637,7 +1605,6 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         previous = dict(zip(taus[1:], taus[:-1]))
         splits = [t for t in taus if t in (lo, hi + 1)
                   or np.any((near_frames >= previous.get(t, t) - 2) & (near_frames <= t + 2))]
-        splits += [t for t in _splits_beyond(seen, walks, (a, b), heights, gate) if t not in splits]
         for tau in splits:
             new_a = [o for o in tracks[a] if o.frame < tau] + [o for o in tracks[b] if o.frame >= tau]
             new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
