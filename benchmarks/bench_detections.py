@@ -38,8 +38,8 @@ Scenes: ``crossing`` (default rig, everyone on the crosswalks, no groups, labell
 front of the forward pair at ~6.5 and ~21.5 m) and ``mixed`` (the second pair turned 20 degrees and placed
 0.93 m beside the first as on the real rig, the simulator's walkway mix with groups, labelled at 5-45 m).
 With ``--rig pedx`` both scenes are on the simulator's ``pedx`` preset instead
-(:func:`pedx_graph.sim.config.pedx_rig_config`: the real PedX cameras and distortion-free rectified pairs, the
-z-down LiDAR frame with its tilted ground, and the real labels' quirks in the manual labels: every keypoint
+(:func:`pedx_graph.sim.config.pedx_rig_config`: the real PedX cameras, the z-down LiDAR frame with its
+tilted ground, and the real labels' quirks in the manual labels: every keypoint
 flagged visible, integer clicks with the measured per-keypoint noise, polygon-only files, a fifth of the
 tracks labelled in one camera): ``crossing`` as above, ``mixed`` the preset's own scene (walkway mix with
 groups, half of them where both pairs see them, labelled at 5-50 m).  Nothing in the import or the fit is
@@ -488,7 +488,8 @@ def markdown(result: dict, command: str) -> str:
     key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
     lines = ["# bench_detections: manual labels vs detector keypoints", "", f"Command: `{command}`", "",
              f"Seed {result['seed']}, {result['pedestrians']} pedestrians x {result['frames']} frames per scene "
-             f"on the {RIG_NAMES[result.get('rig', 'default')]}, {result['motion']}; simulated detector noise x{result.get('detector_noise_scale', 1.0):g} "
+             f"on the {RIG_NAMES[result.get('rig', 'default')]}, {result['motion']}; "
+             f"simulated detector noise x{result.get('detector_noise_scale', 1.0):g} "
              f"({result.get('detector_shared_noise', 0.0):g} of its variance shared by the cameras), "
              f"OpenPose skeletons split in two with probability {result.get('detector_split_prob', 0.0):g} "
              f"(parts joined: {'yes' if result.get('join_split_parts', True) else 'no'}), left and right "
@@ -628,7 +629,8 @@ def main(argv: list[str] | None = None) -> int:
                      swap_keeps_confidence=args.detector_swap_keeps_confidence,
                      mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
                      rig=args.rig)
-    result.update(rig=args.rig, seed=args.seed, pedestrians=args.pedestrians, frames=args.frames, workers=args.workers,
+    result.update(rig=args.rig, seed=args.seed, pedestrians=args.pedestrians, frames=args.frames,
+                  workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
                   detector_shared_noise=args.detector_shared_noise, detector_split_prob=args.detector_split_prob,
                   join_split_parts=not args.no_join_split_parts, detector_flip_prob=args.detector_flip_prob,
