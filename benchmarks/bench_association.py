@@ -13,15 +13,22 @@ samples too thinly.  ``--pedestrians 20 --frames 80`` gives the long dense scene
 Reported per input (seed, scene, format) and summed: tracks, false tracks, bystander tracks, labelled people
 recovered, identity switches (all, and those of people crossing at 5-25 m:
 :func:`bench_detections.crossing_people`), wrong frames, frames mixing two people, fragmentations, and
-people's detections on their own person's track and on another's (or a false one); and the import's identity
+people's detections on their own person's track and on another's (or a false one); the placement of the track
+frames' centres (:func:`pedx_graph.detections.evaluate.placement_counts`: frames with a centre, those farther
+than ``PLACE_OFF_M`` from the true centre of the person most of their detections belong to, and of those the
+ones claiming to be placed more than ``PLACE_SIGMAS`` times better than they are — what the LiDAR cut's depth
+gate and the fit's start rely on, and what a switch count does not see); and the import's identity
 review (:mod:`pedx_graph.detections.review`): its stretches, the share of track frames they flag and how many
 of the identity switches lie inside them.  With
 ``--baseline OLD.json`` (an earlier run of this script with the same seeds and sizes) the markdown also lists
 the inputs whose counts changed.
 
     python benchmarks/bench_association.py [--seeds 0-8,17-21] [--pedestrians 10] [--frames 20]
-                                           [--workers 2] [--baseline OLD.json] [--name bench_association]
-                                           [--out benchmarks/results]
+                                           [--rig default|pedx] [--workers 2] [--baseline OLD.json]
+                                           [--name bench_association] [--out benchmarks/results]
+
+``--rig pedx`` simulates the scenes on the real PedX rig's preset (its cameras, the z-down LiDAR frame, the
+ground's tilt; :data:`bench_detections.RIGS`), nothing of which the association is told.
 
 Writes ``<name>.json`` and ``<name>.md`` into ``--out``.
 """
@@ -35,26 +42,33 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _common import hardware, public_args  # noqa: E402
-from bench_detections import (FORMATS, SHARED_CMU, crossing_people, labelled_instances, read_format,  # noqa: E402
-                              scene_clouds, scene_configs)
+from bench_detections import (FORMATS, RIGS, SHARED_CMU, crossing_people, labelled_instances,  # noqa: E402
+                              read_format, scene_clouds, scene_configs)
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
-from pedx_graph.detections.evaluate import read_detection_truth, score_tracks  # noqa: E402
+from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, placement_counts,  # noqa: E402
+                                            read_detection_truth, score_tracks)
 from pedx_graph.detections.review import review_summary  # noqa: E402
-from pedx_graph.sim.simulate import simulate  # noqa: E402
+from pedx_graph.keypoints import load_keypoint_set  # noqa: E402
+from pedx_graph.sim.simulate import read_truth_frame, simulate  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 #: Counts summed over the inputs, in the tables' order.
 COUNTS = ("tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people", "id_switches",
           "crossing_id_switches", "wrong_frames", "mixed_frames", "fragmentations", "own_detections",
           "others_detections")
+#: Placement of the track frames' centres (:func:`pedx_graph.detections.evaluate.placement_counts`), summed and
+#: compared like :data:`COUNTS`.
+PLACEMENT_COUNTS = ("placed_frames", "misplaced_centres", "overconfident_centres")
 #: The identity review's counts (:func:`review_counts`), summed like :data:`COUNTS`, not compared to a baseline.
 REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "switches_in_review")
 
@@ -76,11 +90,11 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
-def run_seed(seed: int, pedestrians: int, frames: int) -> list[dict]:
+def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> list[dict]:
     """The scored inputs of one seed: one row per scene and format (module docstring)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
-        for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames).items()):
+        for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
             scene = Path(tmp) / name
             simulate(scene, cfg, seed=seed + s, workers=1)
             seq = cfg.scene.sequence
@@ -89,18 +103,33 @@ def run_seed(seed: int, pedestrians: int, frames: int) -> list[dict]:
             calibs = read_calibrations(scene / "calib")
             clouds = scene_clouds(scene, seq)
             ground = ground_from_calibrations(calibs, seq)
+            centres = true_centres(scene, [cfg.scene.first_frame + k for k in range(cfg.scene.n_frames)])
             for fmt in FORMATS:
                 detections = read_format(scene, fmt, seq)
+                records = read_detection_truth(scene, seq, fmt)
                 t0 = time.perf_counter()
                 tracks = associate(detections, calibs, clouds=clouds, ground=ground)
                 seconds = time.perf_counter() - t0
-                score = score_tracks(tracks, read_detection_truth(scene, seq, fmt), labelled)
+                score = score_tracks(tracks, records, labelled)
                 score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"]
                                                     if a in crossing or b in crossing)
                 rows.append({"seed": seed, "scene": name, "format": fmt, "detections": len(detections),
                              "associate_seconds": seconds, **{k: score[k] for k in COUNTS},
+                             **placement_counts(tracks, records, centres, ground),
                              **review_counts(tracks, ground, score["switches"])})
     return rows
+
+
+def true_centres(scene: Path, frames: list[int]) -> dict[tuple[str, int], np.ndarray]:
+    """``(tracking id, frame) -> (3,)`` world point midway between the person's true hips, for every simulated
+    person (bystanders too) at each of ``frames``."""
+    names = load_keypoint_set("pedx18").keypoints
+    hips = [names.index("lhip"), names.index("rhip")]
+    out = {}
+    for frame in frames:
+        for tid, person in read_truth_frame(scene, frame)["people"].items():
+            out[(tid, frame)] = np.asarray(person["keypoints"], dtype=float)[hips].mean(axis=0)
+    return out
 
 
 def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
@@ -115,36 +144,44 @@ def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
 
 
 def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:
-    """(before, now) of the inputs whose counts differ from the baseline's row of the same seed, scene and
-    format (the counts both runs have: a baseline from before a count was added is compared on the rest)."""
+    """(before, now) of the inputs whose counts (:data:`COUNTS`, :data:`PLACEMENT_COUNTS`) differ from the
+    baseline's row of the same seed, scene and format (the counts both runs have: a baseline from before a
+    count was added is compared on the rest)."""
     before = {(r["seed"], r["scene"], r["format"]): r for r in baseline}
     out = []
     for row in rows:
         old = before.get((row["seed"], row["scene"], row["format"]))
-        if old is not None and any(k in old and old[k] != row[k] for k in COUNTS):
+        if old is not None and any(k in old and old[k] != row[k] for k in COUNTS + PLACEMENT_COUNTS):
             out.append((old, row))
     return out
 
 
 def markdown(result: dict) -> str:
     header = ("| seed | scene | format | tracks | false | bystander | recovered / labelled | id switches (crossing) "
-              "| wrong frames | mixed frames | fragmentations | own / others' detections |")
-    rule = "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+              "| wrong frames | mixed frames | fragmentations | own / others' detections "
+              f"| centres off > {PLACE_OFF_M:g} m (overconfident) / placed |")
+    rule = "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 
     def line(r: dict, label: str | None = None) -> str:
         key = label or f"{r['seed']} | {r['scene']} | {r['format']}"
+        placement = (f"{r['misplaced_centres']} ({r['overconfident_centres']}) / {r['placed_frames']}"
+                     if "placed_frames" in r else "-")
         return (f"| {key} | {r['tracks']} | {r['false_tracks']} | {r['bystander_tracks']} | "
                 f"{r['recovered']} / {r['labelled_people']} | {r['id_switches']} ({r['crossing_id_switches']}) | "
                 f"{r['wrong_frames']} | {r['mixed_frames']} | {r['fragmentations']} | "
-                f"{r.get('own_detections', '-')} / {r.get('others_detections', '-')} |")
+                f"{r.get('own_detections', '-')} / {r.get('others_detections', '-')} | {placement} |")
 
     total, seeds = result["totals"], len(result["seeds"])
     lines = ["# bench_association: the id-less association over many scenes", "",
              f"Command: `{result['command']}`", "",
              f"Seeds {result['seeds_text']} ({seeds} seed{'s' * (seeds != 1)} x 2 scenes x {len(FORMATS)} formats = "
              f"{len(result['rows'])} inputs), {result['pedestrians']} pedestrians x {result['frames']} frames per "
-             f"scene, {result['motion']}.  Method: see the script's docstring (the detection benchmark's scenes, "
-             "`associate` as the import runs it, scored against the simulator's truth; no fitting).", "",
+             f"scene, {result['motion']}, {result.get('rig', 'default')} rig.  Method: see the script's docstring "
+             "(the detection benchmark's scenes, `associate` as the import runs it, scored against the simulator's "
+             f"truth; no fitting).  The last column: track frames whose centre lies more than {PLACE_OFF_M:g} m "
+             "from the true centre (mid-hips, on the ground plane) of the person most of their detections belong "
+             f"to, in brackets those whose error is also more than {PLACE_SIGMAS:g} times the depth sigma they "
+             "claim, of all track frames with a centre.", "",
              "## Totals", "", header, rule, line(total, "all | | "), ""]
     if "switches_in_review" in total:
         lines += ["## Identity review", "",
@@ -178,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default="0-8,17-21", help="seeds and inclusive ranges, comma-separated")
     parser.add_argument("--pedestrians", type=int, default=10)
     parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--rig", default="default", choices=RIGS,
+                        help="the simulated rig (pedx: the real PedX rig's preset)")
     parser.add_argument("--workers", type=int, default=2, help="processes, one seed each")
     parser.add_argument("--baseline", help="an earlier run's JSON to list the changed inputs against")
     parser.add_argument("--name", default="bench_association", help="file name of the outputs, without suffix")
@@ -196,9 +235,13 @@ def main(argv: list[str] | None = None) -> int:
         if (baseline.get("pedestrians"), baseline.get("frames")) != (args.pedestrians, args.frames):
             parser.error(f"--baseline {args.baseline}: its scenes are {baseline.get('pedestrians')} pedestrians x "
                          f"{baseline.get('frames')} frames, this run's {args.pedestrians} x {args.frames}")
+        if baseline.get("rig", "default") != args.rig:
+            parser.error(f"--baseline {args.baseline}: its scenes are on the {baseline.get('rig', 'default')} rig, "
+                         f"this run's on the {args.rig} rig")
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds)))
+        per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds),
+                                 [args.rig] * len(seeds)))
     rows = [row for seed_rows in per_seed for row in seed_rows]
     shown = public_args(argv)                 # the baseline by its file name: no machine paths in the results
     shown = [Path(a).name if k and shown[k - 1] == "--baseline" else
@@ -206,9 +249,9 @@ def main(argv: list[str] | None = None) -> int:
              for k, a in enumerate(shown)]
     result = {"command": " ".join(["python benchmarks/bench_association.py"] + shown),
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
-              "workers": args.workers,
+              "rig": args.rig, "workers": args.workers,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
-              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + REVIEW_COUNTS},
+              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS},
               "associate_seconds": sum(r["associate_seconds"] for r in rows),
               "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
     if baseline is not None:

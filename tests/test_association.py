@@ -231,6 +231,42 @@ def test_scoring_counts_switches_fragments_and_false_tracks():
     assert score["own_detections"] == 2 and score["others_detections"] == 1
 
 
+def test_placement_counts_judge_each_frame_s_centre_against_its_own_person():
+    """:func:`placement_counts`: a frame's centre is judged against the true centre of the person its
+    detections belong to (a neighbour's frame inside a track against the neighbour), on the ground plane
+    (height does not count); off by more than 0.5 m it is misplaced, and overconfident when that is also
+    more than three of its own depth sigmas; frames without a centre, or whose person has no true centre
+    there, are not placed."""
+    from pedx_graph.data.ground import GroundFrame
+    from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+    from pedx_graph.detections.evaluate import placement_counts
+
+    # z-down world (the real PedX LiDAR frame), level x along world y
+    ground = GroundFrame(world_up=np.array([0.0, 0.0, -1.0]), world_forward=np.array([0.0, 1.0, 0.0]),
+                         world_p_sensor=np.zeros(3))
+    records = []
+
+    def frame(f, tid, world_p, sigma):
+        records.append({"camera": "cam", "frame": f, "index": len(records), "kind": "person", "tracking_id": tid})
+        det = Detection(camera="cam", frame=f, keypoint_set="coco17", image_uv=np.zeros((17, 2)),
+                        confidence=np.ones(17), score=1.0, source=f"x.json#[{len(records) - 1}]")
+        return DetectedTrackFrame(frame=f, detections={"cam": det},
+                                  world_p=None if world_p is None else np.asarray(world_p, dtype=float),
+                                  depth_sigma_m=sigma)
+
+    centres = {("a", f): np.array([0.0, 10.0 + f, 0.0]) for f in range(6)}
+    centres.update({("b", f): np.array([3.0, 10.0 + f, 0.0]) for f in range(6)})
+    track = DetectedTrack(track_id="t1", pairs=("cam-other",), frames=[
+        frame(0, "a", [0.1, 10.0, -1.5], 0.1),       # 0.1 m off on the ground (1.5 m up does not count)
+        frame(1, "a", [0.0, 11.9, 0.0], 0.1),        # 0.9 m off, claiming 0.1 m: overconfident
+        frame(2, "a", [0.0, 12.9, 0.0], 0.5),        # 0.9 m off, claiming 0.5 m: misplaced, honest
+        frame(3, "b", [3.0, 13.2, 0.0], 0.1),        # the neighbour's frame, on the neighbour
+        frame(4, "a", None, np.inf),                 # no centre
+        frame(5, "c", [0.0, 15.0, 0.0], 0.1)])       # a person without a true centre
+    assert placement_counts([track], records, centres, ground) == {
+        "placed_frames": 4, "misplaced_centres": 2, "overconfident_centres": 1}
+
+
 def test_a_tied_frame_belongs_to_the_track_s_person_in_switches_and_owners():
     """A frame holding one detection of the track's person and one of a neighbour (two images, a tie) is the
     track's person's — the same for :func:`score_tracks`' switches and for :func:`frame_owners`, which a
