@@ -97,3 +97,19 @@ def test_views_table_pools_the_seeds_by_joint_frames():
     assert row == ["| coco | 0.20, 80.0 (0.38) | 0.40, 40.0 (0.38) | 0.40, 25.0 (0.24) |"]
     assert "| input | 0 images | 1 image | 2 images |" in text and "seeds 0, 1 pooled" in text
     assert "held them" not in detections_section([run(0, None)])
+
+
+def test_association_placement_figures_match_the_json():
+    """The placement figures docs/detections.md quotes for the association benchmark (default rig, the real
+    rig's preset and the long scenes) are the totals of the committed JSON."""
+    import json
+
+    text = " ".join((ROOT / "docs" / "detections.md").read_text().split())
+    for name in ("bench_association", "bench_association_pedx_rig", "bench_association_long"):
+        result = json.loads((ROOT / "benchmarks" / "results" / f"{name}.json").read_text())
+        total = result["totals"]
+        share = lambda n: f"({100 * n / total['placed_frames']:.1f} %)"     # noqa: E731
+        quoted = (f"{total['misplaced_centres']} of {total['placed_frames']:,}"
+                  f"{' placed frames' if name == 'bench_association' else ''} {share(total['misplaced_centres'])}")
+        assert quoted in text, f"{name}: {quoted!r} not in docs/detections.md"
+        assert f"{total['overconfident_centres']} {share(total['overconfident_centres'])}" in text
