@@ -49,8 +49,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _common import hardware, public_args  # noqa: E402
-from bench_detections import (FORMATS, RIGS, SHARED_CMU, crossing_people, labelled_instances,  # noqa: E402
-                              read_format, scene_clouds, scene_configs)
+from bench_detections import (FORMATS, RIGS, SHARED_CMU, _truth_frames, crossing_people,  # noqa: E402
+                              labelled_instances, read_format, scene_clouds, scene_configs)
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
@@ -59,7 +59,7 @@ from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, placement
                                             read_detection_truth, score_tracks)
 from pedx_graph.detections.review import review_summary  # noqa: E402
 from pedx_graph.keypoints import load_keypoint_set  # noqa: E402
-from pedx_graph.sim.simulate import read_truth_frame, simulate  # noqa: E402
+from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 #: Counts summed over the inputs, in the tables' order.
@@ -122,14 +122,11 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> 
 
 def true_centres(scene: Path, frames: list[int]) -> dict[tuple[str, int], np.ndarray]:
     """``(tracking id, frame) -> (3,)`` world point midway between the person's true hips, for every simulated
-    person (bystanders too) at each of ``frames``."""
+    person (bystanders too) at each of ``frames`` (:func:`bench_detections._truth_frames`)."""
     names = load_keypoint_set("pedx18").keypoints
     hips = [names.index("lhip"), names.index("rhip")]
-    out = {}
-    for frame in frames:
-        for tid, person in read_truth_frame(scene, frame)["people"].items():
-            out[(tid, frame)] = np.asarray(person["keypoints"], dtype=float)[hips].mean(axis=0)
-    return out
+    return {(tid, frame): keypoints[hips].mean(axis=0)
+            for frame, people in _truth_frames(scene, frames).items() for tid, keypoints, _ in people}
 
 
 def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
