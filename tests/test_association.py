@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from pedx_graph.data.ground import make_ground_frame
-from pedx_graph.detections.association import AssociationConfig, associate, match_stereo, stereo_cost, \
-    triangulate_centre
+from pedx_graph.detections.association import AssociationConfig, associate, match_stereo, stereo_cost
 from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig
 from pedx_graph.detections.types import Detection
 from pedx_graph.sim.cameras import make_calibration
@@ -145,38 +144,6 @@ def test_stereo_matches_on_rectified_rows():
     assert match_stereo(left[:1], [(a[1], off_rows)], calib, config) == [(0, None), (None, 0)]
     behind = a[0].image_uv + [30.0, 0.0]                # right image point left of ... : negative disparity
     assert stereo_cost(a[1].image_uv, behind, calib, config) >= 1e9
-
-
-def test_a_stereo_centres_depth_sigma_is_no_sharper_than_the_keypoint_noise_at_its_size():
-    """A person at 20 m: keypoints whose disparities happen to agree exactly still leave the centre as uncertain
-    as the association's keypoint noise at the person's image height makes it (``keypoint_sigma_px +
-    keypoint_sigma_frac h`` per axis and image, the standard error of a median of ``n`` disparities); with
-    that noise drawn, the centre's depth error stays within three of its claimed sigmas in 99 % of draws."""
-    calib = _rig()["ylw79D0-red707B"]
-    ground = _ground(None)
-    config = AssociationConfig()
-    person = _person_points((20.0, 0.5), np.pi / 2, 0.7)
-    left, right = calib.project(person)
-    camera = calib.camera_centre("left")
-    clean_p, clean_sigma = triangulate_centre(left, right, calib, ground, config)
-    height = max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))
-    keypoint_sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * height
-    depth = calib.focal_px * calib.baseline_m / float(np.median(left[:, 0] - right[:, 0]))
-    expected = depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * np.sqrt(2.0) * keypoint_sigma \
-        / np.sqrt(len(left))
-    assert clean_sigma == pytest.approx(expected, rel=1e-6)
-    assert clean_sigma > 0.6          # 0.74 m here; a floor of keypoint_sigma_px alone gave 0.33 m
-    ray = (clean_p - camera) / np.linalg.norm(clean_p - camera)
-    rng = np.random.default_rng(11)
-    z = []
-    for _ in range(400):
-        noisy_left = left + keypoint_sigma * rng.normal(size=left.shape)
-        noisy_right = right + keypoint_sigma * rng.normal(size=right.shape)
-        world_p, sigma = triangulate_centre(noisy_left, noisy_right, calib, ground, config)
-        z.append(float((world_p - clean_p) @ ray) / sigma)
-    z = np.abs(np.asarray(z))
-    assert np.mean(z > 3.0) <= 0.01
-    assert np.sqrt(np.mean(z ** 2)) < 1.3
 
 
 def test_two_pairs_seeing_one_person_give_one_track():

@@ -602,13 +602,11 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
 
 
 def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
-                       ground: GroundFrame, config: AssociationConfig) -> tuple[np.ndarray, float]:
+                       ground: GroundFrame, sigma_disparity_px: float) -> tuple[np.ndarray, float]:
     """(3,) world centre of a matched person (median in the level frame of its keypoints triangulated at the
-    median disparity) and its depth uncertainty ``Z^2 / (f b) * se``, metres: ``se`` the standard error of
-    the median disparity, ``1.2533 s / sqrt(n)`` over the ``n`` shared keypoints with ``s`` their disparities'
-    robust spread ``1.4826 MAD``, at least what the detector noise alone gives (:func:`_disparity_of`: the
-    association's keypoint noise at the person's image height; a dozen disparities that happen to agree
-    do not make a centre sharper than its keypoints are)."""
+    median disparity) and its depth uncertainty ``Z^2 / (f b) * 1.2533 s / sqrt(n)`` (the standard error of a
+    median of ``n`` disparities), metres; ``s`` = the disparities' robust spread ``1.4826 MAD``, at least
+    ``sigma_disparity_px`` (what the detector noise alone gives)."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     left, right = uv_left[both], uv_right[both]
     d_med = float(np.median(left[:, 0] - right[:, 0]))
@@ -619,12 +617,8 @@ def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoC
                        np.full(len(left), depth)], axis=1)
     world_p = calib.rect_to_world(rect_p)
     disparity = left[:, 0] - right[:, 0]
-    n = max(len(left), 1)
-    se = 1.2533 * 1.4826 * float(np.median(np.abs(disparity - d_med))) / np.sqrt(n)
-    noise = _disparity_of(uv_left, uv_right, dataclasses.replace(config, min_shared_keypoints=1))
-    if noise is not None:
-        se = max(se, noise[1])
-    sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * se
+    spread = max(1.4826 * float(np.median(np.abs(disparity - d_med))), sigma_disparity_px)
+    sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * spread / np.sqrt(max(len(left), 1))
     return ground.median_point(world_p), float(sigma)
 
 
@@ -1211,6 +1205,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                 if frame in clouds and items:
                     ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
         tracklets[side] = camera_tracklets(deduplicated, config, ranges)
+    sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     candidates = []
     for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges, ground):
         drop_disparity_outliers(person, calib, config)
@@ -1225,7 +1220,8 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             obs = Observation(frame=frame, uv=uv, score=float(max(d.score for d in payload.values())),
                               payload=payload)
             if frame in person.paired:
-                obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground, config)
+                obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground,
+                                                                    sigma_disparity)
                 obs.world_p_camera = calib.camera_centre("left")
                 both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                 obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
@@ -2469,7 +2465,7 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
         if disparity is None or disparity[0] <= 0:
             return None
         world_p, sigma = triangulate_centre(obs.uv["left"], obs.uv["right"], calibrations[pair_of[id(obs)]],
-                                            ground, config)
+                                            ground, config.keypoint_sigma_px * np.sqrt(2.0))
         return level_xy(world_p), sigma
 
     for frame in sorted(frames):
@@ -2582,6 +2578,7 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
     ground = ground or ground_from_calibrations(dict(calibrations))
     if clouds is not None:
         ground = ground_with_plane(ground, calibrations, clouds)
+    sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     ranges = _file_id_ranges(groups, calibrations, config, ground, clouds) \
         if clouds is not None and config.lidar_identity else {}
     out = []
@@ -2599,7 +2596,7 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                 both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
                 if both.sum() < config.min_shared_keypoints or np.median(uv_l[both, 0] - uv_r[both, 0]) <= 0:
                     continue
-                world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, config)
+                world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, sigma_disparity)
                 if sigma < entry.depth_sigma_m:
                     entry.world_p, entry.depth_sigma_m = world_p, sigma
             for camera, det in sorted(cams.items()):
