@@ -1552,7 +1552,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     or meeting twice: the tracker carried each on with the other and back again where they met next): those
     around the runs of frames whose observations fit the other track's walk better than their own
     (:func:`_walk_misfits`, each walk fitted robustly as the track is; a stretch holding all of one track is
-    not tried, that would join them; nor is one of a single frame).  The frames' centre depths weigh in
+    not tried, that would join them; nor is one of a single frame, unless only one track holds that frame:
+    then it is a move of one observation to the other track).  The frames' centre depths weigh in
     too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
@@ -1612,8 +1613,10 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                 consider(new_a, new_b)
         # a stretch exchanged and exchanged back: the tracker can only have switched where the two were near
         # each other in the image, so both ends lie within 2 frames of such a frame; at least two frames long
-        # (one frame's exchange is one noisy column or depth against a walk: the straight-walk test cannot
-        # tell it from noise, and among the many stretches tried one such frame beats the gate by chance).
+        # (one frame's exchange is two noisy observations against two walks: the straight-walk test cannot
+        # tell it from noise, and among the many stretches tried one such frame beats the gate by chance),
+        # except one frame moved from a track to the other where that one has no observation (the move must
+        # beat the gate on that one observation alone).
         # Which stretches: per frame, how much better its observations fit the other track's walk than their
         # own (each track's walk fitted as it is, robustly: a stretch of the other person is its outliers);
         # the runs where that sum is positive (:func:`_supported_runs`), their ends give or take 2 frames,
@@ -1634,11 +1637,13 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
             ends = [t for t in switches if span[last - 1] - 2 < t <= span[last - 1] + 3]
             for t1 in starts:
                 for t2 in ends:
-                    if t2 - t1 < 2 or (t1, t2) in tried:
+                    if t2 <= t1 or (t1, t2) in tried:
                         continue
                     tried.add((t1, t2))
                     inside_a = [o for o in tracks[a] if t1 <= o.frame < t2]
                     inside_b = [o for o in tracks[b] if t1 <= o.frame < t2]
+                    if t2 - t1 < 2 and (inside_a or not inside_b) and (inside_b or not inside_a):
+                        continue                    # one frame: only a move, never an exchange
                     if len(inside_a) == len(tracks[a]) or len(inside_b) == len(tracks[b]):
                         continue                    # all of one track: not an exchange but a join
                     consider(sorted([o for o in tracks[a] if not t1 <= o.frame < t2] + inside_b, key=lambda o: o.frame),
