@@ -1039,6 +1039,24 @@ def test_one_frame_of_a_walker_in_the_other_track_moves_back_where_that_track_ha
                                                                    [id(o) for o in far[:14] + far[15:]]])
 
 
+def test_one_frame_of_a_walker_just_past_its_track_moves_back_to_it():
+    """The walkers in step again.  The near walker's track ends at frame 15 (it was lost there) while the far
+    walker's track took the near walker's detection of frame 16 (its own walker just missed); another time
+    the near walker's track begins at frame 17 and that frame 16 is again in the far walker's track.  That
+    one frame, just past the span the two tracks share, moves to the near walker's track."""
+    from pedx_graph.detections.association import repair_swaps
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
+    near, far, _, _ = _walkers_in_step(calib, np.random.default_rng(8), range(20))
+    far_track = far[:16] + [near[16]] + far[17:]
+    for near_track in (near[:16], near[17:]):
+        repaired = repair_swaps([near_track, far_track], calib, AssociationConfig())
+        assert sorted([id(o) for o in t] for t in repaired) == sorted(
+            [[id(o) for o in sorted(near_track + [near[16]], key=lambda o: o.frame)],
+             [id(o) for o in far[:16] + far[17:]]])
+
+
 def _walker_of_height(calib, start_xy, step_xy, frames, rng, scale):
     """Pair-track observations of a stick walker ``scale`` times the stick's height, each holding its two
     detections (coco17), so their image heights are known to :func:`repair_swaps`' walk."""

@@ -1553,7 +1553,10 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     around the runs of frames whose observations fit the other track's walk better than their own
     (:func:`_walk_misfits`, each walk fitted robustly as the track is; a stretch holding all of one track is
     not tried, that would join them; nor is one of a single frame, unless only one track holds that frame:
-    then it is a move of one observation to the other track).  The frames' centre depths weigh in
+    then it is a move of one observation to the other track).  Past the span the two share, a frame at
+    most 2 frames beyond it, within 2 frames of one where the two are near, held by one track and not by
+    the other, may move to the other too (a track carried on one frame with the other person where that
+    one's own track begins or ends).  The frames' centre depths weigh in
     too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
@@ -1611,6 +1614,18 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
             new_b = [o for o in tracks[b] if o.frame < tau] + [o for o in tracks[a] if o.frame >= tau]
             if new_a and new_b:               # else the tracks lie apart in time: that would join them
                 consider(new_a, new_b)
+        # one frame just past the span the two share (within 2 frames of it and of a frame where the two are
+        # near), held by the track going on there, moved to the other one: a track carried on one frame with
+        # the other person where that one's own track begins or ends (the move beats the gate on that one
+        # observation; a whole head or tail is the split times' case above)
+        for k, m in ((a, b), (b, a)):
+            have = {o.frame for o in tracks[m]}
+            for o in tracks[k]:
+                if (lo - 2 <= o.frame < lo or hi < o.frame <= hi + 2) and o.frame not in have \
+                        and np.min(np.abs(near_frames - o.frame)) <= 2 and len(tracks[k]) > 1:
+                    moved_k = [x for x in tracks[k] if x is not o]
+                    moved_m = sorted(tracks[m] + [o], key=lambda x: x.frame)
+                    consider(*((moved_k, moved_m) if k == a else (moved_m, moved_k)))
         # a stretch exchanged and exchanged back: the tracker can only have switched where the two were near
         # each other in the image, so both ends lie within 2 frames of such a frame; at least two frames long
         # (one frame's exchange is two noisy observations against two walks: the straight-walk test cannot
