@@ -1553,10 +1553,11 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     around the runs of frames whose observations fit the other track's walk better than their own
     (:func:`_walk_misfits`, each walk fitted robustly as the track is; a stretch holding all of one track is
     not tried, that would join them; nor is one of a single frame, unless only one track holds that frame:
-    then it is a move of one observation to the other track).  Past the span the two share, a frame at
-    most 2 frames beyond it, within 2 frames of one where the two are near, held by one track and not by
-    the other, may move to the other too (a track carried on one frame with the other person where that
-    one's own track begins or ends).  The frames' centre depths weigh in
+    then it is a move of one observation to the other track, from a track left with three frames at least,
+    whose walk still judges it).  Past the span the two share (when they share one), a frame at most 2
+    frames beyond it, within 2 frames of one where the two are near, held by one track and not by the
+    other, may move to the other too (a track carried on one frame with the other person where that one's
+    own track begins or ends).  The frames' centre depths weigh in
     too, except LiDAR centres of frames where one's detection hides half of the other's
     (:func:`_overlapping_frames`: either cut may hold the person in front; their stereo centres are used).
     The exchange with the lowest summed cost is made when it beats the tracks as they are by more than
@@ -1617,12 +1618,14 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         # one frame just past the span the two share (within 2 frames of it and of a frame where the two are
         # near), held by the track going on there, moved to the other one: a track carried on one frame with
         # the other person where that one's own track begins or ends (the move beats the gate on that one
-        # observation; a whole head or tail is the split times' case above)
-        for k, m in ((a, b), (b, a)):
+        # observation; a whole head or tail is the split times' case above).  Only for tracks sharing a span
+        # (else a move would begin to join them), from a track left with three frames at least (a walk
+        # through fewer costs nothing: any move out of it would look like a gain)
+        for k, m in ((a, b), (b, a)) if lo <= hi else ():
             have = {o.frame for o in tracks[m]}
             for o in tracks[k]:
                 if (lo - 2 <= o.frame < lo or hi < o.frame <= hi + 2) and o.frame not in have \
-                        and np.min(np.abs(near_frames - o.frame)) <= 2 and len(tracks[k]) > 1:
+                        and np.min(np.abs(near_frames - o.frame)) <= 2 and len(tracks[k]) > 3:
                     moved_k = [x for x in tracks[k] if x is not o]
                     moved_m = sorted(tracks[m] + [o], key=lambda x: x.frame)
                     consider(*((moved_k, moved_m) if k == a else (moved_m, moved_k)))
@@ -1631,7 +1634,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         # (one frame's exchange is two noisy observations against two walks: the straight-walk test cannot
         # tell it from noise, and among the many stretches tried one such frame beats the gate by chance),
         # except one frame moved from a track to the other where that one has no observation (the move must
-        # beat the gate on that one observation alone).
+        # beat the gate on that one observation alone), from a track left with three frames at least.
         # Which stretches: per frame, how much better its observations fit the other track's walk than their
         # own (each track's walk fitted as it is, robustly: a stretch of the other person is its outliers);
         # the runs where that sum is positive (:func:`_supported_runs`), their ends give or take 2 frames,
@@ -1657,7 +1660,8 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                     tried.add((t1, t2))
                     inside_a = [o for o in tracks[a] if t1 <= o.frame < t2]
                     inside_b = [o for o in tracks[b] if t1 <= o.frame < t2]
-                    if t2 - t1 < 2 and (inside_a or not inside_b) and (inside_b or not inside_a):
+                    if t2 - t1 < 2 and ((inside_a or not inside_b) and (inside_b or not inside_a)
+                                        or len(tracks[a if inside_a else b]) <= 3):
                         continue                    # one frame: only a move, never an exchange
                     if len(inside_a) == len(tracks[a]) or len(inside_b) == len(tracks[b]):
                         continue                    # all of one track: not an exchange but a join
