@@ -1057,6 +1057,23 @@ def test_one_frame_of_a_walker_just_past_its_track_moves_back_to_it():
              [id(o) for o in far[:16] + far[17:]]])
 
 
+def test_no_frame_moves_out_of_a_short_track_or_between_tracks_apart_in_time():
+    """One walker's two tracks, frames 5-7 and 8-19 (lost for a moment, not stitched); the short one's middle
+    frame is off (30 px in the image, 2 m in depth), so its three frames fit no straight walk.  Moving its
+    frame 7 to the long track would leave two frames, whose walk costs nothing: a gain that says nothing of
+    who frame 7 is.  Nor do the two share a span: a move between them would begin to join them.  They are
+    left as they are."""
+    from pedx_graph.detections.association import repair_swaps
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))
+    near, _, _, _ = _walkers_in_step(calib, np.random.default_rng(8), range(20))
+    near[6].uv = {side: uv + [30.0, 0.0] for side, uv in near[6].uv.items()}
+    near[6].world_p = near[6].world_p + [2.0, 0.0, 0.0]
+    repaired = repair_swaps([near[5:8], near[8:]], calib, AssociationConfig())
+    assert [[id(o) for o in t] for t in repaired] == [[id(o) for o in near[5:8]], [id(o) for o in near[8:]]]
+
+
 def _walker_of_height(calib, start_xy, step_xy, frames, rng, scale):
     """Pair-track observations of a stick walker ``scale`` times the stick's height, each holding its two
     detections (coco17), so their image heights are known to :func:`repair_swaps`' walk."""
