@@ -1621,11 +1621,13 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         # observation; a whole head or tail is the split times' case above).  Only for tracks sharing a span
         # (else a move would begin to join them), from a track left with three frames at least (a walk
         # through fewer costs nothing: any move out of it would look like a gain)
-        for k, m in ((a, b), (b, a)) if lo <= hi else ():
+        for k, m in ((a, b), (b, a)):
+            if lo > hi or len(tracks[k]) <= 3:
+                continue
             have = {o.frame for o in tracks[m]}
             for o in tracks[k]:
                 if (lo - 2 <= o.frame < lo or hi < o.frame <= hi + 2) and o.frame not in have \
-                        and np.min(np.abs(near_frames - o.frame)) <= 2 and len(tracks[k]) > 3:
+                        and np.min(np.abs(near_frames - o.frame)) <= 2:
                     moved_k = [x for x in tracks[k] if x is not o]
                     moved_m = sorted(tracks[m] + [o], key=lambda x: x.frame)
                     consider(*((moved_k, moved_m) if k == a else (moved_m, moved_k)))
@@ -1660,9 +1662,10 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                     tried.add((t1, t2))
                     inside_a = [o for o in tracks[a] if t1 <= o.frame < t2]
                     inside_b = [o for o in tracks[b] if t1 <= o.frame < t2]
-                    if t2 - t1 < 2 and ((inside_a or not inside_b) and (inside_b or not inside_a)
-                                        or len(tracks[a if inside_a else b]) <= 3):
-                        continue                    # one frame: only a move, never an exchange
+                    if t2 - t1 < 2:                 # one frame: only a move, never an exchange
+                        donor = tracks[a] if inside_a else tracks[b]
+                        if bool(inside_a) == bool(inside_b) or len(donor) <= 3:
+                            continue
                     if len(inside_a) == len(tracks[a]) or len(inside_b) == len(tracks[b]):
                         continue                    # all of one track: not an exchange but a join
                     consider(sorted([o for o in tracks[a] if not t1 <= o.frame < t2] + inside_b, key=lambda o: o.frame),
