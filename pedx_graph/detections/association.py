@@ -1554,7 +1554,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     (:func:`_walk_misfits`, each walk fitted robustly as the track is; a stretch holding all of one track is
     not tried, that would join them; nor is one of a single frame, unless only one track holds that frame:
     then it is a move of one observation to the other track, from a track left with three frames at least,
-    whose walk still judges it, and never its first or last frame: a track's ends are the split times').  Past the span the two share (when they share one), a frame at most 2
+    whose walk still judges it).  Past the span the two share (when they share one), a frame at most 2
     frames beyond it, within 2 frames of one where the two are near, held by one track and not by the
     other, may move to the other too (a track carried on one frame with the other person where that one's
     own track begins or ends).  The frames' centre depths weigh in
@@ -1620,14 +1620,12 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         # the other person where that one's own track begins or ends (the move beats the gate on that one
         # observation; a whole head or tail is the split times' case above).  Only for tracks sharing a span
         # (else a move would begin to join them), from a track left with three frames at least (a walk
-        # through fewer costs nothing: any move out of it would look like a gain), never its first or last
-        # frame (a straight walk over a long track fits its own ends worst; a whole head or tail is the
-        # split times' case)
+        # through fewer costs nothing: any move out of it would look like a gain)
         for k, m in ((a, b), (b, a)):
             if lo > hi or len(tracks[k]) <= 3:
                 continue
             have = {o.frame for o in tracks[m]}
-            for o in tracks[k][1:-1]:
+            for o in tracks[k]:
                 if (lo - 2 <= o.frame < lo or hi < o.frame <= hi + 2) and o.frame not in have \
                         and np.min(np.abs(near_frames - o.frame)) <= 2:
                     moved_k = [x for x in tracks[k] if x is not o]
@@ -1638,8 +1636,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         # (one frame's exchange is two noisy observations against two walks: the straight-walk test cannot
         # tell it from noise, and among the many stretches tried one such frame beats the gate by chance),
         # except one frame moved from a track to the other where that one has no observation (the move must
-        # beat the gate on that one observation alone), from a track left with three frames at least, not
-        # its first or last frame.
+        # beat the gate on that one observation alone), from a track left with three frames at least.
         # Which stretches: per frame, how much better its observations fit the other track's walk than their
         # own (each track's walk fitted as it is, robustly: a stretch of the other person is its outliers);
         # the runs where that sum is positive (:func:`_supported_runs`), their ends give or take 2 frames,
@@ -1667,8 +1664,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
                     inside_b = [o for o in tracks[b] if t1 <= o.frame < t2]
                     if t2 - t1 < 2:                 # one frame: only a move, never an exchange
                         donor = tracks[a] if inside_a else tracks[b]
-                        if bool(inside_a) == bool(inside_b) or len(donor) <= 3 \
-                                or (inside_a + inside_b)[0] in (donor[0], donor[-1]):
+                        if bool(inside_a) == bool(inside_b) or len(donor) <= 3:
                             continue
                     if len(inside_a) == len(tracks[a]) or len(inside_b) == len(tracks[b]):
                         continue                    # all of one track: not an exchange but a join
