@@ -1624,7 +1624,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         for k, m in ((a, b), (b, a)):
             if lo > hi or len(tracks[k]) <= 3:
                 continue
-            have = {o.frame for o in tracks[m]}
+            have = {o.frame for o in tracks[m]}     # lo, hi are of one image's series: m may hold more frames
             for o in tracks[k]:
                 if (lo - 2 <= o.frame < lo or hi < o.frame <= hi + 2) and o.frame not in have \
                         and np.min(np.abs(near_frames - o.frame)) <= 2:
