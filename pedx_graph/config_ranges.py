@@ -324,6 +324,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.min_height_frames": COUNT,
     "AssociationConfig.stitch_max_gap_frames": NON_NEGATIVE_INT,
     "AssociationConfig.min_separation_m": NON_NEGATIVE,
+    "AssociationConfig.separate_max_rounds": NON_NEGATIVE_INT,
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,
     "AssociationConfig.smooth_min_centres": COUNT,
     "AssociationConfig.smooth_motion_m": POSITIVE,

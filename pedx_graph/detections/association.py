@@ -137,9 +137,9 @@ Steps:
    seen in one image get a depth too.  Each smoothed centre's uncertainty is its line's at that frame
    (:func:`_offset_sigma`, the walking velocity's own uncertainty included): it grows where the line is
    carried past the centres (a track's ends, a stretch seen in one image), and the cut's gate with it.  A
-   centre taken from the LiDAR that lies within ``min_separation_m`` of another person's smoothed centre,
-   nearer to it than to its own person's, is taken back and the person smoothed again
-   (:func:`separate_people`).
+   centre taken from the LiDAR that lies within ``min_separation_m`` of another person's smoothed centre
+   (that person's track runs on between its frames), nearer to it than to its own person's, is taken back
+   and the person smoothed again, the clearest such centre first (:func:`separate_people`).
 """
 from __future__ import annotations
 
@@ -303,6 +303,9 @@ class AssociationConfig:
     """Two bodies' centres are never closer than this in the ground plane, metres: a centre taken from the
     LiDAR that lies closer than this to another person's smoothed centre, and nearer to it than to its own
     person's, is the neighbour's and is taken back (:func:`separate_people`)."""
+    separate_max_rounds: int = 8
+    """:func:`separate_people` takes back at most this many LiDAR centres (one per round, the clearest
+    first)."""
     smooth_window_frames: int = 5
     """Each frame's centre is a line in time fitted to as many of the track's centres as a window of this many
     frames on each side holds (``2 W + 1``): those that tell most about the frame, each centre's uncertainty
@@ -552,8 +555,7 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
     if both.sum() < config.min_shared_keypoints:
         return _GATED
     left, right = uv_left[both], uv_right[both]
-    height = max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))
-    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * height
+    sigma = _keypoint_sigma_px(left, right, config)
     row = float(np.median(left[:, 1] - right[:, 1])) / (1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left)))
     disparity = left[:, 0] - right[:, 0]
     d_med = float(np.median(disparity))
@@ -564,9 +566,7 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
         return _GATED
     if ground is not None and keypoint_set is not None:
         # the depth's standard error, seen as a foot height: the ray to the foot descends to the ground
-        se_depth = depth / d_med * 1.2533 * np.sqrt(2.0) * (config.keypoint_sigma_px + config.keypoint_sigma_frac
-                                                               * max(np.ptp(left[:, 1]), np.ptp(right[:, 1]))) \
-            / np.sqrt(len(left))
+        se_depth = depth / d_med * 1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left))
         camera_height = float(ground.height(calib.camera_centre("left")[None])[0])
         slack = config.gate_sigmas * se_depth * abs(camera_height - _FOOT_HEIGHT_M) / depth
         if not _feet_on_ground(keypoint_set, uv_left, calib, "left", depth, ground, config, slack):
@@ -602,11 +602,12 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
 
 
 def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibration,
-                       ground: GroundFrame, sigma_disparity_px: float) -> tuple[np.ndarray, float]:
+                       ground: GroundFrame, config: AssociationConfig) -> tuple[np.ndarray, float]:
     """(3,) world centre of a matched person (median in the level frame of its keypoints triangulated at the
     median disparity) and its depth uncertainty ``Z^2 / (f b) * 1.2533 s / sqrt(n)`` (the standard error of a
     median of ``n`` disparities), metres; ``s`` = the disparities' robust spread ``1.4826 MAD``, at least
-    ``sigma_disparity_px`` (what the detector noise alone gives)."""
+    the detector noise of a disparity, ``sqrt(2)`` times one keypoint's (:func:`_keypoint_sigma_px`: a few
+    keypoints that happen to agree do not make a depth precise)."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     left, right = uv_left[both], uv_right[both]
     d_med = float(np.median(left[:, 0] - right[:, 0]))
@@ -617,7 +618,8 @@ def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoC
                        np.full(len(left), depth)], axis=1)
     world_p = calib.rect_to_world(rect_p)
     disparity = left[:, 0] - right[:, 0]
-    spread = max(1.4826 * float(np.median(np.abs(disparity - d_med))), sigma_disparity_px)
+    spread = max(1.4826 * float(np.median(np.abs(disparity - d_med))),
+                 np.sqrt(2.0) * _keypoint_sigma_px(left, right, config))
     sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * spread / np.sqrt(max(len(left), 1))
     return ground.median_point(world_p), float(sigma)
 
@@ -967,6 +969,14 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
     return float(np.hypot(distance, size))
 
 
+def _keypoint_sigma_px(left: np.ndarray, right: np.ndarray, config: AssociationConfig) -> float:
+    """One detected keypoint's noise per axis, pixels, for a left and a right detection's shared keypoints
+    (``(n, 2)`` each): ``keypoint_sigma_px + keypoint_sigma_frac * h``, ``h`` the larger of their vertical
+    spans (the person's image height)."""
+    return config.keypoint_sigma_px + config.keypoint_sigma_frac * max(float(np.ptp(left[:, 1])),
+                                                                       float(np.ptp(right[:, 1])))
+
+
 def _disparity_of(uv_left: np.ndarray, uv_right: np.ndarray, config: AssociationConfig) -> tuple[float, float] | None:
     """A left and a right detection's median disparity over their shared keypoints and its standard error,
     pixels (``1.2533 sqrt(2) sigma / sqrt(n)``, ``sigma = keypoint_sigma_px + keypoint_sigma_frac * h``); None
@@ -974,8 +984,7 @@ def _disparity_of(uv_left: np.ndarray, uv_right: np.ndarray, config: Association
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     if both.sum() < config.min_shared_keypoints:
         return None
-    sigma = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(uv_left[both, 1]),
-                                                                         np.ptp(uv_right[both, 1]))
+    sigma = _keypoint_sigma_px(uv_left[both], uv_right[both], config)
     return (float(np.median(uv_left[both, 0] - uv_right[both, 0])),
             float(1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())))
 
@@ -1205,7 +1214,6 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
                 if frame in clouds and items:
                     ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
         tracklets[side] = camera_tracklets(deduplicated, config, ranges)
-    sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     candidates = []
     for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges, ground):
         drop_disparity_outliers(person, calib, config)
@@ -1220,8 +1228,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             obs = Observation(frame=frame, uv=uv, score=float(max(d.score for d in payload.values())),
                               payload=payload)
             if frame in person.paired:
-                obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground,
-                                                                    sigma_disparity)
+                obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground, config)
                 obs.world_p_camera = calib.camera_centre("left")
                 both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                 obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
@@ -2492,7 +2499,7 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
         if disparity is None or disparity[0] <= 0:
             return None
         world_p, sigma = triangulate_centre(obs.uv["left"], obs.uv["right"], calibrations[pair_of[id(obs)]],
-                                            ground, config.keypoint_sigma_px * np.sqrt(2.0))
+                                            ground, config)
         return level_xy(world_p), sigma
 
     for frame in sorted(frames):
@@ -2543,11 +2550,15 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
     """Smooth every person's centres (:func:`smooth_centres`; ``people``: per person its frames and, per
     frame, the pairs' observations behind it), in place; then a centre an observation took from the LiDAR
     (:attr:`Observation.fallback` set) that lies within ``min_separation_m`` of another person's smoothed
-    centre at its frame, and nearer to it than to its own person's smoothed centre without it
+    centre at its frame (between two of that person's frames, on the line joining their centres: a frame
+    the neighbour's track lacks, its detection dropped or taken by this track, still has the neighbour
+    there), and nearer to it than to its own person's smoothed centre without it
     (:func:`_smoothed_without`), goes back to what it was before (its stereo centre, or none) and the person
-    is smoothed again (up to three rounds).  Someone hidden behind a neighbour in an image where the
-    neighbour was not detected gets the neighbour's points, as a cut or as "its own" cluster: one such
-    confident centre would draw the smoothed track onto the neighbour, whose own track the other frames
+    is smoothed again.  One centre per round, the one nearer the neighbour by the most, up to
+    ``separate_max_rounds``: a centre taken back moves its own track, and a neighbour's centre that track
+    drew near it before lies on its own person's after all.  Someone hidden behind a neighbour in an image
+    where the neighbour was not detected gets the neighbour's points, as a cut or as "its own" cluster: one
+    such confident centre would draw the smoothed track onto the neighbour, whose own track the other frames
     place there; a person's own LiDAR centre lies nearest its own track."""
     def level_xy(world_p) -> np.ndarray:
         return ground.to_level(np.asarray(world_p, dtype=float))[:2]
@@ -2556,13 +2567,18 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
         for entry in frames:
             _frame_centre(entry, sources.get(entry.frame, []))
         smooth_centres(frames, ground, config)
-    for _ in range(3):
+    for _ in range(config.separate_max_rounds):
         smoothed: dict[int, dict[int, np.ndarray]] = defaultdict(dict)      # frame -> person -> (2,)
         for person, (frames, _) in enumerate(people):
-            for entry in frames:
-                if entry.world_p is not None:
-                    smoothed[entry.frame][person] = level_xy(entry.world_p)
-        changed = set()
+            held = sorted((entry.frame, level_xy(entry.world_p)) for entry in frames if entry.world_p is not None)
+            for (f0, p0), (f1, p1) in zip(held, held[1:]):
+                # a person's smoothed track runs on between its frames: a frame it lacks (its detection
+                # dropped, or taken by the neighbour's track) is placed on the line between its neighbours
+                for frame in range(f0, f1):
+                    smoothed[frame][person] = p0 + (frame - f0) / (f1 - f0) * (p1 - p0)
+            if held:
+                smoothed[held[-1][0]][person] = held[-1][1]
+        clearest = None                     # (how much nearer the neighbour than its own track, person, obs)
         for person, (_, sources) in enumerate(people):
             for frame, observations in sources.items():
                 others = [xy for other, xy in smoothed[frame].items() if other != person]
@@ -2577,17 +2593,19 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
                         continue
                     own = _smoothed_without(people[person][0], sources, obs, ground, config)
                     mine = float(np.linalg.norm(xy - level_xy(own))) if own is not None else np.inf
-                    if nearest < mine:
-                        obs.world_p, obs.world_p_camera, obs.depth_sigma_m = obs.fallback
-                        obs.fallback = None
-                        changed.add(person)
-        if not changed:
+                    if nearest < mine and (clearest is None or mine - nearest > clearest[0]):
+                        clearest = (mine - nearest, person, obs)
+        if clearest is None:
             return
-        for person in sorted(changed):
-            frames, sources = people[person]
-            for entry in frames:
-                _frame_centre(entry, sources.get(entry.frame, []))
-            smooth_centres(frames, ground, config)
+        # the clearest case only, then every track as it now is: a centre taken back moves its own track,
+        # and a neighbour's centre judged against that track before may be its person's after all
+        _, person, obs = clearest
+        obs.world_p, obs.world_p_camera, obs.depth_sigma_m = obs.fallback
+        obs.fallback = None
+        frames, sources = people[person]
+        for entry in frames:
+            _frame_centre(entry, sources.get(entry.frame, []))
+        smooth_centres(frames, ground, config)
 
 
 def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
@@ -2605,7 +2623,6 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
     ground = ground or ground_from_calibrations(dict(calibrations))
     if clouds is not None:
         ground = ground_with_plane(ground, calibrations, clouds)
-    sigma_disparity = config.keypoint_sigma_px * np.sqrt(2.0)
     ranges = _file_id_ranges(groups, calibrations, config, ground, clouds) \
         if clouds is not None and config.lidar_identity else {}
     out = []
@@ -2623,7 +2640,7 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                 both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
                 if both.sum() < config.min_shared_keypoints or np.median(uv_l[both, 0] - uv_r[both, 0]) <= 0:
                     continue
-                world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, sigma_disparity)
+                world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, config)
                 if sigma < entry.depth_sigma_m:
                     entry.world_p, entry.depth_sigma_m = world_p, sigma
             for camera, det in sorted(cams.items()):
