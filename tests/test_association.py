@@ -1796,7 +1796,8 @@ def test_a_stereo_centres_sigma_holds_the_keypoint_noise_at_the_persons_size():
     image ``3 px + 1.5 %`` of the height, the association's own model): the depth of
     :func:`triangulate_centre` lies within three of its claimed sigmas in every one of 400 draws (at most two
     allowed).  A few disparities that happen to agree (a small robust spread) no longer make a depth
-    precise: floored at the size-independent part of the noise alone, 7 of the 400 lay beyond."""
+    precise: floored at the size-independent part of the noise alone, 7 of the 400 lay beyond.  Without
+    noise (every disparity the same) the sigma is that floor exactly."""
     from pedx_graph.detections.association import triangulate_centre
 
     calibs = _rig()
@@ -1805,11 +1806,19 @@ def test_a_stereo_centres_sigma_holds_the_keypoint_noise_at_the_persons_size():
     config = AssociationConfig()
     rng = np.random.default_rng(11)
     camera = calib.camera_centre("left")
+    # a walker 20 m along the pair's optical axis, a little to the side
+    axis = calib.rect_to_world(np.array([[0.0, 0.0, 20.0]]))[0] - camera
+    ahead = camera[:2] + axis[:2] / np.linalg.norm(axis[:2]) * 20.0
+    left_uv, right_uv = calib.project(_person_points(ahead, 0.0, 0.0))
+    _, clean_sigma = triangulate_centre(left_uv, right_uv, calib, ground, config)
+    sigma_px = config.keypoint_sigma_px + config.keypoint_sigma_frac * max(np.ptp(left_uv[:, 1]),
+                                                                           np.ptp(right_uv[:, 1]))
+    depth = calib.focal_px * calib.baseline_m / float(np.median(left_uv[:, 0] - right_uv[:, 0]))
+    assert clean_sigma == pytest.approx(depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * np.sqrt(2.0)
+                                        * sigma_px / np.sqrt(len(left_uv)), rel=1e-6)
     outside = 0
     for k in range(400):
-        # a walker 20 m along the pair's optical axis, a little to the side
-        axis = calib.rect_to_world(np.array([[0.0, 0.0, 20.0]]))[0] - camera
-        xy = camera[:2] + axis[:2] / np.linalg.norm(axis[:2]) * 20.0 + rng.uniform(-2.0, 2.0, 2)
+        xy = ahead + rng.uniform(-2.0, 2.0, 2)
         world_p = _person_points(xy, rng.uniform(0.0, 2 * np.pi), rng.uniform(0.0, 2 * np.pi))
         left_uv, right_uv = calib.project(world_p)
         height = float(np.ptp(left_uv[:, 1]))
