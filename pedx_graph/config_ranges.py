@@ -325,6 +325,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.stitch_max_gap_frames": NON_NEGATIVE_INT,
     "AssociationConfig.min_separation_m": NON_NEGATIVE,
     "AssociationConfig.separate_max_rounds": NON_NEGATIVE_INT,
+    "AssociationConfig.move_max_runs": NON_NEGATIVE_INT,
     "AssociationConfig.smooth_window_frames": NON_NEGATIVE_INT,
     "AssociationConfig.smooth_min_centres": COUNT,
     "AssociationConfig.smooth_motion_m": POSITIVE,

@@ -1829,3 +1829,65 @@ def test_a_stereo_centres_sigma_holds_the_keypoint_noise_at_the_persons_size():
         true_depth = float(np.median(calib.world_to_rect(world_p)[:, 2]))
         outside += abs(float(calib.world_to_rect(centre)[2]) - true_depth) > 3.0 * sigma
     assert outside <= 2
+
+
+def _side_by_side_people(stray_frames, pair1_keeps_second):
+    """Two walkers side by side at 12 m and 12.55 m (LiDAR centres 0.1 m uncertain, 2 cm noise), both seen
+    by both pairs over 15 frames and merged: the first person holds pair 0's and pair 1's tracks of the
+    near walker, except that pair 1's track holds the far walker at ``stray_frames``; the second person
+    holds pair 0's track of the far walker and pair 1's only where ``pair1_keeps_second`` (its own track
+    lost elsewhere)."""
+    from pedx_graph.detections.association import DetectedTrackFrame
+
+    calibs = _rig()
+    pairs = sorted(calibs)
+    rng = np.random.default_rng(5)
+    people, pair_of, track_of = [], {}, {}
+    for person in range(2):
+        frames, sources = {}, {}
+        for k in range(15):
+            entry = DetectedTrackFrame(frame=k, detections={})
+            sources[k] = []
+            for index, pair in enumerate(pairs):
+                if person == 1 and index == 1 and not pair1_keeps_second(k):
+                    continue
+                walker = person if not (person == 0 and index == 1 and k in stray_frames) else 1
+                centre = np.array([12.0 + 0.55 * walker, -2.0 + 0.14 * k, GROUND_Z + 0.9])
+                obs = Observation(frame=k, uv={}, score=0.9, depth_sigma_m=0.1,
+                                  world_p=centre + 0.02 * rng.standard_normal(3),
+                                  world_p_camera=calibs[pair].camera_centre("left"),
+                                  payload={"left": f"{pair}/{walker}/L/{k}", "right": f"{pair}/{walker}/R/{k}"})
+                for side, camera in zip(("left", "right"), pair.split("-")):
+                    entry.detections[camera] = obs.payload[side]
+                sources[k].append(obs)
+                pair_of[id(obs)], track_of[id(obs)] = pair, 2 * person + index
+            frames[k] = entry
+        people.append((frames, sources))
+    return people, pair_of, track_of, calibs
+
+
+def test_a_stretch_of_one_pairs_track_on_the_walker_alongside_moves_to_that_walker():
+    """Two walkers side by side, 0.55 m apart along the rays: pair 1's track of the near one went on with the
+    far one for frames 5-10 (the far one's own track in pair 1 lost there) and was merged with the near one
+    on its other frames.  Each of those frames lies only about 2.5 sigmas off the near walker's walk, but
+    six of them together are clear: they move to the far walker, who had no pair 1 detection there, and the
+    near walker keeps pair 0's.  One such frame alone stays (too little evidence); a stretch where the far
+    walker holds its own pair 1 detections does not move (one detection per camera per person)."""
+    from pedx_graph.detections.association import move_to_neighbours
+
+    stray = set(range(5, 11))
+    people, pair_of, track_of, calibs = _side_by_side_people(stray, lambda k: k < 5)
+    ground = _ground(calibs)
+    moved = move_to_neighbours(people, pair_of, track_of, ground, AssociationConfig(), calibs)
+    assert moved == 1
+    (near, near_sources), (far, far_sources) = people
+    for k in range(15):
+        assert sorted({d.split("/")[1] for d in near[k].detections.values()}) == ["0"]
+        assert len(near[k].detections) == (2 if k in stray else 4)
+        assert len(far[k].detections) == (4 if k in stray or k < 5 else 2)
+        assert {d.split("/")[1] for d in far[k].detections.values()} == {"1"}
+        assert len(far_sources[k]) == len(far[k].detections) // 2
+    people, pair_of, track_of, calibs = _side_by_side_people({7}, lambda k: k < 5)
+    assert move_to_neighbours(people, pair_of, track_of, ground, AssociationConfig(), calibs) == 0
+    people, pair_of, track_of, calibs = _side_by_side_people(stray, lambda k: True)
+    assert move_to_neighbours(people, pair_of, track_of, ground, AssociationConfig(), calibs) == 0

@@ -119,7 +119,10 @@ Steps:
    frame (one pair's tracks of one person at different times — lost and found again — do join).  At a frame
    where two merged pairs' centres disagree beyond ``gate_sigmas``, the pair whose centre the person's walk
    over its other frames does not explain loses that frame's detections (:func:`drop_conflicting_pairs`:
-   one pair's track went on with a neighbour for a frame).
+   one pair's track went on with a neighbour for a frame).  A stretch of one pair's track that the other
+   pairs' walk of its person does not explain and another person's walk does, where that person lacks
+   this pair, moves to that person (:func:`move_to_neighbours`: the pair's track went on with the walker
+   alongside for a few frames, that walker's own track in this pair lost there).
 6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
@@ -306,6 +309,9 @@ class AssociationConfig:
     separate_max_rounds: int = 8
     """:func:`separate_people` takes back at most this many LiDAR centres (one per round, the clearest
     first)."""
+    move_max_runs: int = 16
+    """:func:`move_to_neighbours` moves at most this many stretches of a pair's track to the person alongside
+    (one per round, the clearest first)."""
     smooth_window_frames: int = 5
     """Each frame's centre is a line in time fitted to as many of the track's centres as a window of this many
     frames on each side holds (``2 W + 1``): those that tell most about the frame, each centre's uncertainty
@@ -2197,12 +2203,13 @@ def _span_m(track: list[Observation], calib: StereoCalibration) -> float | None:
     return float(np.median(spans)) if spans else None
 
 
-def _ray_distance(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sigmas: list[np.ndarray],
-                  lateral_sigma_m: float) -> float:
-    """Median Mahalanobis distance between two tracks' ground-plane centres ``pa``, ``pb`` (n, 2): each centre
-    uncertain by its depth sigma (``sigmas``, (n,) each) along the ray from its camera (``cameras``, ground-plane
-    positions (2,)) and by ``lateral_sigma_m`` across it.  Two people walking side by side half a metre apart,
-    whose centres are a metre uncertain in depth, are told apart where an isotropic distance is not."""
+def _ray_distances(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sigmas: list[np.ndarray],
+                   lateral_sigma_m: float) -> np.ndarray:
+    """(n,) Mahalanobis distances between two tracks' ground-plane centres ``pa``, ``pb`` (n, 2): each centre
+    uncertain by its depth sigma (``sigmas``, (n,) each) along the ray from its camera (``cameras``,
+    ground-plane positions, (2,) or (n, 2)) and by ``lateral_sigma_m`` across it.  Two people walking side by
+    side half a metre apart, whose centres are a metre uncertain in depth, are told apart where an isotropic
+    distance is not."""
     cov = np.zeros((len(pa), 2, 2))
     for points, camera, sigma in zip((pa, pb), cameras, sigmas):
         ray = points - camera
@@ -2210,7 +2217,13 @@ def _ray_distance(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sig
         along = np.minimum(sigma, 5.0) ** 2 - lateral_sigma_m ** 2
         cov += lateral_sigma_m ** 2 * np.eye(2) + np.maximum(along, 0.0)[:, None, None] * ray[:, :, None] * ray[:, None, :]
     diff = pa - pb
-    return float(np.median(np.sqrt(np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff[..., None])[..., 0]))))
+    return np.sqrt(np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff[..., None])[..., 0]))
+
+
+def _ray_distance(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sigmas: list[np.ndarray],
+                  lateral_sigma_m: float) -> float:
+    """Median of :func:`_ray_distances` over the shared frames."""
+    return float(np.median(_ray_distances(pa, pb, cameras, sigmas, lateral_sigma_m)))
 
 
 def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: GroundFrame,
@@ -2545,6 +2558,139 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
             sources.pop(frame, None)
 
 
+def _walk_of(frames: Mapping[int, DetectedTrackFrame], sources: Mapping[int, list[Observation]],
+             ground: GroundFrame, config: AssociationConfig,
+             left_out: str | None = None, pair_of: Mapping[int, str] | None = None
+             ) -> dict[int, tuple[np.ndarray, float]]:
+    """A person's smoothed walk in the ground plane: frame -> (level (x, y), its sigma) at every frame from
+    its first to its last centre (between two held frames on the line joining them, with the larger sigma),
+    from its pairs' observations (``left_out`` not counted), :func:`smooth_centres`."""
+    copies = []
+    for frame in sorted(frames):
+        copy = DetectedTrackFrame(frame=frame, detections={})
+        _frame_centre(copy, [obs for obs in sources.get(frame, []) if left_out is None or pair_of[id(obs)] != left_out])
+        copies.append(copy)
+    if sum(c.world_p is not None for c in copies) < 2:
+        return {}
+    smooth_centres(copies, ground, config)
+    held = [(c.frame, ground.to_level(c.world_p)[:2], min(float(c.depth_sigma_m), 5.0))
+            for c in copies if c.world_p is not None]
+    walk = {}
+    for (f0, p0, s0), (f1, p1, s1) in zip(held, held[1:]):
+        for frame in range(f0, f1):
+            walk[frame] = (p0 + (frame - f0) / (f1 - f0) * (p1 - p0), s0 if frame == f0 else max(s0, s1))
+    walk[held[-1][0]] = (held[-1][1], held[-1][2])
+    return walk
+
+
+def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[int, list[Observation]]]],
+                       pair_of: Mapping[int, str], track_of: Mapping[int, int], ground: GroundFrame,
+                       config: AssociationConfig, calibrations: Mapping[str, StereoCalibration]) -> int:
+    """Move, in place, a stretch of one pair track's observations from the merged person it is in to another
+    person whose walk explains them (module docstring, step 5); returns how many stretches moved.
+
+    Tracks of two pairs are merged on the median agreement of their shared frames, so a pair's track that went
+    on with the walker alongside for a few frames (that walker's own track in the pair lost there) brings
+    that walker's detections into the person.  Frame by frame the evidence is weak — two people walking side
+    by side half a metre apart along the rays, their centres 0.1-0.2 m uncertain, lie two to three sigmas
+    apart — but over a stretch it adds up.
+
+    ``people``: per person, frame -> its :class:`DetectedTrackFrame` and frame -> the pairs' observations
+    behind it; ``pair_of`` / ``track_of``: id of an observation -> its pair / the index of its pair track.
+    For each pair track in a person, its person's walk from the other pairs' observations only
+    (:func:`_walk_of`) and every other person's walk are compared with each of its observations' centres
+    (:func:`_ray_distance`: the centre uncertain by its depth sigma along its ray and by
+    ``centre_lateral_sigma_m`` across it, the walk by its own sigma and ``smooth_motion_m``).  Where the
+    other person holds no observation of this pair at that frame and its walk explains the centre within
+    ``gate_sigmas``, the observation's evidence for the move is half the difference of the squared
+    distances (a log likelihood ratio); the consecutive observations with the largest sum move when that
+    sum reaches ``gate_sigmas^2 / 2`` (what one frame passing every gate adds to a pairing, step 4).  The
+    clearest stretch moves first and the walks are recomputed, at most ``move_max_runs`` stretches; a
+    person left without frames is empty.  Without another pair's observations near a frame there is no
+    walk to judge it by, and nothing moves."""
+    def level_xy(world_p) -> np.ndarray:
+        return ground.to_level(np.asarray(world_p, dtype=float))[:2]
+
+    def camera_xy(obs: Observation) -> np.ndarray:
+        camera = obs.world_p_camera if obs.world_p_camera is not None \
+            else calibrations[pair_of[id(obs)]].camera_centre("left")
+        return level_xy(camera)
+
+    def distances(placed: list[Observation], walk: dict) -> np.ndarray:
+        # each placed centre against the walk at its frame (the walk's sigma with smooth_motion_m)
+        walk_xy = np.array([walk[obs.frame][0] for obs in placed])
+        walk_sigma = np.hypot([walk[obs.frame][1] for obs in placed], config.smooth_motion_m)
+        cameras = np.array([camera_xy(obs) for obs in placed])
+        return _ray_distances(np.array([level_xy(obs.world_p) for obs in placed]), walk_xy, [cameras, cameras],
+                              [np.array([float(obs.depth_sigma_m) for obs in placed]), walk_sigma],
+                              config.centre_lateral_sigma_m)
+
+    walks = [_walk_of(frames, sources, ground, config) for frames, sources in people]
+    own_walks: dict[tuple[int, str], dict] = {}         # (person, pair) -> its walk without that pair
+    moved = 0
+    for _ in range(config.move_max_runs):
+        clearest = None                # (evidence, person, other, observations)
+        for person, (frames, sources) in enumerate(people):
+            by_track: dict[int, list[Observation]] = defaultdict(list)
+            for frame in sorted(sources):
+                for obs in sources[frame]:
+                    by_track[track_of[id(obs)]].append(obs)
+            for observations in by_track.values():
+                pair = pair_of[id(observations[0])]
+                if (person, pair) not in own_walks:
+                    own_walks[person, pair] = _walk_of(frames, sources, ground, config, left_out=pair, pair_of=pair_of)
+                own = own_walks[person, pair]
+                placed = [obs for obs in observations if obs.world_p is not None and obs.frame in own]
+                if not placed:
+                    continue
+                d_own = dict(zip(map(id, placed), distances(placed, own)))
+                for other, (_, other_sources) in enumerate(people):
+                    candidates = [obs for obs in placed if obs.frame in walks[other] and
+                                  not any(pair_of[id(o)] == pair for o in other_sources.get(obs.frame, []))]
+                    if other == person or not candidates:
+                        continue
+                    d_other = dict(zip(map(id, candidates), distances(candidates, walks[other])))
+                    # the best run of consecutive observations the other's walk explains better than the
+                    # own person's walk without this pair: evidence adds over the run
+                    run, total, best = [], 0.0, (0.0, [])
+                    for obs in observations:
+                        gain = None
+                        if d_other.get(id(obs), np.inf) <= config.gate_sigmas:
+                            gain = 0.5 * (d_own[id(obs)] ** 2 - d_other[id(obs)] ** 2)
+                        if gain is None or total + gain <= 0:
+                            run, total = [], 0.0
+                            continue
+                        run, total = run + [obs], total + gain
+                        if total > best[0]:
+                            best = (total, list(run))
+                    if best[0] >= 0.5 * config.gate_sigmas ** 2 and (clearest is None or best[0] > clearest[0]):
+                        clearest = (best[0], person, other, best[1])
+        if clearest is None:
+            break
+        _, person, other, observations = clearest
+        frames, sources = people[person]
+        other_frames, other_sources = people[other]
+        left_name, right_name = pair_of[id(observations[0])].split("-")
+        for obs in observations:
+            frame = obs.frame
+            names = {side: left_name if side == "left" else right_name for side in obs.payload}
+            sources[frame] = [o for o in sources[frame] if o is not obs]
+            for name in names.values():
+                frames[frame].detections.pop(name, None)
+            if not frames[frame].detections:
+                del frames[frame]
+                sources.pop(frame, None)
+            entry = other_frames.setdefault(frame, DetectedTrackFrame(frame=frame, detections={}))
+            for side, det in obs.payload.items():
+                entry.detections[names[side]] = det
+            other_sources.setdefault(frame, []).append(obs)
+        walks[person] = _walk_of(frames, sources, ground, config)
+        walks[other] = _walk_of(other_frames, other_sources, ground, config)
+        own_walks = {key: walk for key, walk in own_walks.items() if key[0] not in (person, other)}
+        moved += 1
+    return moved
+
+
 def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[Observation]]]],
                     ground: GroundFrame, config: AssociationConfig) -> None:
     """Smooth every person's centres (:func:`smooth_centres`; ``people``: per person its frames and, per
@@ -2702,7 +2848,9 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
     tracks: list[tuple[str, list[Observation]]] = []
     for pair in sorted(by_pair):
         tracks += [(pair, track) for track in pair_tracks(by_pair[pair], calibrations[pair], config, ground, clouds)]
-    people, smoothing = [], []
+    pair_of = {id(obs): pair for pair, track in tracks for obs in track}
+    track_of = {id(obs): index for index, (_, track) in enumerate(tracks) for obs in track}
+    groups = []
     for group in merge_pair_tracks(tracks, ground, config, calibrations):
         frames: dict[int, DetectedTrackFrame] = {}
         sources: dict[int, list[Observation]] = defaultdict(list)
@@ -2716,6 +2864,12 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
                 sources[obs.frame].append(obs)
         drop_conflicting_pairs(frames, sources, {id(obs): tracks[i][0] for i in group for obs in tracks[i][1]},
                                ground, config, calibrations)
+        groups.append((frames, sources))
+    move_to_neighbours(groups, pair_of, track_of, ground, config, calibrations)
+    people, smoothing = [], []
+    for frames, sources in groups:
+        if not frames:
+            continue
         for frame, entry in frames.items():
             _frame_centre(entry, sources[frame])
         centres = np.array([fr.world_p for fr in frames.values() if fr.world_p is not None]).reshape(-1, 3)
@@ -2723,7 +2877,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
             distance = float(np.median(ground.horizontal_distance(centres)))
             if not config.min_distance_m <= distance <= config.max_distance_m:
                 continue
-        pairs = tuple(sorted({tracks[i][0] for i in group}))
+        pairs = tuple(sorted({pair_of[id(obs)] for observations in sources.values() for obs in observations}))
         people.append((min(frames), pairs, [frames[f] for f in sorted(frames)]))
         smoothing.append((people[-1][2], sources))
     separate_people(smoothing, ground, config)
