@@ -39,7 +39,7 @@ from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 FORMAT = "openpose_body25"
 #: Steps of the association whose share of the time is reported (functions of its module).
 STEPS = ("camera_tracklets", "pair_tracklets", "stitch_tracks", "repair_swaps", "split_reversals", "_lidar_centre",
-         "detection_ranges", "merge_pair_tracks", "smooth_centres", "separate_people")
+         "detection_ranges", "merge_pair_tracks", "move_to_neighbours", "smooth_centres", "separate_people")
 
 
 def run_size(people: int, frames: int, seed: int, work: Path, repeats: int) -> dict:

@@ -2568,13 +2568,16 @@ def _walk_of(frames: Mapping[int, DetectedTrackFrame], sources: Mapping[int, lis
     copies = []
     for frame in sorted(frames):
         copy = DetectedTrackFrame(frame=frame, detections={})
-        _frame_centre(copy, [obs for obs in sources.get(frame, []) if left_out is None or pair_of[id(obs)] != left_out])
+        _frame_centre(copy, [obs for obs in sources.get(frame, [])
+                             if left_out is None or pair_of[id(obs)] != left_out])
         copies.append(copy)
-    if sum(c.world_p is not None for c in copies) < 2:
+    placed = [c.frame for c in copies if c.world_p is not None]
+    if len(placed) < 2:
         return {}
     smooth_centres(copies, ground, config)
+    # between its first and last centre only: smoothing carries the line past them too
     held = [(c.frame, ground.to_level(c.world_p)[:2], min(float(c.depth_sigma_m), 5.0))
-            for c in copies if c.world_p is not None]
+            for c in copies if c.world_p is not None and placed[0] <= c.frame <= placed[-1]]
     walk = {}
     for (f0, p0, s0), (f1, p1, s1) in zip(held, held[1:]):
         for frame in range(f0, f1):
