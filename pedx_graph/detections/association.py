@@ -2606,8 +2606,11 @@ def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[in
     ``centre_lateral_sigma_m`` across it, the walk by its own sigma and ``smooth_motion_m``).  Where the
     other person holds no observation of this pair at that frame and its walk explains the centre within
     ``gate_sigmas``, the observation's evidence for the move is half the difference of the squared
-    distances (a log likelihood ratio); the consecutive observations with the largest sum move when that
-    sum reaches ``gate_sigmas^2 / 2`` (what one frame passing every gate adds to a pairing, step 4).  The
+    distances (a log likelihood ratio); the consecutive observations, two at least, with the largest sum
+    move when that sum reaches ``gate_sigmas^2 / 2`` (what one frame passing every gate adds to a pairing,
+    step 4).  Never one alone: a single centre off its person's walk and on another's is more often a
+    centre gone wrong (a cut or a cluster on the neighbour, a stereo mismatch; :func:`separate_people`) than
+    a track gone on with someone else, which lasts.  The
     clearest stretch moves first and the walks are recomputed, at most ``move_max_runs`` stretches; a
     person left without frames is empty.  Without another pair's observations near a frame there is no
     walk to judge it by, and nothing moves."""
@@ -2664,7 +2667,7 @@ def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[in
                             run, total = [], 0.0
                             continue
                         run, total = run + [obs], total + gain
-                        if total > best[0]:
+                        if total > best[0] and len(run) >= 2:
                             best = (total, list(run))
                     if best[0] >= 0.5 * config.gate_sigmas ** 2 and (clearest is None or best[0] > clearest[0]):
                         clearest = (best[0], person, other, best[1])
