@@ -2602,7 +2602,7 @@ def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[in
     behind it; ``pair_of`` / ``track_of``: id of an observation -> its pair / the index of its pair track.
     For each pair track in a person, its person's walk from the other pairs' observations only
     (:func:`_walk_of`) and every other person's walk are compared with each of its observations' centres
-    (:func:`_ray_distance`: the centre uncertain by its depth sigma along its ray and by
+    (:func:`_ray_distances`: the centre uncertain by its depth sigma along its ray and by
     ``centre_lateral_sigma_m`` across it, the walk by its own sigma and ``smooth_motion_m``).  Where the
     other person holds no observation of this pair at that frame and its walk explains the centre within
     ``gate_sigmas``, the observation's evidence for the move is half the difference of the squared
