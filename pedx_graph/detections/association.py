@@ -2491,12 +2491,10 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
     own uncertainty and ``smooth_motion_m`` added) stays, an observation beyond ``gate_sigmas`` of it leaves
     the frame with its pair's detections.  Nothing changes where no observation lies within the gate."""
     def level_xy(world_p) -> np.ndarray:
-        return ground.to_level(np.asarray(world_p, dtype=float))[:2]
+        return _level_xy(ground, world_p)
 
     def camera_xy(obs: Observation) -> np.ndarray:
-        camera = obs.world_p_camera if obs.world_p_camera is not None \
-            else calibrations[pair_of[id(obs)]].camera_centre("left")
-        return level_xy(camera)
+        return _camera_xy(obs, ground, calibrations, pair_of)
 
     def distance(a_xy, a_camera, a_sigma, b_xy, b_camera, b_sigma) -> float:
         return _ray_distance(a_xy[None], b_xy[None], [a_camera, b_camera], [np.array([a_sigma]), np.array([b_sigma])],
@@ -2558,6 +2556,20 @@ def drop_conflicting_pairs(frames: dict[int, DetectedTrackFrame], sources: dict[
             sources.pop(frame, None)
 
 
+def _level_xy(ground: GroundFrame, world_p) -> np.ndarray:
+    """(2,) ground-plane position of a world point (3,), metres."""
+    return ground.to_level(np.asarray(world_p, dtype=float))[:2]
+
+
+def _camera_xy(obs: Observation, ground: GroundFrame, calibrations: Mapping[str, StereoCalibration],
+               pair_of: Mapping[int, str]) -> np.ndarray:
+    """(2,) ground-plane position of the camera an observation's centre was seen from (its pair's left camera
+    where the observation does not say)."""
+    camera = obs.world_p_camera if obs.world_p_camera is not None \
+        else calibrations[pair_of[id(obs)]].camera_centre("left")
+    return _level_xy(ground, camera)
+
+
 def _walk_of(frames: Mapping[int, DetectedTrackFrame], sources: Mapping[int, list[Observation]],
              ground: GroundFrame, config: AssociationConfig,
              left_out: str | None = None, pair_of: Mapping[int, str] | None = None
@@ -2615,12 +2627,10 @@ def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[in
     person left without frames is empty.  Without another pair's observations near a frame there is no
     walk to judge it by, and nothing moves."""
     def level_xy(world_p) -> np.ndarray:
-        return ground.to_level(np.asarray(world_p, dtype=float))[:2]
+        return _level_xy(ground, world_p)
 
     def camera_xy(obs: Observation) -> np.ndarray:
-        camera = obs.world_p_camera if obs.world_p_camera is not None \
-            else calibrations[pair_of[id(obs)]].camera_centre("left")
-        return level_xy(camera)
+        return _camera_xy(obs, ground, calibrations, pair_of)
 
     def distances(placed: list[Observation], walk: dict) -> np.ndarray:
         # each placed centre against the walk at its frame (the walk's sigma with smooth_motion_m)
