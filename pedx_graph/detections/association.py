@@ -2570,6 +2570,19 @@ def _camera_xy(obs: Observation, ground: GroundFrame, calibrations: Mapping[str,
     return _level_xy(ground, camera)
 
 
+def _between_frames(held: list[tuple[int, np.ndarray, float]]) -> dict[int, tuple[np.ndarray, float]]:
+    """A track's ground-plane positions ``held`` (frame, (2,), sigma; in frame order) at every frame from its
+    first to its last: a frame it lacks (its detection dropped, or taken by a neighbour's track) on the line
+    between the neighbouring two, with the larger of their sigmas."""
+    out = {}
+    for (f0, p0, s0), (f1, p1, s1) in zip(held, held[1:]):
+        for frame in range(f0, f1):
+            out[frame] = (p0 + (frame - f0) / (f1 - f0) * (p1 - p0), s0 if frame == f0 else max(s0, s1))
+    if held:
+        out[held[-1][0]] = (held[-1][1], held[-1][2])
+    return out
+
+
 def _walk_of(frames: Mapping[int, DetectedTrackFrame], sources: Mapping[int, list[Observation]],
              ground: GroundFrame, config: AssociationConfig,
              left_out: str | None = None, pair_of: Mapping[int, str] | None = None
@@ -2590,12 +2603,7 @@ def _walk_of(frames: Mapping[int, DetectedTrackFrame], sources: Mapping[int, lis
     # between its first and last centre only: smoothing carries the line past them too
     held = [(c.frame, ground.to_level(c.world_p)[:2], min(float(c.depth_sigma_m), 5.0))
             for c in copies if c.world_p is not None and placed[0] <= c.frame <= placed[-1]]
-    walk = {}
-    for (f0, p0, s0), (f1, p1, s1) in zip(held, held[1:]):
-        for frame in range(f0, f1):
-            walk[frame] = (p0 + (frame - f0) / (f1 - f0) * (p1 - p0), s0 if frame == f0 else max(s0, s1))
-    walk[held[-1][0]] = (held[-1][1], held[-1][2])
-    return walk
+    return _between_frames(held)
 
 
 def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[int, list[Observation]]]],
@@ -2626,19 +2634,19 @@ def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[in
     clearest stretch moves first and the walks are recomputed, at most ``move_max_runs`` stretches; a
     person left without frames is empty.  Without another pair's observations near a frame there is no
     walk to judge it by, and nothing moves."""
-    def level_xy(world_p) -> np.ndarray:
-        return _level_xy(ground, world_p)
-
-    def camera_xy(obs: Observation) -> np.ndarray:
-        return _camera_xy(obs, ground, calibrations, pair_of)
+    seen: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}     # id -> (centre, camera) (2,), depth sigma
 
     def distances(placed: list[Observation], walk: dict) -> np.ndarray:
         # each placed centre against the walk at its frame (the walk's sigma with smooth_motion_m)
+        for obs in placed:
+            if id(obs) not in seen:
+                seen[id(obs)] = (_level_xy(ground, obs.world_p), _camera_xy(obs, ground, calibrations, pair_of),
+                                 float(obs.depth_sigma_m))
         walk_xy = np.array([walk[obs.frame][0] for obs in placed])
         walk_sigma = np.hypot([walk[obs.frame][1] for obs in placed], config.smooth_motion_m)
-        cameras = np.array([camera_xy(obs) for obs in placed])
-        return _ray_distances(np.array([level_xy(obs.world_p) for obs in placed]), walk_xy, [cameras, cameras],
-                              [np.array([float(obs.depth_sigma_m) for obs in placed]), walk_sigma],
+        cameras = np.array([seen[id(obs)][1] for obs in placed])
+        return _ray_distances(np.array([seen[id(obs)][0] for obs in placed]), walk_xy, [cameras, cameras],
+                              [np.array([seen[id(obs)][2] for obs in placed]), walk_sigma],
                               config.centre_lateral_sigma_m)
 
     walks = [_walk_of(frames, sources, ground, config) for frames, sources in people]
@@ -2661,9 +2669,11 @@ def move_to_neighbours(people: list[tuple[dict[int, DetectedTrackFrame], dict[in
                     continue
                 d_own = dict(zip(map(id, placed), distances(placed, own)))
                 for other, (_, other_sources) in enumerate(people):
+                    if other == person:
+                        continue
                     candidates = [obs for obs in placed if obs.frame in walks[other] and
                                   not any(pair_of[id(o)] == pair for o in other_sources.get(obs.frame, []))]
-                    if other == person or not candidates:
+                    if not candidates:
                         continue
                     d_other = dict(zip(map(id, candidates), distances(candidates, walks[other])))
                     # the best run of consecutive observations the other's walk explains better than the
@@ -2732,14 +2742,12 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
     for _ in range(config.separate_max_rounds):
         smoothed: dict[int, dict[int, np.ndarray]] = defaultdict(dict)      # frame -> person -> (2,)
         for person, (frames, _) in enumerate(people):
-            held = sorted((entry.frame, level_xy(entry.world_p)) for entry in frames if entry.world_p is not None)
-            for (f0, p0), (f1, p1) in zip(held, held[1:]):
-                # a person's smoothed track runs on between its frames: a frame it lacks (its detection
-                # dropped, or taken by the neighbour's track) is placed on the line between its neighbours
-                for frame in range(f0, f1):
-                    smoothed[frame][person] = p0 + (frame - f0) / (f1 - f0) * (p1 - p0)
-            if held:
-                smoothed[held[-1][0]][person] = held[-1][1]
+            # a person's smoothed track runs on between its frames: a frame it lacks (its detection dropped,
+            # or taken by the neighbour's track) is placed on the line between its neighbours
+            held = sorted(((entry.frame, level_xy(entry.world_p), 0.0) for entry in frames
+                           if entry.world_p is not None), key=lambda item: item[0])
+            for frame, (xy, _) in _between_frames(held).items():
+                smoothed[frame][person] = xy
         clearest = None                     # (how much nearer the neighbour than its own track, person, obs)
         for person, (_, sources) in enumerate(people):
             for frame, observations in sources.items():
