@@ -740,6 +740,37 @@ def test_a_frame_a_tracklet_took_from_a_nearer_person_goes_to_that_person_by_its
     assert holder_of_the_taken_detection(False) == {"near", "far"}
 
 
+def test_a_one_frame_detection_a_neighbours_tracklet_took_completes_its_own_persons_frame():
+    """Two walkers crossing the view 8 and 10 m away.  The far one is seen in the right image only, but at
+    frame 4 also in the left, where the near one is missed in both images and the left image's tracker carried the near
+    one's tracklet through the far one's detection.  One stereo frame is too short to pair tracklets, and
+    the near walker's left detections explain that detection well enough to keep it; it pairs with the far walker's right detection at that
+    frame (rows agree, the disparity at the far walker's depth), so it moves there and the frame is paired.
+    The far walker's right detection stays where it is."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    ahead = _person_points((8.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(7)
+    views = {}
+    for name, x, y0 in (("near", 8.0, -1.2), ("far", 10.0, -1.3)):
+        for k in range(8):
+            points = _person_points((x, y0 + 0.15 * k), np.pi / 2, 0.6 * k)
+            for side, uv in zip(("left", "right"), calib.project(points)):
+                uv = uv + rng.normal(size=uv.shape)
+                det = Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                                confidence=np.full(len(uv), 0.8), score=0.8, source=f"{name}/{side}/{k}")
+                views[name, side, k] = (k, det, uv)
+    left = [[views["far" if k == 4 else "near", "left", k] for k in range(8)]]
+    right = [[views["near", "right", k] for k in range(8) if k != 4], [views["far", "right", k] for k in range(8)]]
+    people = pair_tracklets(left, right, calib, AssociationConfig())
+    owner = {d.source: n for n, p in enumerate(people) for s in ("left", "right") for _, d, _ in p.sides[s].values()}
+    far = owner["far/right/0"]
+    assert owner["far/left/4"] == far and 4 in people[far].paired
+    assert all(owner[f"far/right/{k}"] == far for k in range(8))
+    assert all(owner[f"near/left/{k}"] != far for k in range(8) if k != 4)
+
+
 def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():
     """The right image's tracker swapped two people 8 m apart in depth at frame 8 (each right tracklet holds
     one person for frames 0-7 and the other for 8-19); the left image's tracklets are clean.  Each left

@@ -77,7 +77,11 @@ Steps:
    (past the ends carried on at the body's velocity, the median keypoint step), agree best in keypoints and
    size (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of their
    own; a detection with a LiDAR range also weighs how far that range lies from the person's depth (its
-   paired frames' disparities), without gating on it.  Paired frames are triangulated at their median
+   paired frames' disparities), without gating on it.  A detection seen in one image at a frame then moves
+   to another person holding only the other image's detection there when the two pair in stereo at that
+   person's depth better than its own person's detections in its image explain it (:func:`complete_frames`:
+   a neighbour's tracklet carried through the one frame where the person was seen in that image; one stereo
+   frame is too short to pair tracklets).  Paired frames are triangulated at their median
    disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
    agrees; a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
    where that cluster ends at the silhouettes (not a wall seen through someone the LiDAR misses,
@@ -816,6 +820,17 @@ def _frame_terms(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibra
     return cost, disparity, se
 
 
+def _detection_pair_terms(det_left: Detection, uv_left: np.ndarray, det_right: Detection, uv_right: np.ndarray,
+                          calib: StereoCalibration, config: AssociationConfig,
+                          ranges: Mapping[int, float] | None = None,
+                          ground: GroundFrame | None = None) -> tuple[float, float, float] | None:
+    """:func:`_frame_terms` of a left and a right detection: the height term where both have one keypoint
+    set, their LiDAR ranges where ``ranges`` (id of a detection -> range) holds them."""
+    kset = det_left.keypoint_set if det_left.keypoint_set == det_right.keypoint_set else None
+    pair_ranges = (ranges.get(id(det_left)), ranges.get(id(det_right))) if ranges else (None, None)
+    return _frame_terms(uv_left, uv_right, calib, config, kset, pair_ranges, ground)
+
+
 def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray, calib: StereoCalibration,
                       config: AssociationConfig) -> np.ndarray:
     """Normalised residuals of per-frame disparities about the best line ``d(f) = a + b f`` whose slope a
@@ -854,10 +869,8 @@ def _pair_gains(left: list, right: list, calib: StereoCalibration, config: Assoc
     items = []
     for frame, det, uv_left in left:
         if frame in by_frame:
-            kset = det.keypoint_set if det.keypoint_set == by_frame[frame][0].keypoint_set else None
-            pair_ranges = (ranges.get(id(det)), ranges.get(id(by_frame[frame][0]))) if ranges else (None, None)
-            items.append((frame, _frame_terms(uv_left, by_frame[frame][1], calib, config, kset, pair_ranges,
-                                              ground)))
+            items.append((frame, _detection_pair_terms(det, uv_left, *by_frame[frame], calib, config, ranges,
+                                                       ground)))
     items.sort(key=lambda item: item[0])
     c0 = 0.5 * config.gate_sigmas ** 2
     gain = np.full(len(items), -c0)
@@ -1023,12 +1036,13 @@ def _person_depths(person: "_Person", calib: StereoCalibration, config: Associat
 
 
 def _depth_residual(depths: dict[int, tuple[float, float]], frame: int, range_m: float,
-                    config: AssociationConfig) -> float:
+                    config: AssociationConfig, range_sigma_m: float | None = None) -> float:
     """How far a detection's LiDAR range lies from a person's depth at ``frame`` (:func:`_person_depths`,
     linearly interpolated between its nearest known frames before and after, else held from the nearest), in
-    sigmas: the range's ``lidar_range_sigma_m``, the depth's standard error and a walker's depth change over
-    the gap (``tracker.max_speed_mps`` for a held depth, ``tracklet.accel_sigma_mps`` for an interpolated one)
-    in quadrature; capped at ``tracklet.gate_sigmas`` (a range can lie on a neighbour); 0 without depths."""
+    sigmas: the range's ``lidar_range_sigma_m`` (or ``range_sigma_m``, for a depth measured otherwise), the
+    depth's standard error and a walker's depth change over the gap (``tracker.max_speed_mps`` for a held
+    depth, ``tracklet.accel_sigma_mps`` for an interpolated one) in quadrature; capped at
+    ``tracklet.gate_sigmas`` (a range can lie on a neighbour); 0 without depths."""
     if not depths:
         return 0.0
     frames = np.array(sorted(depths))
@@ -1044,7 +1058,8 @@ def _depth_residual(depths: dict[int, tuple[float, float]], frame: int, range_m:
         near = int(before[-1]) if len(before) else int(after[0])
         depth, se = depths[near]
         motion = config.tracker.max_speed_mps * abs(frame - near) * dt
-    sigma = float(np.sqrt(config.lidar_range_sigma_m ** 2 + se ** 2 + motion ** 2))
+    range_sigma_m = config.lidar_range_sigma_m if range_sigma_m is None else range_sigma_m
+    sigma = float(np.sqrt(range_sigma_m ** 2 + se ** 2 + motion ** 2))
     return min(abs(range_m - depth) / sigma, config.tracklet.gate_sigmas)
 
 
@@ -1165,7 +1180,86 @@ def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration
         if n not in placed:
             alone.setdefault((side, index), _Person(tracklets={(side, index)})).sides[side][f] = (index, d, uv)
     people += list(alone.values())
-    return people
+    return complete_frames(people, calib, config, ranges, ground)
+
+
+def complete_frames(people: list[_Person], calib: StereoCalibration, config: AssociationConfig,
+                    ranges: Mapping[int, float] | None = None, ground: GroundFrame | None = None) -> list[_Person]:
+    """Move a detection seen in one image of a person's frame to another person that holds only the other
+    image's detection at that frame, where the two pair in stereo (:func:`_completion_cost`) and that explains
+    the detection better than its own person's neighbouring detections in its image do
+    (:func:`_interpolation_cost`; a detection with a LiDAR range also weighs how far it lies from each
+    person's depth, :func:`_depth_residual`); ``tracklet_switch_cost`` is added for a person not holding the
+    detection's tracklet, and a move costs at most ``tracklet.gate_sigmas``.  The frame becomes a paired one
+    of the receiving person.  The case: a person missed in one image for a few frames while the tracker of
+    that image carried a neighbour's tracklet through the one frame where the person was seen there; the
+    detection's single stereo frame is too short for tracklet pairing (``pair_min_run_frames``) and
+    stays with the tracklet it was tracked in.  Clearest moves first (the largest margin); people left
+    empty are dropped.  A detection alone in its image (no other of its person's within
+    ``tracklet.max_misses`` frames) counts ``tracklet.gate_sigmas`` to stay; one whose neighbours in time
+    share too few keypoints with it to interpolate stays (no evidence either way).  Only a person with at
+    least ``tracker.min_track_frames`` frames receives: a shorter one is dropped unless stitched, and the
+    detection with it."""
+    depths = [_person_depths(p, calib, config, ranges) for p in people]
+    min_frames = config.tracker.min_track_frames
+    moves = []
+    for k, person in enumerate(people):
+        for side, other in (("left", "right"), ("right", "left")):
+            for f, (index, det, uv) in person.sides[side].items():
+                if f in person.sides[other]:
+                    continue
+                receivers = [m for m, q in enumerate(people)
+                             if m != k and f in q.sides[other] and f not in q.sides[side]
+                             and len(q.sides["left"].keys() | q.sides["right"].keys()) >= min_frames]
+                if not receivers:
+                    continue
+                own = {g: item for g, item in person.sides[side].items() if g != f}
+                stay = _interpolation_cost(own, f, uv, config)
+                if stay is None:
+                    if any(abs(g - f) <= config.tracklet.max_misses for g in own):
+                        continue           # its neighbours in time share too few keypoints with it to judge
+                    stay = config.tracklet.gate_sigmas         # alone in its image: nothing holds it there
+                range_m = ranges.get(id(det)) if ranges else None
+                if range_m is not None:
+                    stay = float(np.hypot(stay, _depth_residual(depths[k], f, range_m, config)))
+                for m in receivers:
+                    cost = _completion_cost(people[m].sides, side, f, det, uv, depths[m], calib, config, ranges,
+                                            ground)
+                    if cost is None:
+                        continue
+                    if (side, index) not in people[m].tracklets:
+                        cost += config.tracklet_switch_cost
+                    if cost <= config.tracklet.gate_sigmas and cost < stay:
+                        moves.append((cost - stay, k, m, side, f))
+    for _, k, m, side, f in sorted(moves):
+        other = "right" if side == "left" else "left"
+        if f not in people[k].sides[side] or f in people[m].sides[side] or f not in people[m].sides[other]:
+            continue
+        index, det, uv = people[k].sides[side].pop(f)
+        people[m].sides[side][f] = (index, det, uv)
+        people[m].tracklets.add((side, index))
+        people[m].paired.add(f)
+    return [p for p in people if p.sides["left"] or p.sides["right"]]
+
+
+def _completion_cost(sides: Mapping[str, dict], side: str, frame: int, det: Detection, uv: np.ndarray,
+                     depths: dict[int, tuple[float, float]], calib: StereoCalibration, config: AssociationConfig,
+                     ranges: Mapping[int, float] | None, ground: GroundFrame | None) -> float | None:
+    """How well an unpaired detection (``side`` image, ``frame``) completes a person that holds only the other
+    image's detection at that frame, in sigmas: the root mean square of the pair's stereo terms
+    (:func:`stereo_cost`) and, in quadrature, how far the pairing's depth ``f B / d`` (its standard error
+    ``f B / d^2`` times the disparity's) lies from the person's depth at that frame (:func:`_depth_residual`,
+    its paired frames' disparities or LiDAR ranges).  None when the pairing is gated out.  ``sides``: the person's side -> frame -> (tracklet, detection, uv)."""
+    other = "right" if side == "left" else "left"
+    _, other_det, other_uv = sides[other][frame]
+    pair = (det, uv, other_det, other_uv) if side == "left" else (other_det, other_uv, det, uv)
+    terms = _detection_pair_terms(*pair, calib, config, ranges, ground)
+    if terms is None:
+        return None
+    cost, disparity_px, se_px = terms
+    depth_m = calib.focal_px * calib.baseline_m / disparity_px
+    depth_se_m = depth_m / disparity_px * se_px
+    return float(np.hypot(np.sqrt(cost), _depth_residual(depths, frame, depth_m, config, depth_se_m)))
 
 
 def drop_disparity_outliers(person: _Person, calib: StereoCalibration, config: AssociationConfig) -> None:
