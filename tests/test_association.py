@@ -742,11 +742,13 @@ def test_a_frame_a_tracklet_took_from_a_nearer_person_goes_to_that_person_by_its
 
 def test_a_one_frame_detection_a_neighbours_tracklet_took_completes_its_own_persons_frame():
     """Two walkers crossing the view 8 and 10 m away.  The far one is seen in the right image only, but at
-    frame 4 also in the left, where the near one is missed in both images and the left image's tracker carried the near
-    one's tracklet through the far one's detection.  One stereo frame is too short to pair tracklets, and
-    the near walker's left detections explain that detection well enough to keep it; it pairs with the far walker's right detection at that
-    frame (rows agree, the disparity at the far walker's depth), so it moves there and the frame is paired.
-    The far walker's right detection stays where it is."""
+    frame 4 also in the left, where the near one is missed in both images and the left image's tracker
+    carried the near one's tracklet through the far one's detection.  One stereo frame is too short to pair
+    tracklets, and the near walker's left detections explain that detection well enough to keep it; it
+    pairs with the far walker's right detection at that frame (rows agree, the disparity at the far walker's
+    depth), so it moves there and the frame is paired; the far walker's right detections stay where they
+    are.  Seen in the right image for four frames only (fewer than ``tracker.min_track_frames``: a person
+    dropped later, with what it received), the far walker receives nothing and the detection stays."""
     from pedx_graph.detections.association import pair_tracklets
 
     ahead = _person_points((8.0, 0.0), 0.0, 0.0)
@@ -762,13 +764,21 @@ def test_a_one_frame_detection_a_neighbours_tracklet_took_completes_its_own_pers
                                 confidence=np.full(len(uv), 0.8), score=0.8, source=f"{name}/{side}/{k}")
                 views[name, side, k] = (k, det, uv)
     left = [[views["far" if k == 4 else "near", "left", k] for k in range(8)]]
-    right = [[views["near", "right", k] for k in range(8) if k != 4], [views["far", "right", k] for k in range(8)]]
-    people = pair_tracklets(left, right, calib, AssociationConfig())
-    owner = {d.source: n for n, p in enumerate(people) for s in ("left", "right") for _, d, _ in p.sides[s].values()}
+
+    def owners(far_frames):
+        right = [[views["near", "right", k] for k in range(8) if k != 4],
+                 [views["far", "right", k] for k in far_frames]]
+        people = pair_tracklets(left, right, calib, AssociationConfig())
+        return people, {d.source: n for n, p in enumerate(people) for s in ("left", "right")
+                        for _, d, _ in p.sides[s].values()}
+
+    people, owner = owners(range(8))
     far = owner["far/right/0"]
     assert owner["far/left/4"] == far and 4 in people[far].paired
     assert all(owner[f"far/right/{k}"] == far for k in range(8))
     assert all(owner[f"near/left/{k}"] != far for k in range(8) if k != 4)
+    _, owner = owners(range(2, 6))
+    assert owner["far/left/4"] == owner["near/left/0"] != owner["far/right/4"]
 
 
 def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():

@@ -1233,8 +1233,9 @@ def complete_frames(people: list[_Person], calib: StereoCalibration, config: Ass
                         moves.append((cost - stay, k, m, side, f))
     for _, k, m, side, f in sorted(moves):
         other = "right" if side == "left" else "left"
-        if f not in people[k].sides[side] or f in people[m].sides[side] or f not in people[m].sides[other]:
-            continue
+        if f not in people[k].sides[side] or f in people[k].sides[other] or f in people[m].sides[side] \
+                or f not in people[m].sides[other]:
+            continue               # an earlier move paired this detection where it is, or took one of the two
         index, det, uv = people[k].sides[side].pop(f)
         people[m].sides[side][f] = (index, det, uv)
         people[m].tracklets.add((side, index))
