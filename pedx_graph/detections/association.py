@@ -1250,7 +1250,8 @@ def _completion_cost(sides: Mapping[str, dict], side: str, frame: int, det: Dete
     image's detection at that frame, in sigmas: the root mean square of the pair's stereo terms
     (:func:`stereo_cost`) and, in quadrature, how far the pairing's depth ``f B / d`` (its standard error
     ``f B / d^2`` times the disparity's) lies from the person's depth at that frame (:func:`_depth_residual`,
-    its paired frames' disparities or LiDAR ranges).  None when the pairing is gated out.  ``sides``: the person's side -> frame -> (tracklet, detection, uv)."""
+    its paired frames' disparities or LiDAR ranges).  None when the pairing is gated out.  ``sides``: the
+    person's side -> frame -> (tracklet, detection, uv)."""
     other = "right" if side == "left" else "left"
     _, other_det, other_uv = sides[other][frame]
     pair = (det, uv, other_det, other_uv) if side == "left" else (other_det, other_uv, det, uv)
