@@ -2697,7 +2697,7 @@ def _walk_of(frames: Mapping[int, DetectedTrackFrame], sources: Mapping[int, lis
         return {}
     smooth_centres(copies, ground, config)
     # between its first and last centre only: smoothing carries the line past them too
-    held = [(c.frame, ground.to_level(c.world_p)[:2], min(float(c.depth_sigma_m), 5.0))
+    held = [(c.frame, _level_xy(ground, c.world_p), min(float(c.depth_sigma_m), 5.0))
             for c in copies if c.world_p is not None and placed[0] <= c.frame <= placed[-1]]
     return _between_frames(held)
 
@@ -2828,9 +2828,6 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
     where the neighbour was not detected gets the neighbour's points, as a cut or as "its own" cluster: one
     such confident centre would draw the smoothed track onto the neighbour, whose own track the other frames
     place there; a person's own LiDAR centre lies nearest its own track."""
-    def level_xy(world_p) -> np.ndarray:
-        return ground.to_level(np.asarray(world_p, dtype=float))[:2]
-
     for frames, sources in people:
         for entry in frames:
             _frame_centre(entry, sources.get(entry.frame, []))
@@ -2840,7 +2837,7 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
         for person, (frames, _) in enumerate(people):
             # a person's smoothed track runs on between its frames: a frame it lacks (its detection dropped,
             # or taken by the neighbour's track) is placed on the line between its neighbours
-            held = sorted(((entry.frame, level_xy(entry.world_p), 0.0) for entry in frames
+            held = sorted(((entry.frame, _level_xy(ground, entry.world_p), 0.0) for entry in frames
                            if entry.world_p is not None), key=lambda item: item[0])
             for frame, (xy, _) in _between_frames(held).items():
                 smoothed[frame][person] = xy
@@ -2853,12 +2850,12 @@ def separate_people(people: list[tuple[list[DetectedTrackFrame], dict[int, list[
                 for obs in observations:
                     if obs.fallback is None or obs.world_p is None:
                         continue
-                    xy = level_xy(obs.world_p)
+                    xy = _level_xy(ground, obs.world_p)
                     nearest = min(float(np.linalg.norm(xy - q)) for q in others)
                     if nearest >= config.min_separation_m:
                         continue
                     own = _smoothed_without(people[person][0], sources, obs, ground, config)
-                    mine = float(np.linalg.norm(xy - level_xy(own))) if own is not None else np.inf
+                    mine = float(np.linalg.norm(xy - _level_xy(ground, own))) if own is not None else np.inf
                     if nearest < mine and (clearest is None or mine - nearest > clearest[0]):
                         clearest = (mine - nearest, person, obs)
         if clearest is None:
