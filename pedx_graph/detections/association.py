@@ -1344,30 +1344,44 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
         if float(np.mean([o.score for o in track])) < config.tracker.min_mean_score:
             continue
         if clouds is not None:
-            stereo = [obs for obs in track if obs.world_p is not None]
-            for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
-                if obs.world_p is None and config.lidar_identity:
-                    seen = next(iter(obs.uv))
-                    _range_centre(obs, calib, ranges, clouds[obs.frame] if obs.frame in clouds else None, ground,
-                                  config, projections.get((obs.frame, seen)))
-                    if obs.world_p is not None and stereo and \
-                            not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib, config):
-                        obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
-                        obs.fallback = None
-                if obs.world_p is not None and obs.frame in clouds:
-                    views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
-                    claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
-                                      if id(d) in ranges] for side in ("left", "right")}
-                    others = {side: [uv for d, uv in per_image[side].get(obs.frame, [])
-                                     if d is not obs.payload.get(side)] for side in ("left", "right")}
-                    _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views,
-                                  ranges if config.lidar_identity else None, claimed, others)
-                    projections.update({(obs.frame, side): v for side, v in views.items()})
+            lidar_centres(track, calib, per_image, ranges, clouds, ground, config, projections)
         out.append(track)
     out = drop_other_heights(repair_swaps(split_reversals(out, calib, config), calib, config), calib, config)
     if clouds is not None and config.lidar_identity:
         settle_centres(out, calib, config)
     return out
+
+
+def lidar_centres(track: list[Observation], calib: StereoCalibration, per_image: Mapping[str, Mapping[int, list]],
+                  ranges: Mapping[int, float], clouds: Mapping[int, np.ndarray], ground: GroundFrame,
+                  config: AssociationConfig, projections: dict | None = None) -> None:
+    """Centre one pair's track on the LiDAR where the scene ``clouds`` allow (module docstring, step 4), in
+    place: a frame seen in one image at its detection's own cluster (:func:`_range_centre`) where the
+    track's stereo centre nearest in time allows that depth (:func:`_agrees_with_stereo`), then every frame
+    with a centre on its cut (:func:`_lidar_centre`).  ``per_image``: side -> frame -> that image's
+    ``(detection, rectified uv)`` (whose ranges other detections claim, whose hulls they cover); ``ranges``:
+    :func:`detection_ranges` of those images; ``projections``: ``(frame, side)`` -> the cloud projected into
+    that image, filled on first use (shared by the tracks of one pair)."""
+    projections = {} if projections is None else projections
+    stereo = [obs for obs in track if obs.world_p is not None]
+    for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
+        if obs.world_p is None and config.lidar_identity:
+            seen = next(iter(obs.uv))
+            _range_centre(obs, calib, ranges, clouds[obs.frame] if obs.frame in clouds else None, ground,
+                          config, projections.get((obs.frame, seen)))
+            if obs.world_p is not None and stereo and \
+                    not _agrees_with_stereo(obs, [_nearest_in_time(stereo, obs.frame)], calib, config):
+                obs.world_p, obs.world_p_camera, obs.depth_sigma_m = None, None, np.inf
+                obs.fallback = None
+        if obs.world_p is not None and obs.frame in clouds:
+            views = {side: projections.setdefault((obs.frame, side), None) for side in ("left", "right")}
+            claimed = {side: [ranges[id(d)] for d, _ in per_image[side].get(obs.frame, [])
+                              if id(d) in ranges] for side in ("left", "right")}
+            others = {side: [uv for d, uv in per_image[side].get(obs.frame, [])
+                             if d is not obs.payload.get(side)] for side in ("left", "right")}
+            _lidar_centre(obs, calib, clouds[obs.frame], ground, config, views,
+                          ranges if config.lidar_identity else None, claimed, others)
+            projections.update({(obs.frame, side): v for side, v in views.items()})
 
 
 def _image_track(track: list[Observation], calib: StereoCalibration, config: AssociationConfig,
@@ -2876,50 +2890,69 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                     ground: GroundFrame | None = None,
                     clouds: Mapping[int, np.ndarray] | None = None) -> list[DetectedTrack]:
     """:class:`DetectedTrack` s of detections grouped by ids the files carry (``groups``: id -> frame -> camera
-    -> detection), with each frame's centre triangulated from the pair that saw the person in both images
-    (:func:`triangulate_centre`, the smallest depth uncertainty of the pairs) and smoothed over the track
-    (:func:`smooth_centres`) — what the LiDAR cut's depth gate needs when the ids come from the files.  With
-    the scene ``clouds``, a frame no pair saw in both images is placed as the association places one
-    (:func:`_range_centre`: its detection's own LiDAR cluster among those of every detection of that image,
-    :func:`detection_ranges`, where the cluster ends at the silhouette)."""
+    -> detection), placed as the association places its own people — what the LiDAR cut's depth gate needs
+    when the ids come from the files.  Per pair, each id's frames are observations as :func:`pair_tracks`
+    makes them: a frame seen in both images triangulated (:func:`triangulate_centre`); with the scene
+    ``clouds``, centred on the LiDAR (:func:`lidar_centres`: a one-image frame at its detection's own cluster
+    among those of every detection of that image, :func:`detection_ranges`; every centre on its cut) and
+    checked against the id's straight walk in that pair (:func:`settle_centres`).  A frame takes the centre of
+    the pair that places it best (:func:`_frame_centre`) and the centres are smoothed, a LiDAR centre on
+    another id's track taken back (:func:`separate_people`).  The association's identity steps (stereo
+    matching, tracking, repairs) are not run: the ids are the files'."""
     config = config or AssociationConfig()
     ground = ground or ground_from_calibrations(dict(calibrations))
     if clouds is not None:
         ground = ground_with_plane(ground, calibrations, clouds)
     ranges = _file_id_ranges(groups, calibrations, config, ground, clouds) \
         if clouds is not None and config.lidar_identity else {}
-    out = []
+    sources: dict[str, dict[int, list[Observation]]] = {track_id: defaultdict(list) for track_id in groups}
+    for name, calib in sorted(calibrations.items()):
+        left_name, right_name = name.split("-")
+        per_image: dict[str, dict[int, list]] = {"left": defaultdict(list), "right": defaultdict(list)}
+        tracks = []
+        for track_id in sorted(groups):
+            track = []
+            for frame in sorted(groups[track_id]):
+                uv, payload = {}, {}
+                for side, camera in (("left", left_name), ("right", right_name)):
+                    det = groups[track_id][frame].get(camera)
+                    if det is not None:
+                        uv[side] = _usable(rectified(det, calib), det.confidence, config.min_confidence)
+                        payload[side] = det
+                        per_image[side][frame].append((det, uv[side]))
+                if not uv:
+                    continue
+                obs = Observation(frame=frame, uv=uv, score=float(max(d.score for d in payload.values())),
+                                  payload=payload)
+                if len(uv) == 2:
+                    both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
+                    disparity = float(np.median(uv["left"][both, 0] - uv["right"][both, 0])) if both.any() else 0.0
+                    if both.sum() >= config.min_shared_keypoints and disparity > 0:
+                        obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground,
+                                                                            config)
+                        obs.world_p_camera = calib.camera_centre("left")
+                        obs.disparity_px = disparity
+                track.append(obs)
+                sources[track_id][frame].append(obs)
+            tracks.append(track)
+        if clouds is not None:
+            projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}
+            for track in tracks:
+                lidar_centres(track, calib, per_image, ranges, clouds, ground, config, projections)
+            if config.lidar_identity:
+                settle_centres(tracks, calib, config)
+    out, smoothing = [], []
     for track_id in sorted(groups):
         frames = []
         for frame in sorted(groups[track_id]):
-            cams = dict(groups[track_id][frame])
-            entry = DetectedTrackFrame(frame=frame, detections=cams)
-            for name, calib in sorted(calibrations.items()):
-                left, right = name.split("-")
-                if left not in cams or right not in cams:
-                    continue
-                uv_l = _usable(rectified(cams[left], calib), cams[left].confidence, config.min_confidence)
-                uv_r = _usable(rectified(cams[right], calib), cams[right].confidence, config.min_confidence)
-                both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
-                if both.sum() < config.min_shared_keypoints or np.median(uv_l[both, 0] - uv_r[both, 0]) <= 0:
-                    continue
-                world_p, sigma = triangulate_centre(uv_l, uv_r, calib, ground, config)
-                if sigma < entry.depth_sigma_m:
-                    entry.world_p, entry.depth_sigma_m = world_p, sigma
-            for camera, det in sorted(cams.items()):
-                if entry.world_p is not None or id(det) not in ranges:
-                    continue
-                calib, side = find_camera(calibrations, camera)
-                obs = Observation(frame=frame, uv={side: _usable(rectified(det, calib), det.confidence,
-                                                                 config.min_confidence)},
-                                  score=float(det.score), payload={side: det})
-                _range_centre(obs, calib, ranges, clouds[frame], ground, config)
-                entry.world_p, entry.depth_sigma_m = obs.world_p, obs.depth_sigma_m
+            entry = DetectedTrackFrame(frame=frame, detections=dict(groups[track_id][frame]))
+            _frame_centre(entry, sources[track_id][frame])
             frames.append(entry)
-        smooth_centres(frames, ground, config)
+        smoothing.append((frames, sources[track_id]))
         pairs = tuple(sorted({name for name, calib in calibrations.items()
                               if any(cam in name.split("-") for fr in frames for cam in fr.detections)}))
         out.append(DetectedTrack(track_id=track_id, frames=frames, pairs=pairs))
+    separate_people(smoothing, ground, config)
     return out
 
 

@@ -3,8 +3,9 @@
 Steps: read the files (:mod:`.openpose`, :mod:`.coco`; camera and frame from the file / image names,
 :mod:`.naming`) -> group them into people: the file's own ids with ``use_file_ids`` (OpenPose ``person_id``,
 COCO ``track_id``; every detection must have one), else :func:`pedx_graph.detections.association.associate`
-(stereo, over frames, across pairs; with file ids each frame's centre is triangulated, or, seen in one image,
-taken from its detection's own LiDAR cluster, :func:`~pedx_graph.detections.association.tracks_from_ids`)
+(stereo, over frames, across pairs; with file ids each frame is placed as the association places its
+people — triangulated, centred on the LiDAR — without its identity steps,
+:func:`~pedx_graph.detections.association.tracks_from_ids`)
 -> per person, frame and camera, undistort + rectify the keypoints
 (:func:`pedx_graph.detections.undistort.rectified`), drop those below the confidence threshold and turn the
 confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoiseConfig`) -> write
