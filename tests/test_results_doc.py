@@ -113,3 +113,33 @@ def test_association_placement_figures_match_the_json():
                   f"{' placed frames' if name == 'bench_association' else ''} {share(total['misplaced_centres'])}")
         assert quoted in text, f"{name}: {quoted!r} not in docs/detections.md"
         assert f"{total['overconfident_centres']} {share(total['overconfident_centres'])}" in text
+
+
+def test_true_ids_ratio_is_shown_and_pooled_apart_from_the_associations():
+    """The ratio with the simulator's ids is a column of its own (``-`` for a run without it), pooled over the
+    seeds by frames like the association's ratio (only when every run has it), and kept out of the per-joint
+    table."""
+    from pedx_graph.eval.benchmark_tables import TRUE_IDS, detections_section
+
+    def run(seed, frames, coco_mm, known_mm):
+        def stats(mpjpe):
+            return {"frames": frames, "mpjpe_mm": mpjpe, "rel_mpjpe_mm": 20.0, "joint_mpjpe_mm": {"rknee": mpjpe}}
+        goal = {"mpjpe_ratio_5_25": coco_mm / 30.0, "within_1.5x": True, "crossing_id_switches": 0,
+                "false_tracks": 0}
+        accuracy = {"manual": {"5-25": stats(30.0)}, "coco": {"5-25": stats(coco_mm)}}
+        if known_mm is not None:
+            goal["mpjpe_ratio_5_25_true_ids"] = known_mm / 30.0
+            accuracy["coco" + TRUE_IDS] = {"5-25": stats(known_mm)}
+        scene = {"association": {"coco": {"recovered": 1, "labelled_people": 1}}}
+        return {"seed": seed, "command": f"bench --seed {seed}", "goals": {"coco": goal},
+                "scenes": {"crossing": scene}, "accuracy": accuracy}
+
+    text = detections_section([run(0, 1, 60.0, 45.0), run(1, 3, 30.0, 30.0)])
+    rows = [line.split(" | ") for line in text.splitlines() if line.startswith("| 0 | coco |")]
+    assert rows and rows[0][4:6] == ["2.00", "1.50"]
+    assert "ratio to the manual labels: coco 1.25." in text                # (60 * 1 + 30 * 3) / 4 over 30
+    assert "With the simulator's ids: coco 1.12." in text                  # (45 * 1 + 30 * 3) / 4 over 30
+    assert not any(line.startswith("| coco" + TRUE_IDS) for line in text.splitlines())
+    older = detections_section([run(0, 1, 60.0, None), run(1, 3, 30.0, 30.0)])
+    assert [line.split(" | ")[5] for line in older.splitlines() if line.startswith("| 0 | coco |")] == ["-"]
+    assert "With the simulator's ids" not in older

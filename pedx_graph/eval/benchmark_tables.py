@@ -24,6 +24,10 @@ DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END = "<!-- detections_pedx_rig -->", "<!
 DETECTIONS_PEDX_FOLDER = "benchmarks/results/detections_pedx_rig"
 
 
+#: Suffix of a bench_detections input of a format's detections grouped by the simulator's ids.
+TRUE_IDS = "_true_ids"
+
+
 def _f(value, digits: int = 1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -111,10 +115,10 @@ def detections_section(runs: list[dict], folder: str = "benchmarks/results") -> 
     ``folder``: where the runs are committed (seed 0 in it, seed N in its ``seedN/``), named beside each command
     that did not write to the script's default ``benchmarks/results``."""
     lines = ["| seed | input | manual MPJPE 5-25 m, global / root-rel. (mm) | detector MPJPE 5-25 m (mm) | "
-             "ratio (goal <= 1.5) | id switches, crossing people (goal 0) | false tracks (goal 0) | "
-             "misplaced frames 5-25 m / scored | recovered / labelled people | keypoint NEES / dof | "
-             "keypoints in their 95 % ellipsoid, manual / detector |",
-             "|---|---|---|---|---:|---:|---:|---:|---|---:|---:|"]
+             "ratio (goal <= 1.5) | ratio with the simulator's ids | id switches, crossing people (goal 0) | "
+             "false tracks (goal 0) | misplaced frames 5-25 m / scored | recovered / labelled people | "
+             "keypoint NEES / dof | keypoints in their 95 % ellipsoid, manual / detector |",
+             "|---|---|---|---|---:|---:|---:|---:|---:|---|---:|---:|"]
     for run in runs:
         manual = run["accuracy"]["manual"]["5-25"]
         for fmt, goal in run["goals"].items():
@@ -123,7 +127,8 @@ def detections_section(runs: list[dict], folder: str = "benchmarks/results") -> 
             labelled = sum(sc["association"][fmt]["labelled_people"] for sc in run["scenes"].values())
             lines.append(f"| {run['seed']} | {fmt} | {_f(manual.get('mpjpe_mm'))} / {_f(manual.get('rel_mpjpe_mm'))} | "
                          f"{_f(acc.get('mpjpe_mm'))} / {_f(acc.get('rel_mpjpe_mm'))} | "
-                         f"{_f(goal['mpjpe_ratio_5_25'], 2)} | {goal['crossing_id_switches']} | "
+                         f"{_f(goal['mpjpe_ratio_5_25'], 2)} | {_f(goal.get('mpjpe_ratio_5_25_true_ids'), 2)} | "
+                         f"{goal['crossing_id_switches']} | "
                          f"{goal['false_tracks']} | {acc.get('misplaced_frames', '-')} / {acc.get('frames', 0)} | "
                          f"{recovered} / {labelled} | "
                          f"{_f(acc.get('keypoint_nees_over_dof'), 2)} | "
@@ -135,10 +140,18 @@ def detections_section(runs: list[dict], folder: str = "benchmarks/results") -> 
     lines += ["", f"Within 1.5x of the manual labels: {within} of {total} seed-format runs; all three goals met: "
               f"{len(met)} of {total}.  Commands: " + "; ".join(f"`{run['command']}`" + _written_to(folder, run["seed"])
                                                                 for run in runs) + "."]
+    lines += ["", "Ratio with the simulator's ids: the same detections grouped into tracks by the simulator's "
+              "ids (`use_file_ids`), imported and fitted alike, scored on the frames of the people the "
+              "association's tracks were scored on: what a perfect association would give there (`-`: a run "
+              "from before it was measured)."]
     pooled = _pooled_ratios(runs)
     if pooled:
         lines += ["", "Over the seeds together (each seed's 5-25 m MPJPE weighted by its frames), ratio to the manual "
                   "labels: " + ", ".join(f"{fmt} {_f(ratio, 2)}" for fmt, ratio in pooled.items()) + "."]
+    known = _pooled_ratios(runs, suffix=TRUE_IDS)
+    if known:
+        lines += ["With the simulator's ids: " + ", ".join(f"{fmt} {_f(ratio, 2)}" for fmt, ratio in known.items())
+                  + "."]
     lines += _joint_table(runs)
     lines += _views_table(runs)
     return "\n".join(lines)
@@ -150,10 +163,11 @@ def _written_to(folder: str, seed: int) -> str:
     return "" if path == "benchmarks/results" else f" (written to `{path}`)"
 
 
-def _pooled_ratios(runs: list[dict]) -> dict[str, float]:
+def _pooled_ratios(runs: list[dict], suffix: str = "") -> dict[str, float]:
     """Detector format -> its 5-25 m MPJPE over all ``runs`` (frame-weighted) over the manual labels' likewise;
-    empty with fewer than two runs."""
-    if len(runs) < 2:
+    empty with fewer than two runs.  ``suffix``: of the format's input name (:data:`TRUE_IDS`: the format's
+    detections grouped by the simulator's ids; empty when a run lacks it)."""
+    if len(runs) < 2 or any(fmt + suffix not in run["accuracy"] for run in runs for fmt in run["goals"]):
         return {}
 
     def pooled(source: str) -> float | None:
@@ -165,7 +179,7 @@ def _pooled_ratios(runs: list[dict]) -> dict[str, float]:
     manual = pooled("manual")
     out = {}
     for fmt in runs[0]["goals"]:
-        detector = pooled(fmt)
+        detector = pooled(fmt + suffix)
         if manual and detector is not None:
             out[fmt] = detector / manual
     return out
@@ -179,6 +193,8 @@ def _joint_table(runs: list[dict]) -> list[str]:
     joints: list[str] = []
     for run in runs:
         for source, summary in run["accuracy"].items():
+            if source.endswith(TRUE_IDS):
+                continue
             st = summary.get("5-25") or {}
             per_joint = st.get("joint_mpjpe_mm")
             if not per_joint:
@@ -206,6 +222,8 @@ def _views_table(runs: list[dict]) -> list[str]:
     pooled: dict[str, dict[str, list[float]]] = {}
     for run in runs:
         for source, summary in run["accuracy"].items():
+            if source.endswith(TRUE_IDS):
+                continue
             for label, b in ((summary.get("5-25") or {}).get("limbs_by_views") or {}).items():
                 acc = pooled.setdefault(source, {}).setdefault(label, [0.0, 0.0])
                 acc[0] += b["joint_frames"]
