@@ -1722,6 +1722,45 @@ def test_centres_off_the_final_tracks_walk_are_taken_back():
     assert np.allclose(track[11].world_p, centre(11, 1.6))                     # no stereo centre to go back to
 
 
+def test_a_walk_carried_far_from_its_sharp_centres_does_not_refuse_the_persons_own():
+    """A walker going away from ~20 to ~23 m over 20 frames, seen in one image at frames 0-4 with its own
+    LiDAR clusters (0.1 m), then in both images at frames 10-19: loose stereo depths (1.5 m) that happen to
+    lie short early and long late, and one sharp LiDAR centre at frame 18.  Their straight walk carried
+    back to frame 0 by a rate they leave open lies ~1 m short of the clusters; before the walk had a
+    sigma of its own, it refused them all.  A one-image centre 1.2 m in front at frame 16, among the frames
+    that fix the walk, is still taken back."""
+    from pedx_graph.detections.association import _depth_walk, settle_centres
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(5)
+    start, step = np.array([20.0, -1.0]), np.array([0.16, 0.05])
+    track = _walker_observations(calib, start, step, [k for k in range(20) if not 5 <= k <= 9], rng)
+
+    def centre(k, short_m=0.0):
+        xy = start + k * step
+        return np.array([xy[0] - short_m, xy[1], GROUND_Z + 0.9])
+
+    for obs in track:
+        k = obs.frame
+        if k <= 4 or k == 16:
+            obs.uv, obs.disparity_px = {"left": obs.uv["left"]}, None
+            obs.world_p, obs.depth_sigma_m = centre(k, 1.2 if k == 16 else 0.0), 0.1
+        elif k == 18:
+            obs.world_p, obs.depth_sigma_m = centre(k), 0.1
+        else:
+            obs.world_p, obs.depth_sigma_m = centre(k, 0.15 * (14.5 - k)), 1.5     # short early, long late
+    config = AssociationConfig()
+    stereo = [o for o in track if o.disparity_px is not None]
+    depth, sigma = _depth_walk(stereo, calib, config)
+    own = float(calib.world_to_rect(centre(0))[2])
+    assert abs(depth(0) - own) > config.gate_sigmas * np.hypot(0.1, config.swap_motion_m)   # the old test's limit
+    assert sigma(0) > sigma(18)
+    settle_centres([track], calib, config)
+    assert [o.frame for o in track if o.world_p is None] == [16]
+    assert all(np.linalg.norm(o.world_p - centre(o.frame)) < 1e-9 for o in track if o.frame <= 4)
+
+
 def test_a_cut_on_a_neighbour_that_puts_two_people_in_one_place_is_taken_back():
     """A far walker (21.5 m) whose images give only uncertain stereo depths (1 m) and one frame whose LiDAR
     centre held the walker 0.75 m in front (a confident 0.1 m centre on the neighbour): smoothed, the two

@@ -1535,12 +1535,12 @@ def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float
     return _walk_fit(frames, u, sigma, gate, max_rate, depth, depth_sigma, size, size_sigma)[0]
 
 
-def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
-              depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None,
-              size: np.ndarray | None = None, size_sigma: np.ndarray | None = None) -> tuple[float, float]:
-    """:func:`_walk_cost`'s misfit and the rate ``c`` it was found at (0 for < 3 frames)."""
-    if len(frames) < 3:
-        return 0.0, 0.0
+def _walk_costs(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float,
+                depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None,
+                size: np.ndarray | None = None, size_sigma: np.ndarray | None = None
+                ) -> Callable[[np.ndarray], np.ndarray]:
+    """``rates (m,) -> misfits (m,)``: :func:`_walk_cost`'s robust misfit of the straight walk at each relative
+    depth rate ``c`` (columns, and depths and sizes where at least three are known; ``frames`` at least 3)."""
     tau = frames - 0.5 * (frames.min() + frames.max())
     known = np.isfinite(depth) if depth is not None else np.zeros(len(frames), dtype=bool)
     sized = np.isfinite(size) & np.isfinite(size_sigma) if size is not None else np.zeros(len(frames), dtype=bool)
@@ -1554,6 +1554,17 @@ def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float,
             total = total + _robust_fit(1.0 / stretch[:, sized, None], size[sized], size_sigma[sized], gate)
         return total
 
+    return costs
+
+
+def _walk_fit(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
+              depth: np.ndarray | None = None, depth_sigma: np.ndarray | None = None,
+              size: np.ndarray | None = None, size_sigma: np.ndarray | None = None) -> tuple[float, float]:
+    """:func:`_walk_cost`'s misfit and the rate ``c`` it was found at (0 for < 3 frames)."""
+    if len(frames) < 3:
+        return 0.0, 0.0
+    tau = frames - 0.5 * (frames.min() + frames.max())
+    costs = _walk_costs(frames, u, sigma, gate, depth, depth_sigma, size, size_sigma)
     if max_rate * float(np.max(np.abs(tau))) <= 1e-3:
         return float(costs(np.zeros(1))[0]), 0.0
     coarse = np.linspace(-max_rate, max_rate, 33)
@@ -2025,28 +2036,53 @@ def _nearest_in_time(observations: list[Observation], frame: int) -> Observation
     return min(observations, key=lambda o: (abs(o.frame - frame), o.frame))
 
 
+#: Relative depth rates tried per side of a walk's best one when bracketing it (:func:`_depth_walk`).
+_RATE_STEPS = 32
+
+
 def _depth_walk(stereo: list[Observation], calib: StereoCalibration,
-                config: AssociationConfig) -> Callable[[float], float] | None:
+                config: AssociationConfig) -> tuple[Callable[[float], float], Callable[[float], float]] | None:
     """The depth over frames of the straight walk fitted to the track ``stereo`` make (:func:`_track_walk`:
     image columns and centre depths, robust, depths uncertain as :func:`_image_track` gives them; not the
     image heights, which tell one person from another but whose 3 % per frame would bend the depth rate of a
-    track holding one frame of someone taller): ``frame -> depth`` along the pair's rectified optical axis,
-    metres; None when fewer than three of them have a centre."""
+    track holding one frame of someone taller), and how uncertain it is: ``(frame -> depth, frame -> sigma)``
+    along the pair's rectified optical axis, metres; None when fewer than three of them have a centre.
+
+    The sigma is how far the walk's rate can carry it: half the spread of the walk's depth at that frame
+    over the rates whose misfit lies within 1 of the best one's (a profile of the one rate, each rate's
+    walk refitted to the depths).  Near the centres that fix the walk it is small; a walk carried to a
+    frame far from them by a rate that loose stereo depths leave open is uncertain there.  The walk's
+    level, where its stereo frames lie, is the reference as it is: a LiDAR centre is one measurement that
+    can hold a neighbour, the stereo frames together are the person."""
     seen = _image_track(stereo, calib, config)
     if np.isfinite(seen[3]).sum() < 3:
         return None
     _, rate = _track_walk(seen, calib, config, with_size=False)
-    return _walk_lines(seen[:7], rate, config.gate_sigmas)[1]
+    depth = _walk_lines(seen[:7], rate, config.gate_sigmas)[1]
+    frames, u, sigma, depths, depth_sigma = seen[:5]
+    max_rate = _depth_rate(seen[7], calib, config)
+    rates = np.unique(np.clip(rate + max_rate * np.linspace(-1.0, 1.0, 2 * _RATE_STEPS + 1), -max_rate, max_rate))
+    costs = _walk_costs(frames, u, sigma, config.gate_sigmas, depths, depth_sigma)(rates)
+    near = rates[costs <= costs.min() + 1.0]
+    lines = [line for line in (_walk_lines(seen[:7], float(r), config.gate_sigmas)[1] for r in near)
+             if line is not None]
+
+    def spread(frame: float) -> float:
+        values = [line(frame) for line in lines] + [depth(frame)]
+        return 0.5 * (max(values) - min(values))
+
+    return depth, spread
 
 
-def _off_walk(obs: Observation, walk: Callable[[float], float], calib: StereoCalibration,
-              config: AssociationConfig) -> bool:
+def _off_walk(obs: Observation, walk: tuple[Callable[[float], float], Callable[[float], float]],
+              calib: StereoCalibration, config: AssociationConfig) -> bool:
     """Whether an observation's centre depth lies more than ``gate_sigmas`` from the walk's
-    (:func:`_depth_walk`), uncertain by its depth sigma and how far a walker leaves a straight walk
-    (``swap_motion_m``), as :func:`_image_track` has it."""
+    (:func:`_depth_walk`: its depth and sigma), uncertain by its depth sigma, how far a walker leaves a
+    straight walk (``swap_motion_m``, as :func:`_image_track` has it) and the walk's own sigma there."""
     depth = float(calib.world_to_rect(np.asarray(obs.world_p, dtype=float))[2])
-    sigma = float(np.hypot(float(obs.depth_sigma_m), config.swap_motion_m))
-    return abs(depth - walk(obs.frame)) > config.gate_sigmas * sigma
+    walk_depth, walk_sigma = walk
+    sigma = float(np.sqrt(float(obs.depth_sigma_m) ** 2 + config.swap_motion_m ** 2 + walk_sigma(obs.frame) ** 2))
+    return abs(depth - walk_depth(obs.frame)) > config.gate_sigmas * sigma
 
 
 def settle_centres(tracks: list[list[Observation]], calib: StereoCalibration, config: AssociationConfig) -> None:
