@@ -2939,14 +2939,12 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
     ground = ground or ground_from_calibrations(dict(calibrations))
     if clouds is not None:
         ground = ground_with_plane(ground, calibrations, clouds)
-    ranges = _file_id_ranges(groups, calibrations, config, ground, clouds) \
-        if clouds is not None and config.lidar_identity else {}
     sources: dict[str, dict[int, list[Observation]]] = {track_id: defaultdict(list) for track_id in groups}
     for name, calib in sorted(calibrations.items()):
         left_name, right_name = name.split("-")
         per_image: dict[str, dict[int, list]] = {"left": defaultdict(list), "right": defaultdict(list)}
         tracks = []
-        for track_id in sorted(groups):
+        for track_id in groups:
             track = []
             for frame in sorted(groups[track_id]):
                 uv, payload = {}, {}
@@ -2972,6 +2970,12 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                 sources[track_id][frame].append(obs)
             tracks.append(track)
         if clouds is not None:
+            ranges: dict[int, float] = {}                 # each image's clusters given to its detections
+            if config.lidar_identity:
+                for side, frames in per_image.items():
+                    for frame, items in frames.items():
+                        if frame in clouds:
+                            ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
             projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}
             for track in tracks:
                 lidar_centres(track, calib, per_image, ranges, clouds, ground, config, projections)
@@ -2990,28 +2994,6 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
         out.append(DetectedTrack(track_id=track_id, frames=frames, pairs=pairs))
     separate_people(smoothing, ground, config)
     return out
-
-
-def _file_id_ranges(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
-                    calibrations: Mapping[str, StereoCalibration], config: AssociationConfig, ground: GroundFrame,
-                    clouds: Mapping[int, np.ndarray]) -> dict[int, float]:
-    """:func:`detection_ranges` of every calibrated image of ``groups`` (id -> frame -> camera -> detection)
-    whose frame has a cloud, over all its detections: id of a detection -> its LiDAR range."""
-    images = defaultdict(list)
-    for frames in groups.values():
-        for frame, cams in frames.items():
-            for camera, det in cams.items():
-                images[(frame, camera)].append(det)
-    ranges: dict[int, float] = {}
-    for (frame, camera), dets in sorted(images.items()):
-        try:
-            calib, side = find_camera(calibrations, camera)
-        except KeyError:
-            continue
-        if frame in clouds:
-            items = [(det, _usable(rectified(det, calib), det.confidence, config.min_confidence)) for det in dets]
-            ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
-    return ranges
 
 
 # ---------------------------------------------------------------------------------------------- entry point
