@@ -1330,10 +1330,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             obs = Observation(frame=frame, uv=uv, score=float(max(d.score for d in payload.values())),
                               payload=payload)
             if frame in person.paired:
-                obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground, config)
-                obs.world_p_camera = calib.camera_centre("left")
-                both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
-                obs.disparity_px = float(np.median(uv["left"][both, 0] - uv["right"][both, 0]))
+                _stereo_centre(obs, calib, ground, config)
             track.append(obs)
         candidates.append(track)
     out = []
@@ -1350,6 +1347,18 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
     if clouds is not None and config.lidar_identity:
         settle_centres(out, calib, config)
     return out
+
+
+def _stereo_centre(obs: Observation, calib: StereoCalibration, ground: GroundFrame,
+                   config: AssociationConfig) -> None:
+    """Centre an observation seen in both images of the pair by stereo, in place: ``world_p`` and
+    ``depth_sigma_m`` from :func:`triangulate_centre`, seen from the left camera, and ``disparity_px`` the
+    median disparity of the keypoints both images hold (the caller has checked they pair)."""
+    uv_l, uv_r = obs.uv["left"], obs.uv["right"]
+    obs.world_p, obs.depth_sigma_m = triangulate_centre(uv_l, uv_r, calib, ground, config)
+    obs.world_p_camera = calib.camera_centre("left")
+    both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
+    obs.disparity_px = float(np.median(uv_l[both, 0] - uv_r[both, 0]))
 
 
 def lidar_centres(track: list[Observation], calib: StereoCalibration, per_image: Mapping[str, Mapping[int, list]],
@@ -2960,12 +2969,9 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                                   payload=payload)
                 if len(uv) == 2:
                     both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
-                    disparity = float(np.median(uv["left"][both, 0] - uv["right"][both, 0])) if both.any() else 0.0
-                    if both.sum() >= config.min_shared_keypoints and disparity > 0:
-                        obs.world_p, obs.depth_sigma_m = triangulate_centre(uv["left"], uv["right"], calib, ground,
-                                                                            config)
-                        obs.world_p_camera = calib.camera_centre("left")
-                        obs.disparity_px = disparity
+                    if both.sum() >= config.min_shared_keypoints and \
+                            np.median(uv["left"][both, 0] - uv["right"][both, 0]) > 0:
+                        _stereo_centre(obs, calib, ground, config)
                 track.append(obs)
                 sources[track_id][frame].append(obs)
             tracks.append(track)
