@@ -781,6 +781,41 @@ def test_a_one_frame_detection_a_neighbours_tracklet_took_completes_its_own_pers
     assert owner["far/left/4"] == owner["near/left/0"] != owner["far/right/4"]
 
 
+def test_a_tracklet_seen_beside_the_persons_own_does_not_join_it_by_one_paired_frame():
+    """Two walkers 20 and 21.6 m away on nearly one ray, the far one 0.2 m to the side.  The left image's
+    tracker holds each in a tracklet of its own: the near one missed at frames 3, 4 and 8, the far one seen
+    at frames 3, 4, 7 and 8 only (at frame 7 beside the near one).  The right image sees only the near one
+    (not at frames 3, 4 and 7), so the far walker's left tracklet shares a single frame (8) with the near
+    walker's right tracklet, and passes the stereo gates there.  That one frame is too short to make the
+    far walker's tracklet the near one's, which it is seen beside at frame 7: the far walker's detections
+    stay together, apart from the near walker's person."""
+    from pedx_graph.detections.association import pair_tracklets
+
+    x0, gap, lateral = 20.0, 1.6, 0.2
+    ahead = _person_points((x0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    rng = np.random.default_rng(1)
+    views = {}
+    for name, x, side_m in (("near", x0, 0.0), ("far", x0 + gap, lateral)):
+        for k in range(12):
+            y = (-1.0 + 0.13 * k) * x / x0 + side_m                     # on the near walker's ray, then aside
+            points = _person_points((x, y), np.pi / 2, 0.6 * k)
+            for side, uv in zip(("left", "right"), calib.project(points)):
+                uv = uv + rng.normal(size=uv.shape)
+                det = Detection(camera=side, frame=k, keypoint_set="coco17", image_uv=uv,
+                                confidence=np.full(len(uv), 0.8), score=0.8, source=f"{name}/{side}/{k}")
+                views[name, side, k] = (k, det, uv)
+    left = [[views["near", "left", k] for k in (0, 1, 2, 5, 6, 7, 9, 10, 11)],
+            [views["far", "left", k] for k in (3, 4, 7, 8)]]
+    right = [[views["near", "right", k] for k in (0, 1, 2, 5, 6, 8, 9, 10, 11)]]
+    people = pair_tracklets(left, right, calib, AssociationConfig())
+    owner = {d.source: n for n, p in enumerate(people) for s in ("left", "right") for _, d, _ in p.sides[s].values()}
+    near = owner["near/left/0"]
+    assert all(owner[d.source] == near for _, d, _ in left[0] + right[0])
+    assert len({owner[f"far/left/{k}"] for k in (3, 4, 7, 8)}) == 1
+    assert owner["far/left/3"] != near
+
+
 def test_a_tracklet_that_changed_person_midway_stays_paired_before_the_change():
     """The right image's tracker swapped two people 8 m apart in depth at frame 8 (each right tracklet holds
     one person for frames 0-7 and the other for 8-19); the left image's tracklets are clean.  Each left

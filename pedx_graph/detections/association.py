@@ -73,6 +73,10 @@ Steps:
    Pairings with positive evidence are accepted greedily, strongest first, frame by frame (a tracklet frame
    already paired is not paired again: a tracklet is split where its pairing evidence changes); pairings
    sharing a tracklet make one person unless that would put two detections of one image in one frame.
+   A pairing left with fewer than ``pair_min_run_frames`` frames to pair does not bring a tracklet to a
+   person when that tracklet is seen beside one of the person's own in its image (both hold a detection at
+   a frame inside the stretch the person holds of its own): one or two agreeing frames do not make two
+   people seen side by side one.
    A tracklet's unpaired frames go to the person whose own detections in that image, interpolated in time
    (past the ends carried on at the body's velocity, the median keypoint step), agree best in keypoints and
    size (``tracklet_switch_cost`` added for a person not holding that tracklet), else form a person of their
@@ -288,7 +292,9 @@ class AssociationConfig:
     ``birth_min_score`` ends in a tracklet: the people are judged after pairing)."""
     pair_min_run_frames: int = 3
     """Two tracklets agreeing in stereo over only part of their shared frames (one of them carried on with
-    someone else midway) are paired over that part when it holds at least this many paired frames."""
+    someone else midway) are paired over that part when it holds at least this many paired frames; a pairing
+    with fewer frames to pair does not join a tracklet to a person it is seen beside in its image
+    (:func:`pair_tracklets`)."""
     tracklet_switch_cost: float = 1.0
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
@@ -1075,6 +1081,19 @@ class _Person:
     def conflicts(self, side: str, frames) -> bool:
         return any(f in self.sides[side] for f in frames)
 
+    def beside(self, side: str, index: int, tracklets: list[list]) -> bool:
+        """Whether ``side``'s tracklet ``index`` (of ``tracklets``, that image's) holds a detection at a frame
+        where another of that image's tracklets this person holds has one too, inside the stretch of frames
+        the person holds of it: two people seen side by side in that image."""
+        mine = {f for f, _, _ in tracklets[index]}
+        for other_side, other in self.tracklets:
+            if other_side != side or other == index:
+                continue
+            held = [f for f, (tracklet, _, _) in self.sides[side].items() if tracklet == other]
+            if held and any(min(held) <= f <= max(held) and f in mine for f, _, _ in tracklets[other]):
+                return True
+        return False
+
 
 def contest_frames(gains: dict, config: AssociationConfig) -> None:
     """Keep each passing frame only for its detections' best pairing, in place.  ``gains``: (left tracklet,
@@ -1129,6 +1148,10 @@ def pair_tracklets(left: list[list], right: list[list], calib: StereoCalibration
         r_items = {f: (j, d, uv) for f, d, uv in right[j] if f in frames}
         candidates = [p for p in people if ("left", i) in p.tracklets or ("right", j) in p.tracklets]
         joined = [p for p in candidates if not p.conflicts("left", l_items) and not p.conflicts("right", r_items)]
+        if len(frames) < config.pair_min_run_frames and any(
+                (side, index) not in p.tracklets and p.beside(side, index, tracklets)
+                for p in joined for side, index, tracklets in (("left", i, left), ("right", j, right))):
+            continue              # too short to join a tracklet to a person it is seen beside
         if joined:
             target = joined[0]
             for other in joined[1:]:                # the edge links two people: one person if they never clash
