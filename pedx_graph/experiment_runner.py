@@ -20,12 +20,12 @@ import dataclasses
 import json
 import logging
 import os
-import platform
 import shutil
 import time
 from pathlib import Path
 
 from pedx_graph.data.detector_model import DetectorNoiseConfig
+from pedx_graph.environment import machine_note
 from pedx_graph.eval.experiments import (SOLVER_RUNS, ExperimentConfig, SceneVariant, resolve_motion_dir,
                                          resolved_scenes)
 from pedx_graph.eval.runs import ABLATION_ROWS
@@ -183,7 +183,7 @@ def run_experiments(out: str | os.PathLike, config: ExperimentConfig | None = No
             _mark(run, name=f"{name}_detector", label=name, group="detector", labels="detector")
     record = {"seed": seed, "workers": workers, "config": to_dict(config), "phases_seconds": phases,
               "code": code_version(),
-              "hardware": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
+              "hardware": machine_note(),
               "motion": "CMU hold-out clips" if resolve_motion_dir(config.motion_dir) else "procedural gait"}
     if report:
         from pedx_graph.eval.report import ReportConfig, build_report
