@@ -2,8 +2,8 @@
 
 Layers, lowest first (a module may import its own layer and those below, never one above):
 
-    utils, keypoints, config, config_ranges   <  data, motion   <  execution   <  body   <  priors   <  factors
-    <  graph   <  detections   <  solvers   <  eval, baselines, export, preflight   <  sim
+    utils, environment, keypoints, config, config_ranges   <  data, motion   <  execution   <  body   <  priors
+    <  factors   <  graph   <  detections   <  solvers   <  eval, baselines, export, preflight   <  sim
     <  demo, experiment_runner, config_reference, every ``*cli`` module
 
 ``execution`` (running one task per track, writing results) knows tracks and outputs but no solver: the
@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 RANKS = {
-    "utils": 0, "keypoints": 0, "config": 0, "config_ranges": 0,
+    "utils": 0, "environment": 0, "keypoints": 0, "config": 0, "config_ranges": 0,
     "data": 1, "motion": 1,
     "execution": 2,
     "body": 3,
