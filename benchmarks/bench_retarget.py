@@ -19,13 +19,12 @@ benchmarks/results/bench_retarget.{json,md}.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
+from pedx_graph.environment import machine_note
 from pedx_graph.motion import default_motion_dir, generic_rest_joints, list_clips, read_bvh, retarget_bvh
 from pedx_graph.motion.retarget import bvh_rest_joints, retarget_joint_error
 from pedx_graph.utils import atomic_write_json, atomic_write_text
@@ -77,8 +76,7 @@ def main(argv: list[str] | None = None) -> int:
                "consistency_max_mm": float(max(r["consistency_mean_mm"] for r in rows)),
                "body_local_mean_mm_over_clips": float(np.mean([r["body_local_mean_mm"] for r in rows])),
                "seconds_per_clip_median": float(np.median([r["seconds"] for r in rows])),
-               "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-                           f"Python {platform.python_version()}"}
+               "hardware": machine_note()}
     OUT_DIR.mkdir(parents=True, exist_ok=True)
     atomic_write_json(OUT_DIR / "bench_retarget.json", {"summary": summary, "clips": rows})
     joints = list(rows[0]["body_per_joint_mm"])

@@ -18,7 +18,6 @@ import argparse
 import importlib
 import json
 import os
-import platform
 import tempfile
 import time
 from collections import defaultdict
@@ -26,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pedx_graph.environment import machine_note
 from pedx_graph.sim import SimConfig, simulate
 from pedx_graph.utils import atomic_write_json, atomic_write_text
 
@@ -126,8 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         "cpu_seconds_total": cpu_seconds,
         "phase_seconds": phases, "summary": {k: v for k, v in summary.items() if k != "seconds"},
         "label_statistics": stats,
-        "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-                    f"Python {platform.python_version()}",
+        "hardware": machine_note(),
         "load_average_1min_at_end": os.getloadavg()[0],
     }
     if args.workers > 1:
