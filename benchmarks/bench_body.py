@@ -36,6 +36,7 @@ from threadpoolctl import threadpool_limits
 from pedx_graph.body import BodyModel
 from pedx_graph.body.io import validate_model_arrays
 from pedx_graph.body.model import default_model_path
+from pedx_graph.environment import cpu_name, library_versions, machine_note
 from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))     # tests/synthetic_model.py
@@ -116,9 +117,10 @@ def run(frames: int, repeats: int, seed: int, force_synthetic: bool) -> dict:
         "method": ("min / median over repeats of wall and thread CPU time divided by frames; BLAS limited to one "
                    "thread; seeded random poses"),
         "seed": seed, "frames": frames, "repeats": repeats,
-        "hardware": {"machine": platform.machine(), "processor": platform.processor() or None,
+        "hardware": {"machine": platform.machine(), "processor": cpu_name(),
                      "cpu_count": os.cpu_count(), "python": platform.python_version(),
-                     "numpy": np.__version__, "load_average_at_end": list(load) if load else None},
+                     "numpy": np.__version__, "libraries": library_versions(), "note": machine_note(),
+                     "load_average_at_end": list(load) if load else None},
         "runs": runs,
     }
 
@@ -126,12 +128,13 @@ def run(frames: int, repeats: int, seed: int, force_synthetic: bool) -> dict:
 def to_markdown(report: dict) -> str:
     hw = report["hardware"]
     load = [round(x, 2) for x in hw["load_average_at_end"]] if hw["load_average_at_end"] else None
+    # results written before the note existed name the cores, Python and numpy only
+    machine = hw.get("note") or f"{hw['cpu_count']} CPUs ({hw['machine']}), Python {hw['python']}, numpy {hw['numpy']}"
     lines = [
         "# Body model speed (numpy)",
         "",
         f"Method: {report['method']}; {report['frames']} frames, {report['repeats']} repeats, seed {report['seed']}.",
-        f"Hardware: {hw['cpu_count']} CPUs ({hw['machine']}), Python {hw['python']}, numpy {hw['numpy']}; "
-        f"load average at the end {load} (a shared machine: wall times are noisy, CPU times less so).",
+        f"Hardware: {machine}; load average at the end {load} (a shared machine: wall times are noisy, CPU times less so).",
     ]
     for run in report["runs"]:
         lines += [

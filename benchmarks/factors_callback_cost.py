@@ -34,6 +34,7 @@ from factors import (FrameKeys, FrameState, StereoKeypoints, make_heading_prior_
 from factors.common import MaxMixture
 from factors.temporal_prior import TEMPORAL_DIM
 from factor_testing import frame_values, make_test_calibration, random_gmm, standing_rotation
+from pedx_graph.environment import cpu_name, library_versions, machine_note
 from pedx_graph.utils import atomic_write_json, atomic_write_text, make_rng
 from synthetic_model import synthetic_body_model  # noqa: E402
 
@@ -142,15 +143,16 @@ def main(argv=None) -> dict:
                   "frame at fresh estimates, divided by the number of factors (Python callbacks included), "
                   "single-threaded BLAS",
         "frames": args.frames, "repeats": args.repeats, "vertices": args.vertices, "seed": args.seed,
-        "hardware": {"machine": platform.machine(), "processor": platform.processor(), "cpus": os.cpu_count(),
-                     "python": platform.python_version(), "gtsam": getattr(gtsam, "__version__", "?")},
+        "hardware": {"machine": platform.machine(), "processor": cpu_name(), "cpus": os.cpu_count(),
+                     "python": platform.python_version(), "gtsam": getattr(gtsam, "__version__", "?"),
+                     "libraries": library_versions(), "note": machine_note()},
         "results": results,
     }
     OUT_DIR.mkdir(parents=True, exist_ok=True)
     atomic_write_json(OUT_DIR / "factors_callback_cost.json", report)
     lines = ["# Factor callback cost", "", report["method"] + ".", "",
              f"{args.frames} frames, synthetic SMPL-format body model with {args.vertices} vertices, "
-             f"{os.cpu_count()} CPUs ({platform.machine()}), seed {args.seed}. Shared machine: expect noise.", "",
+             f"seed {args.seed}. Hardware: {machine_note()}. Shared machine: expect noise.", "",
              "| factor | n | error µs/factor | linearize µs/factor | linearize after error at the same estimate |",
              "|---|---|---|---|---|"]
     for name, r in results.items():
