@@ -152,7 +152,7 @@ def main(argv=None) -> dict:
     atomic_write_json(OUT_DIR / "factors_callback_cost.json", report)
     lines = ["# Factor callback cost", "", report["method"] + ".", "",
              f"{args.frames} frames, synthetic SMPL-format body model with {args.vertices} vertices, "
-             f"seed {args.seed}. Hardware: {machine_note()}. Shared machine: expect noise.", "",
+             f"seed {args.seed}. Hardware: {report['hardware']['note']}. Shared machine: expect noise.", "",
              "| factor | n | error µs/factor | linearize µs/factor | linearize after error at the same estimate |",
              "|---|---|---|---|---|"]
     for name, r in results.items():
