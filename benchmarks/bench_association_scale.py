@@ -7,9 +7,11 @@ fragments) simulated at each size ``people x frames``; then
 ``pedx-graph import`` runs it, timed by wall clock (the fastest of ``--repeats``), with the tracks it finds
 and their identity switches (:func:`pedx_graph.detections.evaluate.score_tracks`).  The time of each step is
 taken from one profiled run (Python's profiler slows every call alike, so only their shares are reported).
+Each further count of ``--workers`` times ``associate(..., workers=N)`` (the stereo pairs' own steps in N local
+processes, as ``pedx-graph import --workers N``) the same way, and checks that it finds the same tracks.
 
     python benchmarks/bench_association_scale.py [--seed 0] [--sizes 10x20,20x40,20x80] [--repeats 1]
-                                                 [--out benchmarks/results]
+                                                 [--workers 1,2] [--out benchmarks/results]
 
 Writes ``bench_association_scale.json`` and ``bench_association_scale.md`` into ``--out``.
 """
@@ -42,7 +44,13 @@ STEPS = ("camera_tracklets", "pair_tracklets", "stitch_tracks", "repair_swaps", 
          "detection_ranges", "merge_pair_tracks", "move_to_neighbours", "smooth_centres", "separate_people")
 
 
-def run_size(people: int, frames: int, seed: int, work: Path, repeats: int) -> dict:
+def _tracks_key(tracks) -> list:
+    """What makes two runs' tracks the same: ids, frames, each frame's detections and centre."""
+    return [(t.track_id, [(fr.frame, sorted((cam, d.source) for cam, d in fr.detections.items()),
+                           None if fr.world_p is None else fr.world_p.tolist()) for fr in t.frames]) for t in tracks]
+
+
+def run_size(people: int, frames: int, seed: int, work: Path, repeats: int, workers: tuple[int, ...] = ()) -> dict:
     cfg = scene_configs(people, frames)["mixed"]
     cfg.detections.formats = (FORMAT,)
     scene = work / f"p{people}f{frames}"
@@ -69,10 +77,19 @@ def run_size(people: int, frames: int, seed: int, work: Path, repeats: int) -> d
     for step in STEPS:
         cumulative = sum(v[3] for k, v in stats.items() if k[2] == step and k[0] == association.__file__)
         shares[step] = cumulative / total if total else None
+    parallel = {}
+    for count in workers:
+        times_n = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            found = association.associate(detections, calibs, clouds=clouds, ground=ground, workers=count)
+            times_n.append(time.perf_counter() - t0)
+        parallel[str(count)] = {"associate_seconds": min(times_n),
+                                "same_tracks": _tracks_key(found) == _tracks_key(tracks)}
     score = score_tracks(tracks, read_detection_truth(scene, seq, FORMAT), labelled_instances(scene, seq))
     return {"people": people, "frames": frames, "detections": len(detections), "tracks": len(tracks),
             "id_switches": score["id_switches"], "associate_seconds": min(times), "simulate_seconds": simulate_s,
-            "step_shares": shares}
+            "step_shares": shares, "workers": parallel}
 
 
 def markdown(result: dict) -> str:
@@ -83,14 +100,17 @@ def markdown(result: dict) -> str:
              "BODY_25 files, `associate` with the LiDAR clouds; wall time, the fastest of "
              f"{result['repeats']}; step shares from one profiled run).", "",
              "| people x frames | detections | tracks | id switches | associate (s) | ms per detection | "
+             + "".join(f"{n} workers (s) | same tracks | " for n in result.get("workers", []))
              + " | ".join(STEPS) + " |",
-             "|---|---:|---:|---:|---:|---:|" + "---:|" * len(STEPS)]
+             "|---|---:|---:|---:|---:|---:|" + "---:|---|" * len(result.get("workers", [])) + "---:|" * len(STEPS)]
     for row in result["sizes"]:
         shares = " | ".join("" if row["step_shares"][s] is None else f"{100 * row['step_shares'][s]:.0f} %"
                             for s in STEPS)
+        parallel = "".join(f"{row['workers'][str(n)]['associate_seconds']:.1f} | "
+                           f"{'yes' if row['workers'][str(n)]['same_tracks'] else 'NO'} | " for n in result.get("workers", []))
         lines.append(f"| {row['people']} x {row['frames']} | {row['detections']} | {row['tracks']} | "
                      f"{row['id_switches']} | {row['associate_seconds']:.1f} | "
-                     f"{1000 * row['associate_seconds'] / max(row['detections'], 1):.1f} | {shares} |")
+                     f"{1000 * row['associate_seconds'] / max(row['detections'], 1):.1f} | {parallel}{shares} |")
     lines += ["", "Step shares are of the association's whole time and overlap where one step calls another "
               "(`_lidar_centre` runs inside `pair_tracks`, as do the tracklet steps, `stitch_tracks` and `repair_swaps`)."]
     return "\n".join(lines) + "\n"
@@ -102,12 +122,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sizes", default="10x20,20x40,20x80", help="people x frames, comma-separated")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--workers", default="1,2",
+                        help="worker counts of associate, comma-separated (1: the main column, always run)")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
     sizes = [tuple(int(x) for x in item.split("x")) for item in args.sizes.split(",")]
+    workers = tuple(sorted({int(x) for x in args.workers.split(",")} - {1}))
     with tempfile.TemporaryDirectory(prefix="bench_association_scale_") as tmp:
-        rows = [run_size(p, f, args.seed, Path(tmp), args.repeats) for p, f in sizes]
-    result = {"seed": args.seed, "repeats": args.repeats, "sizes": rows, "hardware": hardware(),
+        rows = [run_size(p, f, args.seed, Path(tmp), args.repeats, workers) for p, f in sizes]
+    result = {"seed": args.seed, "repeats": args.repeats, "workers": list(workers), "sizes": rows,
+              "hardware": hardware(),
               "command": " ".join(["python benchmarks/bench_association_scale.py"] + public_args(argv))}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -271,3 +271,26 @@ def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path, capsys):
                                 config=ImportConfig(use_file_ids=True))
     (record,) = summary["sequences"].values()
     assert record["stereo_noise_check"]["applied"] == 1.0
+
+
+def test_import_with_two_workers_writes_what_one_process_writes(tmp_path):
+    """``--workers 2`` runs the two stereo pairs' association steps in two processes: every file the import
+    writes (labels, LiDAR segments, summary, resolved config) is byte for byte what one process writes."""
+    from pedx_graph.sim.config import pedx_rig_config
+
+    config = pedx_rig_config()                  # its two pairs see the same street: both hold people
+    config.detections.formats = ("openpose_body25",)
+    root = small_scene(tmp_path / "scene", pedestrians=4, frames=10, seed=0, config=config)
+    written = {}
+    for workers in (1, 2):
+        out = tmp_path / f"workers{workers}"
+        assert main(["import", "openpose", str(root / "detections" / "openpose_body25"), "--keypoint-set", "body25",
+                     "--calib", str(root), "--out", str(out), "--workers", str(workers)]) == 0
+        written[workers] = {path.relative_to(out).as_posix(): path.read_bytes()
+                            for path in sorted(out.rglob("*")) if path.is_file() and not path.is_symlink()
+                            and "pointclouds" not in path.relative_to(out).parts}
+    labels = [name for name in written[1] if name.startswith("labels/2d/")]
+    cameras = {name.split("/")[3] for name in labels}
+    # both pairs' cameras hold labels: the two processes each had a pair to associate
+    assert len(cameras) == 4, cameras
+    assert written[2] == written[1]

@@ -2,7 +2,7 @@
 
 Entry point::
 
-    associate(detections, calibrations, config=None, clouds=None, ground=None) -> list[DetectedTrack]
+    associate(detections, calibrations, config=None, clouds=None, ground=None, workers=1) -> list[DetectedTrack]
 
 ``detections``: :class:`~pedx_graph.detections.types.Detection` of every camera and frame (raw-image pixels,
 no ids needed; ids in the files are ignored); ``calibrations``: pair name -> :class:`StereoCalibration`
@@ -3027,10 +3027,20 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
 
 # ---------------------------------------------------------------------------------------------- entry point
 
+def _pair_job(job: tuple) -> list[list[Observation]]:
+    """:func:`pair_tracks` of one pair, for :func:`associate`'s workers: ``job`` is its arguments."""
+    return pair_tracks(*job)
+
+
 def associate(detections: list[Detection], calibrations: Mapping[str, StereoCalibration],
               config: AssociationConfig | None = None, clouds: Mapping[int, np.ndarray] | None = None,
-              ground: GroundFrame | None = None) -> list[DetectedTrack]:
-    """Tracks with ids from id-less detections (module docstring)."""
+              ground: GroundFrame | None = None, workers: int = 1) -> list[DetectedTrack]:
+    """Tracks with ids from id-less detections (module docstring).  ``workers`` > 1 runs the pairs' own
+    steps (:func:`pair_tracks`, each pair on its own: the most of the time) in that many local processes, the
+    same tracks as in this process; ``clouds`` must then pickle (a dict of arrays, or a mapping that reads
+    its frames on demand)."""
+    from pedx_graph.execution.executors import map_ordered
+
     config = config or AssociationConfig()
     ground = ground or ground_from_calibrations(dict(calibrations))
     if clouds is not None:
@@ -3042,9 +3052,11 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
         except KeyError:
             continue
         by_pair[calib.name].append(det)
+    pairs = sorted(by_pair)
+    jobs = [(by_pair[pair], calibrations[pair], config, ground, clouds) for pair in pairs]
     tracks: list[tuple[str, list[Observation]]] = []
-    for pair in sorted(by_pair):
-        tracks += [(pair, track) for track in pair_tracks(by_pair[pair], calibrations[pair], config, ground, clouds)]
+    for pair, found in zip(pairs, map_ordered(_pair_job, jobs, workers)):
+        tracks += [(pair, track) for track in found]
     pair_of = {id(obs): pair for pair, track in tracks for obs in track}
     track_of = {id(obs): index for index, (_, track) in enumerate(tracks) for obs in track}
     groups = []

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import logging
 
+from pedx_graph.execution.options import positive_int
+
 log = logging.getLogger(__name__)
 
 
@@ -38,6 +40,9 @@ def register(subparsers) -> None:
     p.add_argument("--use-file-ids", action="store_true",
                    help="group by the ids in the files (OpenPose person_id, COCO track_id) instead of associating")
     p.add_argument("--config", default=None, help="YAML with an ImportConfig (noise: sigma curve, threshold)")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="local processes for the association, one stereo pair each (default 1: this process; "
+                        "the same tracks with any number)")
     p.set_defaults(func=_run_import)
 
 
@@ -68,7 +73,8 @@ def _run_import(args: argparse.Namespace) -> int:
             raise ValueError("coco: give exactly one annotation or results file")
         detections = read_coco(args.input[0], args.images, args.name_pattern, cameras)
     config.use_file_ids = config.use_file_ids or args.use_file_ids
-    summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence)
+    summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence,
+                                workers=args.workers)
     tracks = sum(s["tracks"] for s in summary["sequences"].values())
     labels = sum(s["labels_written"] for s in summary["sequences"].values())
     print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")

@@ -184,8 +184,9 @@ def _copy_support(source_root: Path | None, calib_dir: Path, out: Path) -> dict:
 
 
 def import_detections(detections: list[Detection], calib: str | os.PathLike, out: str | os.PathLike,
-                      config: ImportConfig | None = None, sequence: str | None = None) -> dict:
-    """Write ``detections`` as a dataset under ``out`` (module docstring); returns the summary (also written)."""
+                      config: ImportConfig | None = None, sequence: str | None = None, workers: int = 1) -> dict:
+    """Write ``detections`` as a dataset under ``out`` (module docstring); returns the summary (also written).
+    ``workers``: local processes for the association's per-pair steps (the same tracks with any number)."""
     config = config or ImportConfig()
     calib = Path(calib)
     calib_dir = calibration_dir(calib)
@@ -202,14 +203,15 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
     for seq in sorted(by_sequence):
         if "_" in seq:
             raise ValueError(f"sequence name {seq!r} must not contain '_' (release file names); pass --sequence")
-        summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config)
+        summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config,
+                                                      workers)
     save_config(config, out / "import_config.yaml")          # the resolved config beside what it made
     atomic_write_json(out / "import_summary.json", summary)
     return summary
 
 
 def _import_sequence(seq: str, detections: list[Detection], calibrations, out: Path, source_root: Path | None,
-                     config: ImportConfig) -> dict:
+                     config: ImportConfig, workers: int = 1) -> dict:
     from pedx_graph.detections.association import associate, tracks_from_ids
 
     known = [d for d in detections if _calibrated(d.camera, calibrations)]
@@ -229,7 +231,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         tracks = tracks_from_ids(people, calibrations, config.association, ground,     # centres for the cut
                                  clouds=clouds or None)
     else:
-        tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground)
+        tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground,
+                           workers=workers)
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
                                     config.association.keypoint_sigma_frac,
                                     config.association.tracker.frame_interval_s)

@@ -14,7 +14,7 @@ import sys
 from collections.abc import Callable
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -27,7 +27,7 @@ def _positive_int(text: str) -> int:
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``--workers``, ``--cluster``, ``--resume`` / ``--overwrite`` and ``--quiet`` (``--no-progress``)."""
     group = parser.add_argument_group("where tracks run, and the results folder")
-    group.add_argument("--workers", type=_positive_int, default=1,
+    group.add_argument("--workers", type=positive_int, default=1,
                        help="local processes over tracks (default 1: this process)")
     group.add_argument("--cluster", default=None, metavar="ADDRESS",
                        help="run the tracks on a Dask cluster: a scheduler address (tcp://host:8786), a scheduler "
