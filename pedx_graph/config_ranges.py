@@ -371,6 +371,7 @@ RULES: dict[str, Range | Choice] = {
     # pedx_graph.detections.importer.ImportConfig, noise.DetectionNoiseConfig (SigmaCurve checks itself)
     "ImportConfig.min_keypoints": COUNT,
     "ImportConfig.min_stereo_samples": COUNT,
+    "ImportConfig.cloud_cache_mb": NON_NEGATIVE,
     "ReviewConfig.column_frac": NON_NEGATIVE,
     "ReviewConfig.max_height_ratio": Range(1.0),
     "ReviewConfig.ground_m": NON_NEGATIVE,

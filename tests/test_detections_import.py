@@ -294,3 +294,36 @@ def test_import_with_two_workers_writes_what_one_process_writes(tmp_path):
     # both pairs' cameras hold labels: the two processes each had a pair to associate
     assert len(cameras) == 4, cameras
     assert written[2] == written[1]
+
+
+def test_scene_clouds_are_read_once_within_the_cache_and_pickle_without_it(tmp_path, monkeypatch):
+    """The import's scene clouds: frames visited track after track are read from disk once while they fit in
+    ``cloud_cache_mb``; with no room, one frame at a time; a pickled reader (for worker processes) carries no
+    points."""
+    import pickle
+
+    import pedx_graph.data.ply as ply
+    from pedx_graph.detections.importer import _Clouds
+
+    rng = np.random.default_rng(3)
+    clouds = {frame: rng.normal(size=(1000, 3)) for frame in range(4)}      # 24 kB each
+    for frame, points in clouds.items():
+        path = ply.pointcloud_path(tmp_path, "seq", frame)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        ply.write_ply_points(path, points)
+    reads = []
+    original = ply.read_ply_points
+    monkeypatch.setattr(ply, "read_ply_points", lambda path, *a, **k: reads.append(path) or original(path, *a, **k))
+    visits = [0, 1, 2, 3] * 3                          # three tracks over the same frames
+    for cache_mb, expected in ((1.0, 4), (0.0, 12)):
+        reads.clear()
+        reader = _Clouds(tmp_path, "seq", cache_mb)
+        for frame in visits:
+            np.testing.assert_array_equal(reader[frame], clouds[frame])
+        assert len(reads) == expected, (cache_mb, len(reads))
+    assert sorted(reader) == [0, 1, 2, 3]
+    restored = pickle.loads(pickle.dumps(_Clouds(tmp_path, "seq", 1.0)))
+    full = _Clouds(tmp_path, "seq", 1.0)
+    for frame in range(4):
+        full[frame]
+    assert len(pickle.dumps(full)) < 20_000 and len(restored) == 4

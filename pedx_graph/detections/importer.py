@@ -23,7 +23,7 @@ import dataclasses
 import logging
 import os
 import shutil
-from collections import defaultdict
+from collections import OrderedDict, defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -73,6 +73,9 @@ class ImportConfig:
     from below.  The factor goes to ``import_summary.json`` (``sequences.<seq>.stereo_noise_check``)."""
     min_stereo_samples: int = 200
     """Fewer keypoints seen in both images of a pair than this: no check (the model's sigmas as they are)."""
+    cloud_cache_mb: float = 512.0
+    """Scene clouds kept in memory while importing, megabytes, the least recently used dropped first (the
+    association and the segments read each frame's cloud many times; 0 = one frame at a time)."""
     review: ReviewConfig = field(default_factory=ReviewConfig)
     """Which stretches of frames ``import_summary.json`` lists for a second look at who is who
     (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground,
@@ -86,9 +89,12 @@ def calibration_dir(source: str | os.PathLike) -> Path:
 
 
 class _Clouds(Mapping):
-    """Frame -> the sequence's scene cloud, read on demand (``pointclouds/<seq>/``)."""
+    """Frame -> the sequence's scene cloud, read on demand (``pointclouds/<seq>/``), the most recently used
+    ones kept up to ``cache_mb`` megabytes (the last one always).  The association visits a frame's cloud
+    once per track and step, track after track: a person is seen for a stretch of frames, so a cache holding
+    such a stretch reads each file about once.  Pickled (for worker processes) without the cache."""
 
-    def __init__(self, root: Path, sequence: str):
+    def __init__(self, root: Path, sequence: str, cache_mb: float = 0.0):
         from pedx_graph.data.ply import pointcloud_path
         self._paths = {}
         folder = root / "pointclouds" / sequence
@@ -97,13 +103,23 @@ class _Clouds(Mapping):
                 token = path.stem.rsplit("_", 1)[-1]
                 if token.isdigit() and pointcloud_path(root, sequence, int(token)) == path:
                     self._paths[int(token)] = path
-        self._cache: dict[int, np.ndarray] = {}
+        self._budget = float(cache_mb) * 1e6
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_cache": OrderedDict()}
 
     def __getitem__(self, frame: int) -> np.ndarray:
         from pedx_graph.data.ply import read_ply_points
-        if frame not in self._cache:
-            self._cache = {frame: read_ply_points(self._paths[frame])}      # one frame at a time in memory
-        return self._cache[frame]
+        if frame in self._cache:
+            self._cache.move_to_end(frame)
+            return self._cache[frame]
+        points = read_ply_points(self._paths[frame])
+        self._cache[frame] = points
+        held = sum(cloud.nbytes for cloud in self._cache.values())
+        while len(self._cache) > 1 and held > self._budget:
+            held -= self._cache.popitem(last=False)[1].nbytes
+        return points
 
     def __iter__(self):
         return iter(sorted(self._paths))
@@ -218,7 +234,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
     if uncalibrated:
         log.warning("%s: cameras %s are in no calibrated pair; their detections are skipped", seq, uncalibrated)
-    clouds = _Clouds(source_root, seq) if source_root is not None else {}
+    clouds = _Clouds(source_root, seq, config.cloud_cache_mb) if source_root is not None else {}
     people: dict[str, dict[int, dict[str, Detection]]] = {}
     from pedx_graph.data.ground import ground_from_calibrations
     ground = ground_from_calibrations(dict(calibrations), seq)
