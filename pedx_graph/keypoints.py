@@ -122,6 +122,37 @@ def mirror_index(names: tuple[str, ...]) -> tuple[tuple[int, int], ...]:
     return tuple(pairs)
 
 
+#: A limb's two ends by part of their names (every shipped set's naming: ``LShoulder``, ``left_shoulder``,
+#: ``lsho``), joined on each side of the body.
+_LIMB_PARTS = (("sho", "elb"), ("elb", "wri"), ("sho", "hip"), ("hip", "knee"), ("knee", "ank"))
+
+
+def limb_edges(name: str) -> tuple[tuple[int, int, str], ...]:
+    """Limbs of keypoint set ``name`` as ``(i, j, side)``, from its names (:func:`mirror_index` tells the
+    left from the right): shoulder-elbow, elbow-wrist, shoulder-hip, hip-knee and knee-ankle on each side
+    (``side`` ``"left"`` / ``"right"``), and shoulder-shoulder and hip-hip across (``side`` ``""``); a set
+    without some of those points has fewer."""
+    names = load_keypoint_set(name).keypoints
+    pairs = mirror_index(names)
+    sides = {**{i: "left" for i, _ in pairs}, **{j: "right" for _, j in pairs}}
+
+    def find(part: str, side: str) -> int | None:
+        found = [i for i, n in enumerate(names) if part in n.lower() and sides.get(i) == side]
+        return found[0] if found else None
+
+    edges = []
+    for side in ("left", "right"):
+        for a, b in _LIMB_PARTS:
+            i, j = find(a, side), find(b, side)
+            if i is not None and j is not None:
+                edges.append((i, j, side))
+    for part in ("sho", "hip"):
+        i, j = find(part, "left"), find(part, "right")
+        if i is not None and j is not None:
+            edges.append((i, j, ""))
+    return tuple(edges)
+
+
 def mirror_order(name: str) -> np.ndarray:
     """(K,) index that swaps every left/right pair of set ``name`` (:func:`mirror_index`), the others in
     place: ``uv[mirror_order(name)]`` is the detection with the person's left taken for its right."""

@@ -60,6 +60,7 @@ def test_openpose_own_files(tmp_path, count, named, expected):
     det = dets[0]
     assert (det.sequence, det.camera, det.frame, det.track_id) == ("seqA", "camX", 4, None)
     assert dets[1].track_id == "5"
+    assert det.image == "seqA_camX_0000004"              # the image the detector saw, for the review sheets
     assert np.isnan(det.image_uv[3]).all() and det.confidence[3] == 0
     flat = np.array(openpose_person(count)["pose_keypoints_2d"]).reshape(-1, 3)
     np.testing.assert_allclose(det.image_uv[0], flat[0, :2])
@@ -103,6 +104,7 @@ def test_coco_annotations_and_results(tmp_path):
     ann = write(tmp_path / "ann.json", coco_doc())
     (det,) = read_coco(ann)
     assert (det.sequence, det.camera, det.frame, det.track_id, det.keypoint_set) == ("seqA", "camX", 9, "3", "coco17")
+    assert det.image == "seqA_camX_0000009"
     v = np.array([(0, 1, 2)[k % 3] for k in range(17)])
     np.testing.assert_array_equal(det.confidence, (v > 0).astype(float))
     np.testing.assert_array_equal(det.occluded, v == 1)
@@ -112,13 +114,13 @@ def test_coco_annotations_and_results(tmp_path):
     res = write(tmp_path / "res.json", [{"image_id": 7, "category_id": 1, "score": 0.8,
                                          "keypoints": [v for k in range(17) for v in (10.0 * k, 5.0, scores[k])]}])
     (det,) = read_coco(res, images=ann)
-    assert det.frame == 9 and det.score == 0.8 and det.occluded is None
+    assert det.frame == 9 and det.score == 0.8 and det.occluded is None and det.image == "seqA_camX_0000009"
     np.testing.assert_allclose(det.confidence, scores)
     assert np.isnan(det.image_uv[0]).all()
     with pytest.raises(DataFormatError, match="image list"):
         read_coco(res)
     (det,) = read_coco(res, camera="camY")
-    assert (det.camera, det.frame) == ("camY", 7)
+    assert (det.camera, det.frame, det.image) == ("camY", 7, None)        # no image list: no image name
 
 
 @pytest.mark.parametrize("mutate, field", [

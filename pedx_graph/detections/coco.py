@@ -132,7 +132,7 @@ def read_coco_annotations(path: str | os.PathLike, name_pattern: str | None = No
         out.append(Detection(camera=image.camera, frame=image.frame, keypoint_set="coco17", image_uv=uv,
                              confidence=present.astype(float), score=float(score), source=f"{path}#{field}",
                              track_id=_track_id(ann), bbox=_bbox(ann, path, f"{field}.bbox"),
-                             occluded=vis == 1, sequence=image.sequence))
+                             occluded=vis == 1, sequence=image.sequence, image=image.stem))
     return out
 
 
@@ -184,7 +184,8 @@ def read_coco_results(path: str | os.PathLike, images: str | os.PathLike | None 
                              confidence=np.where(present, conf, 0.0),
                              score=float(conf[present].mean() if score is None else score),
                              source=f"{path}#{field}", track_id=_track_id(item),
-                             bbox=_bbox(item, path, f"{field}.bbox"), sequence=image.sequence))
+                             bbox=_bbox(item, path, f"{field}.bbox"), sequence=image.sequence,
+                             image=image.stem))
     return out
 
 

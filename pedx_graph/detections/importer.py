@@ -200,10 +200,17 @@ def _copy_support(source_root: Path | None, calib_dir: Path, out: Path) -> dict:
 
 
 def import_detections(detections: list[Detection], calib: str | os.PathLike, out: str | os.PathLike,
-                      config: ImportConfig | None = None, sequence: str | None = None, workers: int = 1) -> dict:
+                      config: ImportConfig | None = None, sequence: str | None = None, workers: int = 1,
+                      review_images: str | os.PathLike | None = None) -> dict:
     """Write ``detections`` as a dataset under ``out`` (module docstring); returns the summary (also written).
-    ``workers``: local processes for the association's per-pair steps (the same tracks with any number)."""
+    ``workers``: local processes for the association's per-pair steps (the same tracks with any number).
+    ``review_images``: the folder of the images the detections were made on; each stretch of the identity
+    review is then drawn on them, one JPEG per stretch under ``out/review/<seq>/``
+    (:mod:`pedx_graph.detections.review_sheets`)."""
+    from pedx_graph.detections.review_sheets import index_images
+
     config = config or ImportConfig()
+    images = index_images(review_images) if review_images is not None else None
     calib = Path(calib)
     calib_dir = calibration_dir(calib)
     calibrations = read_calibrations(calib_dir)
@@ -220,14 +227,14 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
         if "_" in seq:
             raise ValueError(f"sequence name {seq!r} must not contain '_' (release file names); pass --sequence")
         summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config,
-                                                      workers)
+                                                      workers, images)
     save_config(config, out / "import_config.yaml")          # the resolved config beside what it made
     atomic_write_json(out / "import_summary.json", summary)
     return summary
 
 
 def _import_sequence(seq: str, detections: list[Detection], calibrations, out: Path, source_root: Path | None,
-                     config: ImportConfig, workers: int = 1) -> dict:
+                     config: ImportConfig, workers: int = 1, images: dict | None = None) -> dict:
     from pedx_graph.detections.association import associate, tracks_from_ids
 
     known = [d for d in detections if _calibrated(d.camera, calibrations)]
@@ -255,6 +262,12 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
     review = review_summary(tracks, ground, config.review)
+    sheets = None
+    if images is not None:
+        from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
+        sheets = {"folder": f"review/{seq}", "images_found": len(images),
+                  "sheets": write_review_sheets(tracks, review["stretches"], images, out / "review" / seq,
+                                                image_stems(detections))}
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
@@ -280,7 +293,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
               "left_right_swapped_back": flipped,
               "uncalibrated_cameras": uncalibrated,
               "stereo_noise_check": check.record() if check is not None else None,
-              "identity_review": review}
+              "identity_review": review, "review_sheets": sheets}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,

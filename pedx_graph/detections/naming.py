@@ -37,6 +37,9 @@ class ImageName:
     """Camera name as written in the file name (rename with ``camera_names`` to match the calibration)."""
     frame: int
     """Frame index."""
+    stem: str | None = None
+    """The name without folder, extension and OpenPose's ``_keypoints.json``: the image's stem, by which
+    the image the detector saw is found again (:mod:`pedx_graph.detections.review_sheets`)."""
 
 
 def strip_name(name: str) -> str:
@@ -83,7 +86,7 @@ def parse_name(name: str, patterns: list[re.Pattern] | None = None, source: str 
         camera = match.group("camera")
         if camera_names:
             camera = camera_names.get(camera, camera)
-        return ImageName(sequence=groups.get("sequence"), camera=camera, frame=int(frame_text))
+        return ImageName(sequence=groups.get("sequence"), camera=camera, frame=int(frame_text), stem=stem)
     raise DataFormatError(source or name, "file name",
                           f"{stem!r} matches no name pattern ({', '.join(p.pattern for p in patterns or [])}"
                           f"{'' if patterns else 'built-in: <sequence>_<camera>_<frame>, <camera>.<frame>'}); "

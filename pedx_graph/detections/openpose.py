@@ -86,7 +86,8 @@ def parse_openpose(doc, path: str | os.PathLike, image: ImageName, keypoint_set:
             track_id = str(int(pid))
         out.append(Detection(camera=image.camera, frame=image.frame, keypoint_set=set_name, image_uv=uv,
                              confidence=np.clip(conf, 0.0, 1.0), score=float(conf[~absent].mean()),
-                             source=f"{path}#people[{index}]", track_id=track_id, sequence=image.sequence))
+                             source=f"{path}#people[{index}]", track_id=track_id, sequence=image.sequence,
+                             image=image.stem))
     return out
 
 

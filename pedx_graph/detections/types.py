@@ -36,6 +36,9 @@ class Detection:
     """(K,) bool: labelled but marked not visible (COCO ``v = 1``); None when the file has no such flag."""
     sequence: str | None = None
     """The sequence named by the file (e.g. a PedX image name's ``<sequence>_`` prefix), else None."""
+    image: str | None = None
+    """Stem of the image the detector saw (its file name without folder and extension) when the file names
+    it (an OpenPose file's name, a COCO image's ``file_name``), else None."""
 
     @property
     def present(self) -> np.ndarray:

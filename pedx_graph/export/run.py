@@ -84,7 +84,8 @@ def resolve_dataset(results: Path, dataset: str | os.PathLike | None, summary: d
     return None
 
 
-def _encode(image: np.ndarray, ext: str) -> bytes:
+def encode_image(image: np.ndarray, ext: str) -> bytes:
+    """``image`` (BGR) encoded as ``ext`` (".jpg" at ``JPEG_QUALITY``, ".png"); OSError when OpenCV cannot."""
     import cv2
 
     params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if ext == ".jpg" else []
@@ -222,7 +223,7 @@ def export_results(results: str | os.PathLike, out: str | os.PathLike | None = N
                 drawn = overlays.draw_overlay(image[0], camera, people, scale, title)
                 if write:
                     atomic_write_bytes(out / "overlays" / seq / cam_name / f"{seq}_{cam_name}_{frame:07d}.jpg",
-                                       _encode(drawn, ".jpg"))
+                                       encode_image(drawn, ".jpg"))
                     record["files"]["overlays"] += 1
                 for key in wanted:
                     box = anim_camera[key][1] * scale
@@ -244,7 +245,7 @@ def export_results(results: str | os.PathLike, out: str | os.PathLike | None = N
         if config.top_views:
             foot = meshes.track_vertices(model, [labels[key][mid]])[0]
             image = topview.render_top_view(path, ground, mid, foot)
-            atomic_write_bytes(out / "topview" / key[0] / f"{key[0]}_{key[1]}.png", _encode(image, ".png"))
+            atomic_write_bytes(out / "topview" / key[0] / f"{key[0]}_{key[1]}.png", encode_image(image, ".png"))
             record["files"]["top_views"] += 1
         if config.animations:
             frames = []
