@@ -1,4 +1,4 @@
-"""Small shared helpers: atomic writes, seeded random generators, JSON conversion."""
+"""Small shared helpers: atomic writes, image encoding, seeded random generators, JSON conversion."""
 from __future__ import annotations
 
 import json
@@ -47,6 +47,21 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     with atomic_writer(path) as fh:
         fh.write(data)
     return Path(path)
+
+
+#: JPEG quality of the images the project writes (overlays, review sheets).
+JPEG_QUALITY = 90
+
+
+def encode_image(image: np.ndarray, ext: str) -> bytes:
+    """``image`` (BGR) encoded as ``ext`` (".jpg" at ``JPEG_QUALITY``, ".png"); OSError when OpenCV cannot."""
+    import cv2
+
+    params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if ext == ".jpg" else []
+    ok, buf = cv2.imencode(ext, image, params)
+    if not ok:
+        raise OSError(f"OpenCV could not encode a {ext} image")
+    return buf.tobytes()
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -26,7 +26,7 @@ import numpy as np
 
 from pedx_graph.detections.naming import strip_name
 from pedx_graph.keypoints import limb_edges
-from pedx_graph.utils import atomic_write_bytes
+from pedx_graph.utils import atomic_write_bytes, encode_image
 
 #: Image files looked for, by extension (lower case).
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
@@ -181,8 +181,6 @@ def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, P
     index: per stretch its tracks, frames, the sheet's file name (None when nothing was drawn) and how many
     of its cells had their image.  ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack`;
     ``stems``: :func:`image_stems`."""
-    from pedx_graph.export.run import encode_image
-
     by_id = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
     out = Path(out)
     index = []

@@ -28,15 +28,13 @@ from pedx_graph.data.ground import GroundFrame
 from pedx_graph.export import animation, meshes, overlays, topview
 from pedx_graph.export.camera import Camera, dataset_cameras, image_path, read_image
 from pedx_graph.export.raster import outward_faces
-from pedx_graph.utils import atomic_write_bytes, atomic_write_json
+from pedx_graph.utils import atomic_write_bytes, atomic_write_json, encode_image
 
 log = logging.getLogger(__name__)
 
 #: Track colours (BGR), assigned in sorted (sequence, tracking id) order.
 PALETTE = ((48, 96, 230), (200, 120, 40), (60, 170, 60), (40, 160, 220), (170, 70, 170), (160, 160, 40),
            (90, 60, 200), (30, 120, 120), (200, 90, 120), (120, 120, 120))
-#: JPEG quality of the overlays.
-JPEG_QUALITY = 90
 #: Padding around a person's box in the animation crop, as a fraction of the box height.
 CROP_PAD = 0.35
 
@@ -82,17 +80,6 @@ def resolve_dataset(results: Path, dataset: str | os.PathLike | None, summary: d
             if (candidate / "calib").is_dir() or (candidate / "data" / "calib").is_dir():
                 return candidate
     return None
-
-
-def encode_image(image: np.ndarray, ext: str) -> bytes:
-    """``image`` (BGR) encoded as ``ext`` (".jpg" at ``JPEG_QUALITY``, ".png"); OSError when OpenCV cannot."""
-    import cv2
-
-    params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if ext == ".jpg" else []
-    ok, buf = cv2.imencode(ext, image, params)
-    if not ok:
-        raise OSError(f"OpenCV could not encode a {ext} image")
-    return buf.tobytes()
 
 
 def _model(results: Path, model):
