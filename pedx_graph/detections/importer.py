@@ -14,8 +14,9 @@ confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoise
 link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
 (:func:`pedx_graph.detections.lidar_cut.write_track_segments`, with the cut of ``association.lidar_cut``)
 when the source dataset has them.  A summary goes to ``<out>/import_summary.json`` (with the stretches of
-frames where two tracks came close, to check who is who there: :mod:`pedx_graph.detections.review`), the
-resolved config to ``<out>/import_config.yaml``.
+frames where two tracks came close, to check who is who there: :mod:`pedx_graph.detections.review`; given
+the images the detections were made on, each stretch drawn on them in ``<out>/review/<seq>/``:
+:mod:`pedx_graph.detections.review_sheets`), the resolved config to ``<out>/import_config.yaml``.
 """
 from __future__ import annotations
 
@@ -265,7 +266,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     sheets = None
     if images is not None:
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
-        sheets = {"folder": f"review/{seq}", "images_found": len(images),
+        sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
                   "sheets": write_review_sheets(tracks, review["stretches"], images, out / "review" / seq,
                                                 image_stems(detections))}
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
