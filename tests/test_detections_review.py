@@ -2,7 +2,8 @@
 import numpy as np
 
 from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
-from pedx_graph.detections.review import ReviewConfig, close_frames, flagged_frames, review_stretches
+from pedx_graph.detections.review import (ReviewConfig, check_order, close_frames, flagged_frames,
+                                         review_stretches, review_summary)
 from pedx_graph.detections.types import Detection
 
 
@@ -34,7 +35,8 @@ def test_two_walkers_passing_in_one_image_flag_the_frames_around_the_crossing():
     same_frame = ReviewConfig(frame_step=0)
     assert close_frames([a, b, far], config=same_frame) == {("a", "b"): {17, 18}}
     stretches = review_stretches([a, b, far], config=same_frame)
-    assert stretches == [{"tracks": ["a", "b"], "first_frame": 16, "last_frame": 19, "close_frames": [17, 18]}]
+    assert stretches == [{"tracks": ["a", "b"], "first_frame": 16, "last_frame": 19, "close_frames": [17, 18],
+                          "frames_held": 8, "frames_missed": 0}]
     assert flagged_frames([a, b, far], stretches) == {"a": {16, 17, 18, 19}, "b": {16, 17, 18, 19}, "c": set()}
     wider = ReviewConfig(pad_frames=3, frame_step=0)
     assert review_stretches([a, b, far], config=wider)[0]["first_frame"] == 14
@@ -49,8 +51,9 @@ def test_a_detection_taken_where_the_own_person_was_missed_is_flagged_across_the
     b.frames.insert(5, _track("b", {7: 570.0}).frames[0])
     assert close_frames([a, b], config=ReviewConfig(frame_step=0)) == {}
     assert close_frames([a, b]) == {("a", "b"): {6, 7, 8}}
+    # a holds 4-9 but 7, b holds 4, 7 and 9: 8 frames held, 4 missed inside their own spans
     assert review_stretches([a, b]) == [{"tracks": ["a", "b"], "first_frame": 4, "last_frame": 9,
-                                         "close_frames": [6, 7, 8]}]
+                                         "close_frames": [6, 7, 8], "frames_held": 8, "frames_missed": 4}]
 
 
 def test_overlap_of_people_of_very_different_size_or_rows_is_not_close():
@@ -129,3 +132,21 @@ def test_the_review_reaches_the_fit_record_and_the_results_table(tmp_path, caplo
         again = read_dataset(root)
     assert len(again) == len(tracks) and all(t.identity_review == [] for t in again)
     assert "import_summary.json: field sequences." in caplog.text and "identity_review.stretches" in caplog.text
+
+
+def test_stretches_where_a_track_missed_its_person_are_checked_first():
+    """Two crossings: ``a`` and ``b`` pass each other seen in every frame; ``c`` and ``d`` pass while ``d`` is
+    missed for the three frames before they meet (where a tracker takes one for the other).  The second is
+    checked first, though it comes second in the list; equal shares go shortest first."""
+    a = _track("a", {f: 300.0 + 20.0 * f for f in range(20)})
+    b = _track("b", {f: 1000.0 - 20.0 * f for f in range(20)})
+    c = _track("c", {f: 2300.0 + 20.0 * f for f in range(20)})
+    d = _track("d", {f: 3000.0 - 20.0 * f for f in range(20) if not 14 <= f <= 16})
+    summary = review_summary([a, b, c, d], config=ReviewConfig(frame_step=0))
+    stretches = summary["stretches"]
+    assert [s["tracks"] for s in stretches] == [["a", "b"], ["c", "d"]]
+    assert stretches[0]["frames_missed"] == 0 and stretches[1]["frames_missed"] == 3
+    assert summary["check_order"] == [1, 0]
+    even = [{"frames_held": 9, "frames_missed": 0}, {"frames_held": 4, "frames_missed": 0},
+            {"frames_held": 6, "frames_missed": 2}]
+    assert check_order(even) == [2, 1, 0]

@@ -98,6 +98,10 @@ def test_import_draws_each_review_stretch_and_refuses_a_missing_images_folder(tm
     stretches = record["identity_review"]["stretches"]
     sheets = record["review_sheets"]["sheets"]
     assert stretches and len(sheets) == len(stretches)
+    # the files sort in the order to check them
+    by_name = sorted(sheets, key=lambda entry: entry["sheet"])
+    assert [entry["check"] for entry in by_name] == list(range(1, len(sheets) + 1))
+    assert [sheets.index(entry) for entry in by_name] == record["identity_review"]["check_order"]
     named = {(d.camera, d.frame) for d in read_openpose(files)}
     assert sum(entry["cells_with_image"] for entry in sheets) > 0
     for entry, stretch in zip(sheets, stretches):

@@ -88,6 +88,11 @@ def _run_import(args: argparse.Namespace) -> int:
             print(f"  {seq}: {len(review['stretches'])} stretches where two tracks came close "
                   f"({review['flagged_track_frames']} of {review['track_frames']} track frames): check who is "
                   f"who there (import_summary.json, sequences.{seq}.identity_review)")
+            for i in review.get("check_order", [])[:3]:
+                stretch = review["stretches"][i]
+                print(f"    check first: {' and '.join(stretch['tracks'])}, frames {stretch['first_frame']}-"
+                      f"{stretch['last_frame']} ({stretch['frames_missed']} of "
+                      f"{stretch['frames_held'] + stretch['frames_missed']} of their frames missed)")
         sheets = record.get("review_sheets")
         drawn = [s for s in sheets["sheets"] if s["sheet"]] if sheets else []
         if drawn:

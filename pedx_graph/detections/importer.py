@@ -268,7 +268,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
         sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
                   "sheets": write_review_sheets(tracks, review["stretches"], images, out / "review" / seq,
-                                                image_stems(detections))}
+                                                image_stems(detections), review["check_order"])}
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}

@@ -19,6 +19,12 @@ Each close frame is widened by ``pad_frames`` on both sides, and on across a gap
 frame where it is seen again (a track can take the other's person across frames where its own was missed);
 the frames of each pair of tracks are joined into stretches.  Pixels are the raw images' (an overlap test:
 the lens distortion does not matter at this tolerance), metres the world (LiDAR) frame's.
+
+Which to check first: a tracker takes one person for another where it has missed its own (a gap, while the
+other walks on near it), so each stretch counts the frames its two tracks hold in it and the frames inside
+their own spans they do not, and :func:`review_summary` orders the stretches by that missed share, highest
+first (``check_order``; equal shares: the shorter first).  Measured in ``benchmarks/bench_association.py``
+(its "Identity review"; docs/detections.md).
 """
 from __future__ import annotations
 
@@ -33,7 +39,7 @@ from pedx_graph.data.ground import GroundFrame
 @dataclass
 class ReviewConfig:
     """When two tracks count as close (module docstring).  Defaults: on ``benchmarks/bench_association.py``'s
-    inputs (crossings and walking groups) the stretches hold 23 of the 25 identity switches and flag 31 % of
+    inputs (crossings and walking groups) the stretches hold 14 of the 16 identity switches and flag 31 % of
     the track frames; wider tests flag more for little more (docs/detections.md, "Where to check who is
     who")."""
 
@@ -108,10 +114,12 @@ def close_frames(tracks: list, ground: GroundFrame | None = None,
 
 def review_stretches(tracks: list, ground: GroundFrame | None = None,
                      config: ReviewConfig | None = None) -> list[dict]:
-    """The stretches to check: ``{"tracks": [a, b], "first_frame", "last_frame", "close_frames"}`` per run of
-    frames where tracks ``a`` and ``b`` were close, each close frame widened by ``pad_frames`` and on to the
-    nearest frames where each of the two is seen (a track can take the other's person across frames where
-    its own was missed), within the frames either spans (a < b; sorted by tracks, then frame)."""
+    """The stretches to check: ``{"tracks": [a, b], "first_frame", "last_frame", "close_frames",
+    "frames_held", "frames_missed"}`` per run of frames where tracks ``a`` and ``b`` were close, each close
+    frame widened by ``pad_frames`` and on to the nearest frames where each of the two is seen (a track can
+    take the other's person across frames where its own was missed), within the frames either spans (a < b;
+    sorted by tracks, then frame).  ``frames_held``: the stretch's frames each of the two holds, summed;
+    ``frames_missed``: those inside each one's own first and last frame that it does not hold, summed."""
     config = config or ReviewConfig()
     seen = {t.track_id: {fr.frame for fr in t.frames} for t in tracks}
     out = []
@@ -131,9 +139,27 @@ def review_stretches(tracks: list, ground: GroundFrame | None = None,
                 runs[-1][1] = frame
             else:
                 runs.append([frame, frame])
-        out += [{"tracks": [a, b], "first_frame": int(start), "last_frame": int(end),
-                 "close_frames": sorted(int(f) for f in frames if start <= f <= end)} for start, end in runs]
+        for start, end in runs:
+            held = missed = 0
+            for own in (seen[a], seen[b]):
+                lo, hi = max(start, min(own)), min(end, max(own))
+                inside = sum(1 for f in own if lo <= f <= hi)
+                held += inside
+                missed += max(hi - lo + 1, 0) - inside
+            out.append({"tracks": [a, b], "first_frame": int(start), "last_frame": int(end),
+                        "close_frames": sorted(int(f) for f in frames if start <= f <= end),
+                        "frames_held": int(held), "frames_missed": int(missed)})
     return out
+
+
+def check_order(stretches: list[dict]) -> list[int]:
+    """Indices of ``stretches`` in the order to check them (module docstring): by missed share
+    ``frames_missed / (frames_held + frames_missed)``, highest first; equal shares, fewer frames first."""
+    def share(stretch: dict) -> float:
+        total = stretch["frames_held"] + stretch["frames_missed"]
+        return stretch["frames_missed"] / total if total else 0.0
+
+    return sorted(range(len(stretches)), key=lambda i: (-share(stretches[i]), stretches[i]["frames_held"], i))
 
 
 def flagged_frames(tracks: list, stretches: list[dict]) -> dict[str, set[int]]:
@@ -148,7 +174,9 @@ def flagged_frames(tracks: list, stretches: list[dict]) -> dict[str, set[int]]:
 
 def review_summary(tracks: list, ground: GroundFrame | None = None, config: ReviewConfig | None = None) -> dict:
     """What the import records (``import_summary.json``, ``sequences.<seq>.identity_review``): the
-    :func:`review_stretches` and how many of the tracks' frames they flag of all."""
+    :func:`review_stretches`, how many of the tracks' frames they flag of all, and the order to check them
+    in (:func:`check_order`)."""
     stretches = review_stretches(tracks, ground, config)
     return {"flagged_track_frames": sum(len(v) for v in flagged_frames(tracks, stretches).values()),
-            "track_frames": sum(len(t.frames) for t in tracks), "stretches": stretches}
+            "track_frames": sum(len(t.frames) for t in tracks), "stretches": stretches,
+            "check_order": check_order(stretches)}

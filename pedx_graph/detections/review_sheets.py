@@ -1,5 +1,8 @@
 """Review sheets: each stretch of the identity review drawn on the images the detector saw, one JPEG per stretch.
 
+The files are named so that they sort in the order to check them (the stretches whose tracks missed the largest
+share of their frames first: :func:`pedx_graph.detections.review.check_order`).
+
 The import lists where two tracks came close (:mod:`pedx_graph.detections.review`); a team building a dataset
 checks those stretches by eye.  A sheet shows one stretch: a row per camera that saw either track there, a
 column per frame (at most ``max_frames``, evenly spaced over the stretch's frames that hold a detection of the
@@ -175,23 +178,26 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
 
 
 def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, Path], out: str | os.PathLike,
-                        stems: dict[tuple[str, int], str] | None = None, max_frames: int = 10,
-                        cell_height_px: int = 240) -> list[dict]:
-    """One JPEG per stretch under ``out`` (``<a>_<b>_<first>-<last>.jpg``, written atomically); returns the
-    index: per stretch its tracks, frames, the sheet's file name (None when nothing was drawn) and how many
-    of its cells had their image.  ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack`;
+                        stems: dict[tuple[str, int], str] | None = None, order: list[int] | None = None,
+                        max_frames: int = 10, cell_height_px: int = 240) -> list[dict]:
+    """One JPEG per stretch under ``out`` (``<n>_<a>_<b>_<first>-<last>.jpg``, ``n`` its place in ``order``,
+    :func:`~pedx_graph.detections.review.check_order`, from 1: the files sort in the order to check them;
+    written atomically); returns the index: per stretch (in the list's order) its place, tracks, frames, the
+    sheet's file name (None when nothing was drawn) and how many of its cells had their image.  ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack`;
     ``stems``: :func:`image_stems`."""
     by_id = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
     out = Path(out)
+    place = {i: n for n, i in enumerate(order if order is not None else range(len(stretches)), start=1)}
+    width = len(str(len(stretches)))
     index = []
-    for stretch in stretches:
+    for k, stretch in enumerate(stretches):
         drawn = review_sheet(by_id, stretch, images, max_frames, cell_height_px, stems=stems)
         a, b = stretch["tracks"]
-        entry = {"tracks": [a, b], "first_frame": stretch["first_frame"], "last_frame": stretch["last_frame"],
-                 "sheet": None}
+        entry = {"check": place[k], "tracks": [a, b], "first_frame": stretch["first_frame"],
+                 "last_frame": stretch["last_frame"], "sheet": None}
         if drawn is not None:
             sheet, held = drawn
-            name = f"{a}_{b}_{stretch['first_frame']}-{stretch['last_frame']}.jpg"
+            name = f"{place[k]:0{width}d}_{a}_{b}_{stretch['first_frame']}-{stretch['last_frame']}.jpg"
             atomic_write_bytes(out / name, encode_image(sheet, ".jpg"))
             entry.update(sheet=name, **held)
         index.append(entry)
