@@ -70,7 +70,9 @@ COUNTS = ("tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_p
 #: compared like :data:`COUNTS`.
 PLACEMENT_COUNTS = ("placed_frames", "misplaced_centres", "overconfident_centres")
 #: The identity review's counts (:func:`review_counts`), summed like :data:`COUNTS`, not compared to a baseline.
-REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "switches_in_review")
+REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "switches_in_review",
+                 "switches_first_quarter", "switches_first_half", "switches_first_quarter_shortest",
+                 "switches_first_half_shortest")
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -134,10 +136,29 @@ def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
     against the truth: its stretches, the track frames they flag of all, and the identity switches
     (``(track, frame, from, to)`` of :func:`score_tracks`) whose frame lies in a stretch naming their track."""
     review = review_summary(tracks, ground)
+    stretches = review["stretches"]
     inside = sum(1 for tid, frame, _, _ in switches if any(
-        tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in review["stretches"]))
-    return {"review_stretches": len(review["stretches"]), "review_flagged_frames": review["flagged_track_frames"],
-            "track_frames": review["track_frames"], "switches_in_review": inside}
+        tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in stretches))
+
+    def caught(order: list[int], share: float) -> int:
+        """Switches inside the stretches begun before ``share`` of the stretches' held frames, in ``order``."""
+        total = sum(s["frames_held"] for s in stretches)
+        looked, taken = 0, []
+        for i in order:
+            if looked >= share * total:
+                break
+            taken.append(stretches[i])
+            looked += stretches[i]["frames_held"]
+        return sum(1 for tid, frame, _, _ in switches if any(
+            tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in taken))
+
+    shortest = sorted(range(len(stretches)), key=lambda i: (stretches[i]["frames_held"], i))
+    return {"review_stretches": len(stretches), "review_flagged_frames": review["flagged_track_frames"],
+            "track_frames": review["track_frames"], "switches_in_review": inside,
+            "switches_first_quarter": caught(review["check_order"], 0.25),
+            "switches_first_half": caught(review["check_order"], 0.5),
+            "switches_first_quarter_shortest": caught(shortest, 0.25),
+            "switches_first_half_shortest": caught(shortest, 0.5)}
 
 
 def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:
@@ -188,7 +209,13 @@ def markdown(result: dict) -> str:
                   f"{total['track_frames']} track frames "
                   f"({total['review_flagged_frames'] / max(total['track_frames'], 1):.0%}).  Identity switches "
                   f"whose frame lies in a stretch naming their track: {total['switches_in_review']} of "
-                  f"{total['id_switches']}.",
+                  f"{total['id_switches']}."
+                  + (f"  Checked in the import's order (`check_order`: the stretches whose tracks missed the "
+                     f"largest share of their frames first), the stretches begun within the first quarter of an "
+                     f"input's flagged frames hold {total['switches_first_quarter']} of those, within the first "
+                     f"half {total['switches_first_half']} (shortest stretches first: "
+                     f"{total['switches_first_quarter_shortest']} and {total['switches_first_half_shortest']})."
+                     if "switches_first_quarter" in total else ""),
                   ""]
     if result.get("changed") is not None:
         lines += [f"## Changed against the baseline ({result['baseline_command']})", ""]
