@@ -107,12 +107,14 @@ def markdown(result: dict) -> str:
         shares = " | ".join("" if row["step_shares"][s] is None else f"{100 * row['step_shares'][s]:.0f} %"
                             for s in STEPS)
         parallel = "".join(f"{row['workers'][str(n)]['associate_seconds']:.1f} | "
-                           f"{'yes' if row['workers'][str(n)]['same_tracks'] else 'NO'} | " for n in result.get("workers", []))
+                           f"{'yes' if row['workers'][str(n)]['same_tracks'] else 'NO'} | "
+                           for n in result.get("workers", []))
         lines.append(f"| {row['people']} x {row['frames']} | {row['detections']} | {row['tracks']} | "
                      f"{row['id_switches']} | {row['associate_seconds']:.1f} | "
                      f"{1000 * row['associate_seconds'] / max(row['detections'], 1):.1f} | {parallel}{shares} |")
     lines += ["", "Step shares are of the association's whole time and overlap where one step calls another "
-              "(`_lidar_centre` runs inside `pair_tracks`, as do the tracklet steps, `stitch_tracks` and `repair_swaps`)."]
+              "(`_lidar_centre` runs inside `pair_tracks`, as do the tracklet steps, `stitch_tracks` and "
+              "`repair_swaps`)."]
     return "\n".join(lines) + "\n"
 
 

@@ -127,6 +127,7 @@ def mirror_index(names: tuple[str, ...]) -> tuple[tuple[int, int], ...]:
 _LIMB_PARTS = (("sho", "elb"), ("elb", "wri"), ("sho", "hip"), ("hip", "knee"), ("knee", "ank"))
 
 
+@lru_cache(maxsize=None)
 def limb_edges(name: str) -> tuple[tuple[int, int, str], ...]:
     """Limbs of keypoint set ``name`` as ``(i, j, side)``, from its names (:func:`mirror_index` tells the
     left from the right): shoulder-elbow, elbow-wrist, shoulder-hip, hip-knee and knee-ankle on each side

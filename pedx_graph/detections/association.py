@@ -3036,7 +3036,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
               config: AssociationConfig | None = None, clouds: Mapping[int, np.ndarray] | None = None,
               ground: GroundFrame | None = None, workers: int = 1) -> list[DetectedTrack]:
     """Tracks with ids from id-less detections (module docstring).  ``workers`` > 1 runs the pairs' own
-    steps (:func:`pair_tracks`, each pair on its own: the most of the time) in that many local processes, the
+    steps (:func:`pair_tracks`, each pair on its own: most of the time) in that many local processes, the
     same tracks as in this process; ``clouds`` must then pickle (a dict of arrays, or a mapping that reads
     its frames on demand)."""
     from pedx_graph.execution.executors import map_ordered

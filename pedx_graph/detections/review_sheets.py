@@ -1,8 +1,5 @@
 """Review sheets: each stretch of the identity review drawn on the images the detector saw, one JPEG per stretch.
 
-The files are named so that they sort in the order to check them (the stretches whose tracks missed the largest
-share of their frames first: :func:`pedx_graph.detections.review.check_order`).
-
 The import lists where two tracks came close (:mod:`pedx_graph.detections.review`); a team building a dataset
 checks those stretches by eye.  A sheet shows one stretch: a row per camera that saw either track there, a
 column per frame (at most ``max_frames``, evenly spaced over the stretch's frames that hold a detection of the
@@ -17,7 +14,8 @@ Images are found by the stem of the image each detection was made on (:attr:`Det
 file's name, a COCO image's ``file_name``) among the files of a folder (searched recursively,
 :func:`index_images`).  A cell whose image is missing, or a detection whose file named none, is drawn on a
 grey canvas (the keypoints alone still tell who is where); the sheet's index says how many cells had their
-image.
+image.  The files are named so that they sort in the order to check them (the stretches whose tracks missed
+the largest share of their frames first: :func:`pedx_graph.detections.review.check_order`).
 """
 from __future__ import annotations
 
@@ -183,8 +181,8 @@ def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, P
     """One JPEG per stretch under ``out`` (``<n>_<a>_<b>_<first>-<last>.jpg``, ``n`` its place in ``order``,
     :func:`~pedx_graph.detections.review.check_order`, from 1: the files sort in the order to check them;
     written atomically); returns the index: per stretch (in the list's order) its place, tracks, frames, the
-    sheet's file name (None when nothing was drawn) and how many of its cells had their image.  ``tracks``: :class:`~pedx_graph.detections.association.DetectedTrack`;
-    ``stems``: :func:`image_stems`."""
+    sheet's file name (None when nothing was drawn) and how many of its cells had their image.  ``tracks``:
+    :class:`~pedx_graph.detections.association.DetectedTrack`; ``stems``: :func:`image_stems`."""
     by_id = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
     out = Path(out)
     place = {i: n for n, i in enumerate(order if order is not None else range(len(stretches)), start=1)}
