@@ -246,6 +246,28 @@ def group_robust_weights(norms: np.ndarray, kernel: str, scale: float) -> tuple[
     raise ValueError(f"unknown robust kernel {kernel!r}; expected one of {ROBUST_KERNELS}")
 
 
+def group_norms_from_losses(losses: np.ndarray, kernel: str, scale: float) -> np.ndarray:
+    """Whitened group norms ``n`` (G,) from their losses ``rho(n)`` (G,): the inverse of the kernel of
+    :func:`group_robust_weights` (each is increasing in ``n``), so a factor robustified inside
+    (:func:`robustify_groups`, ``rho = |s|^2 / 2``) still tells its residual without the kernel.  A
+    Geman-McClure loss at its bound ``c^2 / 2`` gives ``n = 1e8 c`` (the offset is beyond what float64 tells
+    apart there)."""
+    loss = np.maximum(np.asarray(losses, dtype=np.float64), 0.0)
+    c = float(scale)
+    kernel = kernel.lower().replace("_", "")
+    if kernel == "none":
+        return np.sqrt(2.0 * loss)
+    if not c > 0:
+        raise ValueError(f"robust scale must be > 0, got {scale}")
+    if kernel == "gemanmcclure":
+        return np.sqrt(2.0 * loss * c * c / np.maximum(c * c - 2.0 * loss, 1e-16 * c * c))
+    if kernel == "cauchy":
+        return c * np.sqrt(np.expm1(2.0 * loss / (c * c)))
+    if kernel == "huber":
+        return np.where(loss <= 0.5 * c * c, np.sqrt(2.0 * loss), (loss + 0.5 * c * c) / c)
+    raise ValueError(f"unknown robust kernel {kernel!r}; expected one of {ROBUST_KERNELS}")
+
+
 def robustify_groups(white: np.ndarray, kernel: str, scale: float, blocks: Sequence[np.ndarray] | None = None,
                      block_scale: float = 1.0) -> tuple[np.ndarray, list[np.ndarray] | None]:
     """Robust kernel on groups of whitened rows (e.g. the 3 rows of one LiDAR point), inside a factor.

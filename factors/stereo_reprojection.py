@@ -29,15 +29,32 @@ keypoint's squared error, (N,); 0 drops it; by default the hips get 0.25 because
 hip surface while the model's hip joints sit inside the pelvis, and rows past the 18th get 1).  A label's
 own per-keypoint sigma (``ImageKeypoints.sigma_px``: imported detections, from their confidences)
 replaces ``sigma_px`` / ``sigma_occluded_px`` for that row and image (the keypoint weight still applies).
-Optionally robust per row (``factors.common.make_noise``; Geman-McClure by default, scale in whitened
-units).  Jacobians: ``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w`` with ``M = image_P_world[:, :3]``, chained with the
+Robust per keypoint and image (Geman-McClure by default, scale ``c`` in whitened units): the kernel acts on
+the whitened 2D offset ``e_k,c = r_k,c / sigma_k,c`` as a whole, ``rho(|e_k,c|)``, so a keypoint is kept or
+rejected with both its coordinates.  (A kernel on each row alone could reject a wrong label's column and
+keep its row — a left/right swap keeps about its row —, leaving the fit in a wrong minimum whose
+covariance, formed from the kept row, claims centimetres.)  The kernel is applied inside the factor under a
+unit noise model, the way GTSAM's ``noiseModel.Robust`` applies it to rows (:func:`reprojection_residual`):
+
+* evaluated for its error, the factor's rows are ``s_k,c = g(|e|) e`` with ``|s|^2 / 2 = rho(|e|)``
+  (:func:`factors.common.robustify_groups`), so the factor's error is ``sum rho`` and the residual tables
+  recover each ``|e|`` from it;
+* linearised, its rows and Jacobians are those of iteratively reweighted least squares: ``sqrt(w) e`` and
+  ``sqrt(w) de/dx`` with ``w = rho'(|e|) / |e|`` (:func:`factors.common.row_loss_and_weight` of the norm).
+  ``A^T b`` is then the gradient of ``sum rho`` and ``A^T A`` the reweighted Gauss-Newton matrix, whose
+  steps decrease a kernel concave in ``|e|^2`` (all of :data:`factors.common.ROBUST_KERNELS`) even without
+  damping (iSAM2).  The exact Jacobian of ``s`` would give an outlier a radial curvature ``(w/g)^2``
+  that vanishes faster than its gradient: undamped steps then overshoot.
+
+Jacobians: ``d[u,v]/d world_p = (M[:2] - [u,v] M[2]) / w`` with ``M = image_P_world[:, :3]``, chained with the
 body-model point Jacobians.
 
 Batched paths (the track's term cache, the batch linearizer, the stream's frame systems) evaluate T frames
 with different K at once by padding every frame to the batch's largest K with images whose projection is
 ``[0 0 0 0; 0 0 0 0; 0 0 0 1]`` (pixels 0, derivative 0) and whose rows carry inverse sigma 0
-(:func:`stereo_dense_rows`).  The residual, its whitening and the normal equations of those batches are
-defined here once (:func:`stereo_pixels`, :func:`reprojection_whiten`, :func:`reprojection_normal_equations`)
+(:func:`stereo_dense_rows`).  The residual, its whitening and kernel and the normal equations of those batches
+are defined here once (:func:`stereo_pixels`, :func:`reprojection_whiten`, :func:`reprojection_normal_equations`;
+one factor's rows: :func:`reprojection_residual`)
 and reach the batch linearizer and the stream's frame systems through this term's assembler
 (:func:`assemble`, registered in :mod:`factors.registry`); the term cache (:mod:`pedx_graph.graph.batch`)
 evaluates the pixels.
@@ -50,9 +67,10 @@ from typing import Iterable, Mapping, Protocol, Sequence
 import gtsam
 import numpy as np
 
-from factors.common import BodyModelLike, FrameKeys, FrameState, as_f64, frame_key_list, read_frame_state
-from factors.terms import (NormalEquations, Prefetched, RowNoise, Term, cached_callback, concatenate,
-                           factor_normal_equations, frame_dims, jacobian_rows, robust_rows)
+from factors.common import (BodyModelLike, FrameKeys, FrameState, as_f64, frame_key_list, read_frame_state,
+                            robustify_groups, row_loss_and_weight)
+from factors.terms import (NormalEquations, Prefetched, RowNoise, Term, cached_callback, concatenate, frame_dims,
+                           jacobian_rows)
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 
 #: The factor kind (``TrackProblem.factor_kinds``, the term cache's registry).
@@ -215,7 +233,7 @@ class StereoSetup:
 @dataclass(frozen=True)
 class StereoTerm:
     """A reprojection factor's fixed setup and its noise: per-row sigmas ``setup.sigmas`` (pixels) and the
-    robust kernel (per row, scale in whitened units) of :func:`factors.common.make_noise`."""
+    robust kernel on each keypoint's whitened 2D offset per image (scale in whitened units)."""
 
     setup: StereoSetup
     robust: str
@@ -385,39 +403,75 @@ def reprojection_rows(setups: Sequence[StereoSetup], num_images: int) -> tuple[n
     return np.stack([m for m, _ in dense]), np.stack([i for _, i in dense])
 
 
+@dataclass(frozen=True)
+class WhitenedRows:
+    """G factors' rows at one evaluation, laid out like :func:`stereo_pixels`' ``uv`` (G, K, N, 2): the
+    whitened offsets ``e``, and per keypoint-image (G, K, N) the inverse sigma (0 on unused rows), the
+    kernel's loss ``rho(|e|)`` (0 on unused rows) and IRLS weight ``w(|e|)``
+    (:func:`factors.common.row_loss_and_weight` of the norm)."""
+
+    white: np.ndarray
+    inv: np.ndarray
+    loss: np.ndarray
+    weight: np.ndarray
+
+
 def reprojection_whiten(uv: np.ndarray, meas: np.ndarray, inv_sigma: np.ndarray,
-                        kernels: Sequence[tuple[str, float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """G factors' whitened rows ``e`` (G, R) (R = K * N * 2), per-row losses ``rho(e)`` (0 on unused rows) and
-    IRLS weights (:func:`factors.common.row_loss_and_weight`), and inverse sigmas (G, R), from the batched
-    pixels ``uv`` and :func:`reprojection_rows`; ``kernels``: each factor's ``(robust, robust_scale)``."""
-    num = len(kernels)
-    white = ((uv - meas) * inv_sigma).reshape(num, -1)
-    inv = inv_sigma.reshape(num, -1)
-    loss, weight = robust_rows(white, kernels)
-    return white, loss * (inv > 0), weight, inv
+                        kernels: Sequence[tuple[str, float]]) -> WhitenedRows:
+    """G factors' whitened rows and kernel (:class:`WhitenedRows`) from the batched pixels ``uv``
+    (G, K, N, 2) and :func:`reprojection_rows`; ``kernels``: each factor's ``(robust, robust_scale)``.  A
+    keypoint's u and v rows share one sigma, so ``inv`` is the u row's."""
+    white = (uv - meas) * inv_sigma
+    inv = inv_sigma[..., 0]
+    norms = np.sqrt(np.sum(white * white, axis=-1))
+    if len(set(kernels)) == 1:
+        loss, weight = row_loss_and_weight(norms, *kernels[0])
+    else:
+        pairs = [row_loss_and_weight(norms[n], *kernels[n]) for n in range(len(kernels))]
+        loss, weight = np.stack([a for a, _ in pairs]), np.stack([b for _, b in pairs])
+    return WhitenedRows(white, inv, loss * (inv > 0), weight)
 
 
-def reprojection_normal_equations(d_uv: np.ndarray, jac, white: np.ndarray, weight: np.ndarray,
-                                  inv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whitened normal equations of G reprojection factors as GTSAM linearises them (rows scaled by the
-    square root of their IRLS weights): ``A^T A`` (G, D, D), ``A^T b`` (G, D) and ``b^T b`` (G,), columns
-    ``[root (3), trans (3), body_pose (69), betas (B)]`` (D = 75 + B).
+def reprojection_normal_equations(d_uv: np.ndarray, jac, rows: WhitenedRows
+                                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened normal equations of G reprojection factors as GTSAM linearises them (each keypoint-image's
+    two rows scaled by the square root of its IRLS weight, :func:`reprojection_residual`): ``A^T A``
+    (G, D, D), ``A^T b`` (G, D) and ``b^T b`` (G,), columns ``[root (3), trans (3), body_pose (69), betas
+    (B)]`` (D = 75 + B).
 
     Formed through the keypoints: the rows of keypoint k in all images are ``D_k J_k`` (D_k: the whitened,
     weighted pixel derivatives (2K, 3) from ``d_uv`` (G, K, N, 2, 3), J_k: the keypoint's Jacobian
     (3, D) from ``jac``, ``PointJacobians`` with leading dimension G), so ``A^T A = sum_k J_k^T (D_k^T D_k)
-    J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` — 3 N keypoint rows per frame whatever K.  ``white``,
-    ``weight``, ``inv`` from :func:`reprojection_whiten` (unused and padding rows: ``inv`` 0)."""
-    num = white.shape[0]
-    row_w = (weight * inv * inv).reshape(d_uv.shape[:4])                  # (G, K, N, 2); unused rows: 0
-    info = np.einsum("gckr,gckri,gckrj->gkij", row_w, d_uv, d_uv)         # D_k^T D_k, (G, N, 3, 3)
-    pull = np.einsum("gckr,gckri->gki", (-weight * inv * white).reshape(row_w.shape), d_uv)   # (G, N, 3)
+    J_k`` and ``A^T b = sum_k J_k^T D_k^T b_k`` — 3 N keypoint rows per frame whatever K.  ``rows`` from
+    :func:`reprojection_whiten` (unused and padding rows: ``inv`` 0)."""
+    num = rows.white.shape[0]
+    used = rows.inv > 0
+    scale = rows.weight * rows.inv * used                                 # (G, K, N); unused rows: 0
+    info = np.einsum("gck,gckri,gckrj->gkij", scale * rows.inv, d_uv, d_uv)          # D_k^T D_k, (G, N, 3, 3)
+    pull = np.einsum("gck,gckr,gckri->gki", -scale, rows.white, d_uv)                # (G, N, 3)
     jk = np.concatenate([jac.d_root, np.broadcast_to(jac.d_trans, jac.d_root.shape), jac.d_body_pose,
                          jac.d_betas], axis=3)                            # (G, N, 3, D)
-    rows = jk.reshape(num, -1, jk.shape[3])
-    rows_t = np.swapaxes(rows, 1, 2)
-    return (rows_t @ (info @ jk).reshape(rows.shape), (rows_t @ pull.reshape(num, -1, 1))[:, :, 0],
-            np.sum(weight * white * white * (inv > 0), axis=1))
+    jrows = jk.reshape(num, -1, jk.shape[3])
+    jrows_t = np.swapaxes(jrows, 1, 2)
+    bb = np.sum(rows.weight * used * np.sum(rows.white * rows.white, axis=-1), axis=(1, 2))
+    return (jrows_t @ (info @ jk).reshape(jrows.shape), (jrows_t @ pull.reshape(num, -1, 1))[:, :, 0], bb)
+
+
+def reprojection_residual(r: np.ndarray, blocks: list[np.ndarray] | None, term: StereoTerm
+                          ) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """One factor's rows under its unit noise model from the pixel residual ``r`` (m,) of
+    :func:`stereo_select` and its Jacobian blocks (each (m, k), or None), whitened by
+    ``term.setup.sigmas``; per keypoint and image (its (u, v) rows) with the term's kernel (module
+    docstring): without blocks ``s = g(|e|) e`` (``|s|^2 / 2 = rho``: the factor's error); with blocks the
+    IRLS rows ``sqrt(w(|e|)) e`` and blocks ``sqrt(w) de/dx``, as GTSAM linearises a robust noise model."""
+    inv = 1.0 / term.setup.sigmas
+    white = (np.asarray(r, dtype=np.float64) * inv).reshape(-1, 2)
+    if blocks is None:
+        return robustify_groups(white, term.robust, term.robust_scale)[0], None
+    _, weight = row_loss_and_weight(np.sqrt(np.sum(white * white, axis=1)), term.robust, term.robust_scale)
+    rows = np.repeat(np.sqrt(weight), 2) * inv
+    return rows * np.asarray(r, dtype=np.float64), [np.asarray(b, dtype=np.float64) * rows[:, None]
+                                                    for b in blocks]
 
 
 def stereo_reprojection_error(model: BodyModelLike, state: FrameState, setup: StereoSetup,
@@ -442,14 +496,14 @@ class _Leading:
 
 
 def keypoint_losses(points: np.ndarray, setup: StereoSetup, robust: str, robust_scale: float) -> np.ndarray:
-    """(K, N) this term's loss per image and keypoint row at the world keypoints ``points`` (N, 3): the sum
-    of ``rho`` over the row's u and v whitened residuals (:func:`reprojection_whiten`, the factor's own
-    kernel), 0 on rows the setup does not use.  Summed over every row it is the factor's error; the label
-    screens (:mod:`pedx_graph.solvers.mirror`) compare labellings of one image with it."""
+    """(K, N) this term's loss per image and keypoint row at the world keypoints ``points`` (N, 3):
+    ``rho`` of the keypoint's whitened 2D offset (:func:`reprojection_whiten`, the factor's own kernel), 0 on
+    rows the setup does not use.  Summed over every row it is the factor's error; the label screens
+    (:mod:`pedx_graph.solvers.mirror`) compare labellings of one image with it."""
     uv, _ = stereo_pixels(np.asarray(points, dtype=np.float64)[None], [setup])
     meas, inv_sigma = stereo_dense_rows(setup)
-    _, loss, _, _ = reprojection_whiten(uv, meas[None], inv_sigma[None], [(robust, float(robust_scale))])
-    return loss.reshape(setup.num_images, setup.num_keypoints, 2).sum(axis=2)
+    rows = reprojection_whiten(uv, meas[None], inv_sigma[None], [(robust, float(robust_scale))])
+    return rows.loss[0]
 
 
 def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
@@ -473,8 +527,11 @@ def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLi
     def compute(keys, values: gtsam.Values, jacobians: bool):
         return stereo_reprojection_error(model, read_frame_state(values, keys), setup, jacobians)
 
-    error = cached_callback(KIND, cache, compute, frame_dims)
-    return gtsam.CustomFactor(noise_of(term).model(), frame_key_list(keys), error)
+    def finish(r, blocks):
+        return reprojection_residual(r, blocks, term)
+
+    error = cached_callback(KIND, cache, compute, frame_dims, finish)
+    return gtsam.CustomFactor(noise_of(term).model(setup.rows), frame_key_list(keys), error)
 
 
 def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
@@ -488,8 +545,26 @@ def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: Body
 
 
 def noise_of(spec: StereoTerm) -> RowNoise:
-    """Per-row sigmas in pixels (``setup.sigmas``), the kernel per row."""
-    return RowNoise(spec.setup.sigmas, spec.robust, spec.robust_scale)
+    """Unit noise: the rows are whitened by ``setup.sigmas`` (pixels) and the kernel applied per keypoint and
+    image inside the factor (:func:`reprojection_residual`)."""
+    return RowNoise(None)
+
+
+def _factor_by_factor(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
+    """The factors ``keys_list`` one at a time: each factor's pixel rows at the cache's last prefetch
+    (``cache.factor_terms``) through :func:`reprojection_residual`, as its GTSAM callback finishes them."""
+    specs = cache.specs(KIND)
+    parts = []
+    for keys in keys_list:
+        r, blocks = cache.factor_terms(KIND, keys)
+        s, _ = reprojection_residual(r, None, specs[keys])
+        ne = NormalEquations([keys], np.array([0.5 * float(s @ s)]))
+        if jacobians:
+            b, rows = reprojection_residual(r, blocks, specs[keys])
+            a = np.concatenate(rows, axis=1)
+            ne.hess, ne.grad, ne.bb = (a.T @ a)[None], -(a.T @ b)[None], np.array([float(b @ b)])
+        parts.append(ne)
+    return concatenate(parts)
 
 
 def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> NormalEquations:
@@ -497,7 +572,7 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
     (:func:`reprojection_normal_equations`), when its groups hold exactly these factors; else factor by factor."""
     groups = cache.batch(KIND)
     if {k for g in groups for k in g["keys"]} != set(keys_list) or (jacobians and not cache.has_jacobians):
-        return factor_normal_equations(cache, KIND, keys_list, noise_of, jacobians)
+        return _factor_by_factor(cache, keys_list, jacobians)
     parts = []
     for g in groups:
         keys = tuple(g["keys"])
@@ -505,12 +580,12 @@ def assemble(cache, keys_list: list[tuple[int, ...]], jacobians: bool) -> Normal
         def rows(keys=keys, k=g["uv"].shape[1]):
             specs = cache.specs(KIND)
             meas, inv_sigma = reprojection_rows([specs[fk].setup for fk in keys], k)
-            return meas, inv_sigma, [noise_of(specs[fk]).kernel for fk in keys]
+            return meas, inv_sigma, [(specs[fk].robust, float(specs[fk].robust_scale)) for fk in keys]
 
-        white, loss, weight, inv = reprojection_whiten(g["uv"], *cache.memo((KIND, keys, g["uv"].shape[1]), rows))
-        ne = NormalEquations(list(keys), loss.sum(axis=1))
+        whitened = reprojection_whiten(g["uv"], *cache.memo((KIND, keys, g["uv"].shape[1]), rows))
+        ne = NormalEquations(list(keys), whitened.loss.sum(axis=(1, 2)))
         if jacobians:
-            ne.hess, ne.grad, ne.bb = reprojection_normal_equations(g["d_uv"], g["jac"], white, weight, inv)
+            ne.hess, ne.grad, ne.bb = reprojection_normal_equations(g["d_uv"], g["jac"], whitened)
         parts.append(ne)
     return concatenate(parts)
 

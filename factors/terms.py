@@ -3,8 +3,8 @@
 A term (one ``factors/<term>.py`` file) declares, next to its residual and Jacobians:
 
 * its noise model as a :class:`RowNoise` — per-row sigmas in physical units (px, m, rad) or ``None`` when
-  the residual is whitened inside (the max-mixtures, the per-point robust chamfer), and a robust kernel
-  acting on each whitened row (GTSAM's ``ReweightScheme.Scalar``).  The GTSAM factor takes its noise model
+  the residual is whitened inside (the max-mixtures, the per-point robust chamfer, the per-keypoint robust
+  reprojection), and a robust kernel acting on each whitened row (GTSAM's ``ReweightScheme.Scalar``).  The GTSAM factor takes its noise model
   from it (:meth:`RowNoise.model`); the batched paths whiten with it (:meth:`RowNoise.weigh`);
 * a :class:`Term`: its kind, whether it acts on one frame's variables only (the stream's frame systems form
   those in a batch), and its *assembler* ``assemble(cache, keys_list, jacobians)``: the terms of the
@@ -165,15 +165,20 @@ def frame_dims(blocks: Sequence[np.ndarray]) -> list[int]:
     return [ROOT_DIM, TRANS_DIM, BODY_POSE_DIM, int(np.shape(blocks[3])[1])]
 
 
-def cached_callback(kind: str, cache, compute: Callable, dims: Callable[[Sequence[np.ndarray]], list[int]]):
+def cached_callback(kind: str, cache, compute: Callable, dims: Callable[[Sequence[np.ndarray]], list[int]],
+                    finish: Callable | None = None):
     """The ``gtsam.CustomFactor`` callback of a term the term cache may serve: the cache's ``(residual,
     blocks)`` when it holds them at exactly the values GTSAM passes (``cache.lookup``), else
     ``compute(keys, values, jacobians)``; the Jacobian blocks are stored with their shapes checked against
-    ``dims(blocks)`` (:func:`factors.common.set_jacobians`)."""
+    ``dims(blocks)`` (:func:`factors.common.set_jacobians`).  ``finish(residual, blocks or None)``: the
+    term's last step on either (e.g. a kernel applied inside the factor), given the blocks only when GTSAM
+    asks for the Jacobians."""
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         keys = this.keys()
         hit = None if cache is None else cache.lookup(kind, keys, values, H is not None)
         r, blocks = hit if hit is not None else compute(keys, values, H is not None)
+        if finish is not None:
+            r, blocks = finish(r, blocks if H is not None else None)
         if H is not None:
             set_jacobians(H, blocks, len(r), dims(blocks))
         return r

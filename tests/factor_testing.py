@@ -139,6 +139,24 @@ def assert_factor_jacobians(factor: gtsam.NoiseModelFactor, values: gtsam.Values
         np.testing.assert_allclose(a, n, rtol=rtol, atol=atol, err_msg=f"Jacobian block of key {i}")
 
 
+def assert_factor_gradient(factor: gtsam.NoiseModelFactor, values: gtsam.Values,
+                           rtol: float = 1e-5, atol: float = 1e-6) -> None:
+    """Assert GTSAM's linearisation ``A^T b`` is minus the gradient of ``factor.error`` (central differences,
+    key by key): what a factor whose linearisation reweights its rows (IRLS) must keep exact."""
+    a, b = factor.linearize(values).jacobian()
+    ana = -(a.T @ b)
+    col = 0
+    for i, key in enumerate(factor.keys()):
+        def h(x, key=key):
+            v = gtsam.Values(values)
+            v.update(key, x)
+            return np.array([factor.error(v)])
+        num = numericalDerivative11(h, _get(values, key), 1e-5)[0]
+        np.testing.assert_allclose(ana[col:col + num.size], num, rtol=rtol, atol=atol,
+                                   err_msg=f"gradient of key {i}")
+        col += num.size
+
+
 def make_test_calibration(focal_px: float = 1000.0, baseline_m: float = 0.5,
                           rect_angle: float = 0.02) -> StereoCalibration:
     """A KITTI-style stereo pair 1.5 m above the world origin looking along world +x (camera x = world -y).

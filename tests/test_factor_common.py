@@ -124,3 +124,17 @@ def test_group_robust_transform(kernel):
         sm, _ = robustify_groups((white.reshape(-1) - d).reshape(-1, 3), kernel, c)
         num[:, k] = (sp - sm) / (2 * eps)
     np.testing.assert_allclose(jac, num, atol=1e-7)
+
+
+@pytest.mark.parametrize("kernel", ["none", "gemanmcclure", "huber", "cauchy"])
+def test_group_norms_are_recovered_from_their_losses(kernel):
+    """The inverse of each kernel: a group's whitened norm from the loss ``|s|^2 / 2`` of its robustified
+    rows, inliers and outliers (a 400-sigma offset too)."""
+    from factors.common import group_norms_from_losses, robustify_groups
+    c = 3.0
+    rng = np.random.default_rng(8)
+    white = np.vstack([np.zeros(2), rng.normal(size=(20, 2)) * 2.0, [[0.0, 40.0], [-400.0, 3.0]]])
+    s, _ = robustify_groups(white, kernel, c)
+    loss = 0.5 * (s.reshape(-1, 2) ** 2).sum(axis=1)
+    np.testing.assert_allclose(group_norms_from_losses(loss, kernel, c), np.linalg.norm(white, axis=1),
+                               rtol=1e-6, atol=1e-9)

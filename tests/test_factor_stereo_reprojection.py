@@ -8,8 +8,8 @@ from factors.stereo_reprojection import (DEFAULT_KEYPOINT_WEIGHTS, ImageKeypoint
                                          build_reprojection_setup, build_stereo_setup, make_reprojection_factor,
                                          make_stereo_reprojection_factor, stereo_dense_rows, stereo_pixels,
                                          stereo_reprojection_batch, stereo_reprojection_error)
-from factor_testing import (ToyBodyModel, assert_factor_jacobians, frame_values, make_test_calibration,
-                             standing_rotation)
+from factor_testing import (ToyBodyModel, assert_factor_gradient, assert_factor_jacobians, frame_values,
+                             make_test_calibration, standing_rotation)
 from synthetic_model import synthetic_body_model
 from pedx_graph.data.types import View2D
 
@@ -80,22 +80,39 @@ def test_rows_sigmas_and_weights():
     assert make_stereo_reprojection_factor(KEYS, model, empty, calib) is None
 
 
-def test_robust_kernel_is_per_row():
+def test_robust_kernel_acts_on_each_keypoints_offset():
+    """The kernel takes a keypoint's whitened 2D offset in each image as a whole: a label whose column is
+    300 px off and whose row is right loses both rows (a per-row kernel would keep its row).  Linearised,
+    the rows are reweighted (IRLS): ``A^T b`` is the error's gradient, ``A^T A`` the reweighted one."""
     rng = np.random.default_rng(2)
     model = ToyBodyModel()
     calib = make_test_calibration()
     rot, trans, body_pose, betas = _scene(rng, model)
     state = FrameState.from_arrays(rot, trans, body_pose, betas)
     meas = _labels(model, calib, state, rng, noise_px=1.0)
-    meas.right_uv[7] += 300.0                        # one mislabelled keypoint
+    meas.right_uv[7, 0] += 300.0                     # one mislabelled keypoint: its column only
     v = frame_values(KEYS.as_list(), rot, trans, body_pose, betas)
     gauss = make_stereo_reprojection_factor(KEYS, model, meas, calib, robust="none")
     robust = make_stereo_reprojection_factor(KEYS, model, meas, calib, robust="gemanmcclure", robust_scale=3.0)
-    white = gauss.whitenedError(v)
+    white = np.asarray(gauss.whitenedError(v)).reshape(-1, 2)
     c = 3.0
-    per_row = np.sum(0.5 * c * c * white ** 2 / (c * c + white ** 2))
-    assert robust.error(v) == pytest.approx(per_row, rel=1e-9)
+    norm2 = np.sum(white ** 2, axis=1)
+    assert robust.error(v) == pytest.approx(np.sum(0.5 * c * c * norm2 / (c * c + norm2)), rel=1e-9)
     assert robust.error(v) < 0.05 * gauss.error(v)
+    row = 2 * (16 + 7)                               # the left image labels 16 keypoints, the right all 18
+    assert abs(white[16 + 7, 0]) > 30 and abs(white[16 + 7, 1]) < 3
+    a_gauss, _ = gauss.linearize(v).jacobian()
+    a_robust, _ = robust.linearize(v).jacobian()
+    for r in (row, row + 1):                         # both rows of the keypoint nearly switched off
+        assert np.linalg.norm(a_robust[r]) < 0.1 * np.linalg.norm(a_gauss[r])
+    kept = [r for r in range(len(a_gauss)) if r not in (row, row + 1)]
+    ratio = np.linalg.norm(a_robust[kept], axis=1) / np.maximum(np.linalg.norm(a_gauss[kept], axis=1), 1e-12)
+    assert np.median(ratio) > 0.8                    # inliers keep most of their weight
+    w = (c * c / (c * c + norm2)) ** 2                # Geman-McClure's IRLS weight of each keypoint-image
+    np.testing.assert_allclose(a_robust, np.repeat(np.sqrt(w), 2)[:, None] * a_gauss, rtol=1e-9, atol=1e-12)
+    v2 = frame_values(KEYS.as_list(), rot @ gtsam.Rot3.Expmap([0.05, -0.1, 0.02]).matrix(), trans + 0.03,
+                      body_pose + rng.normal(scale=0.05, size=69), betas + 0.1)
+    assert_factor_gradient(robust, v2, rtol=1e-4, atol=1e-5)
 
 
 def test_matches_gtsam_generic_stereo_factor():
@@ -194,7 +211,9 @@ def test_k_view_jacobians_match_numerical(count, model_kind):
     expected_sigma = np.concatenate([np.repeat(np.where(im.visible, sigma, sigma_occ)
                                                / np.sqrt(DEFAULT_KEYPOINT_WEIGHTS), 2)
                                      [np.repeat(np.all(np.isfinite(im.uv), axis=1), 2)] for im in images])
-    np.testing.assert_allclose(f.noiseModel().sigmas(), expected_sigma, rtol=1e-12)
+    setup = build_reprojection_setup(images, sigma_px=sigma, sigma_occluded_px=sigma_occ)
+    np.testing.assert_allclose(setup.sigmas, expected_sigma, rtol=1e-12)
+    np.testing.assert_allclose(f.noiseModel().sigmas(), 1.0)       # whitened inside the factor
     moved = (rot @ gtsam.Rot3.Expmap(rng.normal(scale=0.2, size=3)).matrix(), trans + rng.normal(scale=0.1, size=3),
              body_pose + rng.normal(scale=0.1, size=69), betas + rng.normal(scale=0.3, size=model.num_betas))
     v = frame_values(KEYS.as_list(), *moved)
@@ -205,7 +224,7 @@ def test_k_view_jacobians_match_numerical(count, model_kind):
         hom = np.c_[world_p, np.ones(18)] @ im.image_P_world.T
         ok = np.all(np.isfinite(im.uv), axis=1)
         expected.append((hom[:, :2] / hom[:, 2:3] - im.uv)[ok].reshape(-1))
-    np.testing.assert_allclose(f.unwhitenedError(v), np.concatenate(expected), atol=1e-6)
+    np.testing.assert_allclose(f.unwhitenedError(v) * expected_sigma, np.concatenate(expected), atol=1e-6)
     assert f.error(v) > 1.0
     assert_factor_jacobians(f, v, rtol=1e-5, atol=1e-4)
 

@@ -1,6 +1,7 @@
 """A detector track's keypoints without a PedX row (ears, toes, heels, OpenPose's Neck / MidHip, ...) enter the
 reprojection term as the fit layout's rows 18 .. 18 + E - 1, each its own point on the body model."""
 import dataclasses
+from collections import Counter
 
 import gtsam
 import numpy as np
@@ -235,10 +236,11 @@ def test_a_detector_track_not_laid_out_is_refused_by_name(scene, model):
     assert base.tracking_id in str(err.value) and "\n" not in str(err.value)
 
 
-def _row_sigmas(factor) -> np.ndarray:
-    """The per-row sigmas of a factor's noise model (inside its robust kernel)."""
-    noise = factor.noiseModel()
-    return np.asarray((noise.noise() if isinstance(noise, gtsam.noiseModel.Robust) else noise).sigmas())
+def _row_sigmas(problem, frame: int) -> np.ndarray:
+    """The per-row sigmas (pixels) of a frame's reprojection factor: the term whitens its rows inside the
+    factor, so they are read from the term's registered spec."""
+    keys = tuple(_reprojection(problem, frame).keys())
+    return np.asarray(problem.body.specs("stereo_reprojection")[keys].setup.sigmas)
 
 
 def test_a_detector_tracks_hips_keep_their_own_sigma_pedx_hips_get_the_hip_factor(scene, model):
@@ -261,14 +263,14 @@ def test_a_detector_tracks_hips_keep_their_own_sigma_pedx_hips_get_the_hip_facto
         problem = build_track_graph(laid, laid_ctx, laid_config)
         view = laid.frames[0].labelled_views()[0][2]
         assert view.labelled[hips].all()
-        sigmas = _row_sigmas(_reprojection(problem, 0))
+        sigmas = _row_sigmas(problem, 0)
         want = view.sigma_px[view.labelled]          # the label's sigma, the model error already combined in
         np.testing.assert_allclose(sigmas[:2 * len(want)], np.repeat(want, 2), rtol=1e-9)
     # PedX labels: the hips' rows are the factor times the others'
     problem = build_track_graph(base, estimator_context(config), config)
     view = base.frames[0].labelled_views()[0][2]
     labelled = np.flatnonzero(view.labelled)
-    sigmas = _row_sigmas(_reprojection(problem, 0))[:2 * len(labelled):2]
+    sigmas = _row_sigmas(problem, 0)[:2 * len(labelled):2]
     on_hips = np.isin(labelled, hips)
     assert on_hips.any()
     ratio = sigmas[on_hips] / np.median(sigmas[~on_hips])
@@ -278,8 +280,8 @@ def test_a_detector_tracks_hips_keep_their_own_sigma_pedx_hips_get_the_hip_facto
 def test_a_detector_tracks_exchanged_labels_are_exchanged_back(scene, model):
     """BODY_25 labels (known ids) with one image's legs exchanged (knees, ankles, toes, heels) in frame 3 and
     every pair of both images exchanged in frame 4 (a back view read as a front view): the fit's left/right
-    screen exchanges frame 4's images back whole and nothing else whole, and the error comes back near the
-    clean labels'; with the screen off the exchanges stay."""
+    screen exchanges frame 4's images back whole and, in the end, nothing else whole, and the error comes
+    back near the clean labels'; with the screen off the exchanges stay."""
     from pedx_graph.keypoints import mirror_index
     from pedx_graph.solvers.mirror import mirrored_view
 
@@ -302,7 +304,9 @@ def test_a_detector_tracks_exchanged_labels_are_exchanged_back(scene, model):
             result = fit_track(labelled, config)
             errors[name].append(mpjpe(result, labels, model))
             records = result.extra_track.get("mirrored_labels", [])
-            whole = sorted((r["frame"], r["side"]) for r in records if r["keypoints"] == "all")
+            # images exchanged whole an odd number of times (a later pass may exchange one back)
+            counts = Counter((r["frame"], r["side"]) for r in records if r["keypoints"] == "all")
+            whole = sorted(k for k, n in counts.items() if n % 2)
             if name == "on":
                 f4 = int(frames[4].frame)
                 assert whole == [(f4, "left"), (f4, "right")], records

@@ -112,7 +112,7 @@ def test_a_frame_confused_in_every_image_is_exchanged_back_whole():
         config.noise.left_right_swap_prob = swap_prob
         problem, values, report = solve_staged(copy.deepcopy(labels), ctx, config)
         est = extract_estimate(problem, values, ctx)
-        return float(np.linalg.norm(est.world_keypoints - truth["keypoints"], axis=-1).mean()), report
+        return np.linalg.norm(est.world_keypoints - truth["keypoints"], axis=-1).mean(axis=1), report
 
     off_error, _ = fit(bad, 0.0)
     on_error, on = fit(bad, 0.05)
@@ -120,7 +120,9 @@ def test_a_frame_confused_in_every_image_is_exchanged_back_whole():
     assert sorted((r["frame"], r["side"], r["keypoints"]) for r in on.mirrored_labels) == [
         (3, "left", "all"), (3, "right", "all")]
     assert clean.mirrored_labels == []
-    assert on_error < 1.1 * clean_error < 0.6 * off_error, (on_error, clean_error, off_error)
+    # the track as a whole, and the exchanged frame (measured 13.2, 13.0 and 50.3 mm)
+    assert on_error.mean() < 1.1 * clean_error.mean(), (on_error, clean_error)
+    assert on_error[3] < 1.1 * clean_error[3] < 0.6 * off_error[3], (on_error, clean_error, off_error)
 
 
 def test_neighbour_poses_interpolate_between_the_neighbours():

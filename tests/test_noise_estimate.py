@@ -259,8 +259,9 @@ def test_the_graph_uses_the_resolved_sigmas():
     stereo = [problem.graph.at(j) for j, kind in enumerate(problem.factor_kinds) if kind == "stereo_reprojection"]
     chamfer = [problem.graph.at(j) for j, kind in enumerate(problem.factor_kinds) if kind == "lidar_chamfer"]
     assert stereo and chamfer
+    specs = problem.body.specs("stereo_reprojection")   # whitened inside the factor: the sigmas of its spec
     for factor in stereo:                 # every keypoint labelled and visible in both images: rows (u, v)
-        assert np.allclose(_sigmas(factor), np.tile(np.repeat(row, 2), 2))
+        assert np.allclose(specs[tuple(factor.keys())].setup.sigmas, np.tile(np.repeat(row, 2), 2))
     # the chamfer whitens inside the factor: its Gaussian error at the initial values is that of a 2 cm sigma
     config.noise.lidar_loss = "none"
 

@@ -97,7 +97,8 @@ def test_diagnostics_flag_a_bad_label(ctx):
     assert all(per_frame[i]["residuals"]["stereo_reprojection"]["outlier_rows"] == 0 for i in (0, 1, 3))
     chamfer = [per_frame[i]["residuals"]["lidar_chamfer"]["outlier_rows"] for i in range(4)]
     assert chamfer[1] >= 3 * 3 and chamfer[1] == max(chamfer)
-    assert summary["worst_frames"][0]["frame_index"] == 2
+    # chi2 without the kernels: the two frames holding the bad click and the bad points come first
+    assert {w["frame_index"] for w in summary["worst_frames"][:2]} == {1, 2}
     weak = per_frame[0]["weak_directions"]
     assert weak["sigma_depth_m"] > 0 and weak["sigma_heading_rad"] > 0
     assert weak["weakest"]["dominant"] in weak["weakest"]["share"]

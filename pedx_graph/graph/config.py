@@ -70,9 +70,11 @@ class NoiseConfig:
     occluded_keypoint_sigma_px: float = 12.0
     """2D label noise of joints labelled but marked not visible (guessed by the annotator), pixels."""
     reprojection_loss: str = "geman_mcclure"
-    """Robust loss of the reprojection term: ``geman_mcclure``, ``huber``, ``cauchy`` or ``none``."""
+    """Robust loss of the reprojection term, on each keypoint's whitened 2D offset in each image (a label is
+    kept or rejected with both coordinates): ``geman_mcclure``, ``huber``, ``cauchy`` or ``none``."""
     reprojection_loss_scale: float = 3.0
-    """Scale of the robust reprojection loss in whitened units (multiples of the per-row sigma)."""
+    """Scale of the robust reprojection loss in whitened units (multiples of the keypoint's sigma, on the
+    length of its 2D offset)."""
     left_right_swap_prob: float = 0.0
     """Prior probability that one image's labels of one left/right keypoint pair — or of every pair, the whole
     image — have the person's left and right exchanged (a click on the wrong side).  After the second stage

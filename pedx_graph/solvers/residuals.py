@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from factors.common import group_robust_weights
+from factors.common import group_norms_from_losses, group_robust_weights
 from pedx_graph.graph.config import DiagnosticsConfig
 
 
@@ -33,8 +33,9 @@ def _factor_residual(factor, values: gtsam.Values, outlier_weight: float,
     ``in_factor_robust = (kernel, scale, group)``: the factor applies the kernel itself to groups of
     ``group`` whitened rows (``factors.common.robustify_groups``, unit noise model), so its residual ``s``
     has ``0.5 |s_g|^2 = rho(|r_g|)``; a group is an outlier when ``rho(|r_g|) > rho(scale)`` (it lies beyond
-    the kernel's scale, where Geman-McClure's weight drops below 1/4) and all its rows are counted.  For
-    such factors ``chi2`` is the robustified ``|s|^2``.
+    the kernel's scale, where Geman-McClure's weight drops below 1/4) and all its rows are counted.  Its
+    ``chi2`` is ``sum |r_g|^2``, each group's norm recovered from its loss
+    (``factors.common.group_norms_from_losses``): without the kernel, as for every other factor.
     """
     cost = float(factor.error(values))
     if not hasattr(factor, "unwhitenedError"):
@@ -58,6 +59,8 @@ def _factor_residual(factor, values: gtsam.Values, outlier_weight: float,
         if white.size % group == 0:
             rho = 0.5 * (white.reshape(-1, group) ** 2).sum(axis=1)
             outliers = int(group * np.count_nonzero(rho > rho_c))
+            norms = group_norms_from_losses(rho, name, scale)
+            return float(norms @ norms), cost, int(r.size), outliers, robust
     return float(white @ white), cost, int(r.size), outliers, robust
 
 
@@ -66,7 +69,8 @@ def in_factor_robust_kinds(fit_config) -> dict:
     if fit_config is None:
         return {}
     noise = fit_config.noise
-    return {"lidar_chamfer": (noise.lidar_loss, float(noise.lidar_loss_scale), 3)}
+    return {"lidar_chamfer": (noise.lidar_loss, float(noise.lidar_loss_scale), 3),
+            "stereo_reprojection": (noise.reprojection_loss, float(noise.reprojection_loss_scale), 2)}
 
 
 def residual_tables(problem, values: gtsam.Values, config: DiagnosticsConfig | None = None,
