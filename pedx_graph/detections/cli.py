@@ -40,10 +40,11 @@ def register(subparsers) -> None:
     p.add_argument("--use-file-ids", action="store_true",
                    help="group by the ids in the files (OpenPose person_id, COCO track_id) instead of associating")
     p.add_argument("--config", default=None, help="YAML with an ImportConfig (noise: sigma curve, threshold)")
-    p.add_argument("--review-images", default=None, metavar="FOLDER",
-                   help="the images the detections were made on (searched recursively, found by the names the "
-                        "files give): draw each stretch where two tracks came close on them, one JPEG per "
-                        "stretch in OUT/review/<sequence>/")
+    p.add_argument("--raw-images", "--review-images", dest="raw_images", default=None, metavar="FOLDER",
+                   help="the raw images the detections were made on (searched recursively, found by the names "
+                        "the files give): written rectified into OUT/images/ (pedx-graph export draws on them; "
+                        "write_images: false in --config to skip), and each stretch where two tracks came "
+                        "close drawn on them, one JPEG per stretch in OUT/review/<sequence>/")
     p.add_argument("--workers", type=positive_int, default=1,
                    help="local processes for the association, one stereo pair each (default 1: this process; "
                         "the same tracks with any number)")
@@ -78,7 +79,7 @@ def _run_import(args: argparse.Namespace) -> int:
         detections = read_coco(args.input[0], args.images, args.name_pattern, cameras)
     config.use_file_ids = config.use_file_ids or args.use_file_ids
     summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence,
-                                workers=args.workers, review_images=args.review_images)
+                                workers=args.workers, raw_images=args.raw_images)
     tracks = sum(s["tracks"] for s in summary["sequences"].values())
     labels = sum(s["labels_written"] for s in summary["sequences"].values())
     print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")
@@ -99,6 +100,13 @@ def _run_import(args: argparse.Namespace) -> int:
             with_image = sum(s["cells_with_image"] for s in drawn)
             print(f"  {seq}: {len(drawn)} review sheets in {args.out}/{sheets['folder']} "
                   f"({with_image} of {sum(s['cells'] for s in drawn)} cells on their image)")
+        written = record.get("images")
+        if written:
+            print(f"  {seq}: {written['written']} images rectified into {args.out}/{written['folder']}"
+                  + (f" ({written['without_image']} named by detections not in the folder)"
+                     if written["without_image"] else ""))
+            for camera, reason in sorted(written["skipped_cameras"].items()):
+                print(f"    camera {camera} skipped: {reason}")
         check = record.get("stereo_noise_check")
         if check and check.get("scale") is not None:
             print(f"  {seq}: stereo rows show {check['scale']:.2f}x the noise model's keypoint noise "

@@ -16,7 +16,8 @@ link ``pointclouds/`` and cut each person's LiDAR points from the scene clouds
 when the source dataset has them.  A summary goes to ``<out>/import_summary.json`` (with the stretches of
 frames where two tracks came close, to check who is who there: :mod:`pedx_graph.detections.review`; given
 the images the detections were made on, each stretch drawn on them in ``<out>/review/<seq>/``:
-:mod:`pedx_graph.detections.review_sheets`), the resolved config to ``<out>/import_config.yaml``.
+:mod:`pedx_graph.detections.review_sheets`; and those images rectified into ``<out>/images/``:
+:mod:`pedx_graph.detections.rectified_images`), the resolved config to ``<out>/import_config.yaml``.
 """
 from __future__ import annotations
 
@@ -81,6 +82,10 @@ class ImportConfig:
     """Which stretches of frames ``import_summary.json`` lists for a second look at who is who
     (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground,
     :mod:`pedx_graph.detections.review`)."""
+    write_images: bool = True
+    """Given the raw images the detections were made on (``raw_images``): write them rectified into the
+    dataset's ``images/`` (:mod:`pedx_graph.detections.rectified_images`), so ``pedx-graph export`` draws its
+    overlays on them; False: only the review sheets are drawn on them."""
 
 
 def calibration_dir(source: str | os.PathLike) -> Path:
@@ -202,16 +207,17 @@ def _copy_support(source_root: Path | None, calib_dir: Path, out: Path) -> dict:
 
 def import_detections(detections: list[Detection], calib: str | os.PathLike, out: str | os.PathLike,
                       config: ImportConfig | None = None, sequence: str | None = None, workers: int = 1,
-                      review_images: str | os.PathLike | None = None) -> dict:
+                      raw_images: str | os.PathLike | None = None) -> dict:
     """Write ``detections`` as a dataset under ``out`` (module docstring); returns the summary (also written).
-    ``workers``: local processes for the association's per-pair steps (the same tracks with any number).
-    ``review_images``: the folder of the images the detections were made on; each stretch of the identity
-    review is then drawn on them, one JPEG per stretch under ``out/review/<seq>/``
-    (:mod:`pedx_graph.detections.review_sheets`)."""
+    ``workers``: local processes for the association's per-pair steps (the same tracks with any number) and
+    for rectifying images.  ``raw_images``: the folder of the images the detections were made on; each
+    stretch of the identity review is then drawn on them, one JPEG per stretch under ``out/review/<seq>/``
+    (:mod:`pedx_graph.detections.review_sheets`), and with ``config.write_images`` they are written
+    rectified into ``out/images/`` (:mod:`pedx_graph.detections.rectified_images`)."""
     from pedx_graph.detections.review_sheets import index_images
 
     config = config or ImportConfig()
-    images = index_images(review_images) if review_images is not None else None
+    images = index_images(raw_images) if raw_images is not None else None
     calib = Path(calib)
     calib_dir = calibration_dir(calib)
     calibrations = read_calibrations(calib_dir)
@@ -263,12 +269,16 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
     review = review_summary(tracks, ground, config.review)
-    sheets = None
+    sheets = written_images = None
     if images is not None:
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
+        stems = image_stems(known)
         sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
                   "sheets": write_review_sheets(tracks, review["stretches"], images, out / "review" / seq,
-                                                image_stems(detections), review["check_order"])}
+                                                stems, review["check_order"])}
+        if config.write_images:
+            from pedx_graph.detections.rectified_images import write_rectified_images
+            written_images = write_rectified_images(out, seq, stems, images, calibrations, workers)
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
@@ -294,7 +304,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
               "left_right_swapped_back": flipped,
               "uncalibrated_cameras": uncalibrated,
               "stereo_noise_check": check.record() if check is not None else None,
-              "identity_review": review, "review_sheets": sheets}
+              "identity_review": review, "review_sheets": sheets, "images": written_images}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,

@@ -1,4 +1,4 @@
-"""One rectified camera of a stereo pair: projection of world points, its Jacobian, and the image files.
+"""One rectified camera of a stereo pair: projection of world points and its Jacobian.
 
 A camera is the left or the right image of a :class:`~pedx_graph.data.types.StereoCalibration`; pixels are
 ``uv = P_rect @ [rect_T_world @ world_p; 1]`` (dehomogenised), the rectified images of the release.  An image
@@ -7,10 +7,8 @@ file whose size differs from the calibration's ``image_size`` (a downscaled copy
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
@@ -85,20 +83,3 @@ def dataset_cameras(calibrations: dict[str, StereoCalibration]) -> dict[str, Cam
         out[left] = Camera(left, "left", calib)
         out[right] = Camera(right, "right", calib)
     return out
-
-
-def image_path(root: str | os.PathLike, sequence: str, camera: str, frame: int, ext: str = "jpg") -> Path:
-    """``<root>/images/<seq>/<cam>/<seq>_<cam>_<frame:07d>.<ext>`` (the release's image layout)."""
-    return Path(root) / "images" / sequence / camera / f"{sequence}_{camera}_{frame:07d}.{ext}"
-
-
-def read_image(path: str | os.PathLike) -> np.ndarray | None:
-    """The (H, W, 3) BGR uint8 image at ``path``, or None when the file is absent or cannot be decoded."""
-    import cv2
-
-    path = Path(path)
-    if not path.is_file():
-        return None
-    data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
-    image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
-    return image

@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from pedx_graph.data.ground import GroundFrame
+from pedx_graph.data.images import image_path, read_image
 from pedx_graph.export import animation, meshes, overlays, topview
-from pedx_graph.export.camera import Camera, dataset_cameras, image_path, read_image
+from pedx_graph.export.camera import Camera, dataset_cameras
 from pedx_graph.export.raster import outward_faces
 from pedx_graph.utils import atomic_write_bytes, atomic_write_json, encode_image
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from pedx_graph.data.images import image_path
 from pedx_graph.export.raster import PaintedMesh, outward_faces, paint_meshes
 from pedx_graph.utils import atomic_write_bytes
 
@@ -106,6 +107,5 @@ def write_frame_images(out: Path, sequence: str, frame: int, views: list, ground
         ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
         if not ok:
             raise OSError(f"OpenCV could not encode the image of {view.camera}, frame {frame}")
-        path = Path(out) / "images" / sequence / view.camera / f"{sequence}_{view.camera}_{frame:07d}.jpg"
-        written.append(atomic_write_bytes(path, buf.tobytes()))
+        written.append(atomic_write_bytes(image_path(out, sequence, view.camera, frame), buf.tobytes()))
     return written

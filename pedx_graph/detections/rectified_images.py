@@ -1,0 +1,104 @@
+"""The raw images the detections were made on, written rectified into the imported dataset's ``images/``.
+
+A detector sees the raw (distorted) images; the release and everything that draws on it (``pedx-graph
+export``'s overlays) use the rectified ones.  Given the folder of raw images (``pedx-graph import ...
+--raw-images FOLDER``), each image a detection names (:attr:`~pedx_graph.detections.types.Detection.image`,
+found by its stem: :func:`~pedx_graph.detections.review_sheets.index_images`) is rectified with its
+camera's raw model (:func:`pedx_graph.data.images.rectify_image`, the model the keypoints are rectified
+with) and written as ``images/<seq>/<cam>/<seq>_<cam>_<frame:07d>.jpg`` (atomically).  A camera whose
+calibration has no raw model (``K_0x`` / ``D_0x``) had rectified images to begin with: they are copied
+(re-encoded when not JPEG).  Frames where a camera detected nobody name no image and get none.
+
+A raw image must have the size the raw ``K`` was calibrated on; the calibration does not say which, so a
+camera whose principal point lies outside the middle half of its image (a downscaled copy, or the wrong
+camera's file) is skipped with a warning and the reason in the summary.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from collections import defaultdict
+from pathlib import Path
+
+from pedx_graph.data.images import image_path, read_image, rectification_maps, rectify_image
+from pedx_graph.data.types import RawCamera
+from pedx_graph.detections.undistort import find_camera, raw_camera
+from pedx_graph.execution.executors import map_ordered
+from pedx_graph.utils import atomic_write_bytes, encode_image
+
+log = logging.getLogger(__name__)
+
+
+def principal_point_fits(raw: RawCamera, image_shape: tuple[int, ...]) -> bool:
+    """Whether the raw ``K``'s principal point lies in the middle half of an image of ``image_shape``
+    (H, W, ...): the image is then of the size ``K`` was calibrated on, as far as can be told."""
+    height, width = image_shape[:2]
+    cu, cv = float(raw.raw_K[0, 2]), float(raw.raw_K[1, 2])
+    return 0.25 * width <= cu <= 0.75 * width and 0.25 * height <= cv <= 0.75 * height
+
+
+def _camera_job(job: tuple) -> dict:
+    """Write one camera's images (a module-level function for the worker processes): ``job = (out, seq,
+    camera, raw model or None, image size, [(frame, raw image path)])``; returns what it wrote."""
+    out, seq, camera, raw, image_size, items = job
+    maps = None
+    written, unreadable = 0, []
+    for frame, source in items:
+        target = image_path(out, seq, camera, frame)
+        if raw is None and Path(source).suffix.lower() in (".jpg", ".jpeg"):
+            atomic_write_bytes(target, Path(source).read_bytes())          # already rectified: as it is
+            written += 1
+            continue
+        image = read_image(source)
+        if image is None:
+            unreadable.append(str(source))
+            continue
+        if raw is not None:
+            if not principal_point_fits(raw, image.shape):
+                return {"camera": camera, "written": written, "unreadable": unreadable,
+                        "skipped": f"{source}: image {image.shape[1]}x{image.shape[0]} does not hold the raw K's "
+                                   f"principal point ({raw.raw_K[0, 2]:.0f}, {raw.raw_K[1, 2]:.0f}) in its middle "
+                                   f"half: not the size K was calibrated on"}
+            if maps is None:
+                maps = rectification_maps(raw, image_size)
+            image = rectify_image(image, maps)
+        atomic_write_bytes(target, encode_image(image, ".jpg"))
+        written += 1
+    return {"camera": camera, "written": written, "unreadable": unreadable, "skipped": None}
+
+
+def write_rectified_images(out: str | os.PathLike, sequence: str, stems: dict[tuple[str, int], str],
+                           images: dict[str, Path], calibrations, workers: int = 1) -> dict:
+    """Write the images named by ``stems`` (``(camera, frame)`` -> image stem,
+    :func:`~pedx_graph.detections.review_sheets.image_stems`) from ``images`` (stem -> raw image path)
+    rectified under ``out`` (module docstring); ``workers`` processes, one camera each.  Returns the record
+    for the import summary: ``folder``, ``written``, ``without_image`` (frames whose image is not in the
+    folder), ``rectified_cameras``, ``copied_cameras`` (no raw model: rectified already), ``skipped_cameras``
+    (camera -> reason) and ``unreadable`` (files OpenCV could not decode)."""
+    by_camera: dict[str, list] = defaultdict(list)
+    missing = 0
+    for (camera, frame), stem in sorted(stems.items()):
+        path = images.get(stem)
+        if path is None:
+            missing += 1
+        else:
+            by_camera[camera].append((int(frame), path))
+    jobs = []
+    for camera in sorted(by_camera):
+        calib, side = find_camera(calibrations, camera)
+        jobs.append((Path(out), sequence, camera, raw_camera(calib, side), tuple(calib.image_size), by_camera[camera]))
+    record = {"folder": f"images/{sequence}", "written": 0, "without_image": missing, "rectified_cameras": [],
+              "copied_cameras": [], "skipped_cameras": {}, "unreadable": []}
+    for job, done in zip(jobs, map_ordered(_camera_job, jobs, workers)):
+        record["written"] += done["written"]
+        record["unreadable"] += done["unreadable"]
+        if done["skipped"]:
+            record["skipped_cameras"][done["camera"]] = done["skipped"]
+            log.warning("%s: camera %s's raw images not rectified: %s", sequence, done["camera"], done["skipped"])
+        else:
+            record["rectified_cameras" if job[3] is not None else "copied_cameras"].append(done["camera"])
+    if record["unreadable"]:
+        log.warning("%s: %d raw images could not be decoded (first: %s)", sequence, len(record["unreadable"]),
+                    record["unreadable"][0])
+    return record
+
