@@ -2,6 +2,7 @@
 rectification, the import writes the images the detections name where the export looks for them, and a
 raw image of the wrong size skips its camera with the reason."""
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -67,11 +68,16 @@ def test_a_rectified_image_puts_a_raw_dot_where_the_keypoint_rectification_puts_
 def test_import_writes_the_named_images_rectified_where_the_export_reads_them(tmp_path, capsys):
     """Simulated detections on the real rig's raw images: a dot at one keypoint of each detection in its
     raw image lands, in the written rectified image, on that keypoint's rectified label; every image the
-    detections name is written; a folder of images of the wrong size skips their cameras with the reason."""
+    detections name is written, and those of the frames a camera detected nobody in, found by name; a folder
+    of images of the wrong size skips their cameras with the reason."""
     root = _pedx_scene(tmp_path)
-    files = root / "detections" / "openpose_body25"
+    files = tmp_path / "openpose"
+    shutil.copytree(root / "detections" / "openpose_body25", files)
+    dropped = sorted(files.rglob("*_0000003_keypoints.json"))[0]
+    dropped.unlink()                                 # a camera that detected nobody in frame 3
     calibrations = read_calibrations(root / "calib")
     detections = read_openpose(files)
+    assert (dropped.parent.name, 3) not in {(d.camera, d.frame) for d in detections}
     raw_dir = tmp_path / "raw"
     images = {}
     for det in detections:
@@ -83,6 +89,13 @@ def test_import_writes_the_named_images_rectified_where_the_export_reads_them(tm
         if np.all(np.isfinite(nose)):
             cv2.circle(images[det.image][1], (int(round(nose[0] * 16)), int(round(nose[1] * 16))), 3 * 16,
                        (255, 255, 255), -1, cv2.LINE_AA, shift=4)
+    frames = range(min(d.frame for d in detections), max(d.frame for d in detections) + 1)
+    for camera in {d.camera for d in detections}:   # the frames a camera detected nobody in have images too
+        calib, side = find_camera(calibrations, camera)
+        width, height = _raw_size(raw_camera(calib, side))
+        for frame in frames:
+            images.setdefault(f"{detections[0].sequence}_{camera}_{frame:07d}",
+                              (camera, np.zeros((height, width, 3), np.uint8)))
     for stem, (camera, image) in images.items():
         (raw_dir / camera).mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(raw_dir / camera / f"{stem}.png"), image)
@@ -93,7 +106,11 @@ def test_import_writes_the_named_images_rectified_where_the_export_reads_them(tm
     summary = json.loads((out / "import_summary.json").read_text())
     ((seq, record),) = summary["sequences"].items()
     named = {(d.camera, d.frame) for d in detections}
-    assert record["images"]["written"] == len(named) and record["images"]["without_image"] == 0
+    # every camera has an image of every frame: those it detected nobody in are found by name
+    assert record["images"]["without_image"] == 0
+    assert record["images"]["written"] == len(images) == len(named) + record["images"]["found_by_name"]
+    assert record["images"]["found_by_name"] > 0
+    named = {(camera, int(stem[-7:])) for stem, (camera, _) in images.items()}
     assert not record["images"]["skipped_cameras"] and len(record["images"]["rectified_cameras"]) == 4
     for camera, frame in named:
         written = read_image(image_path(out, seq, camera, frame))
