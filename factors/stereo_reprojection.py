@@ -509,7 +509,7 @@ def keypoint_losses(points: np.ndarray, setup: StereoSetup, robust: str, robust_
 def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
                              images: Sequence[ImageKeypoints], sigma_px=2.0, sigma_occluded_px=6.0,
                              keypoint_weights: np.ndarray | None = None, robust: str = "gemanmcclure",
-                             robust_scale: float = 3.0, min_depth: float = 0.1) -> gtsam.CustomFactor | None:
+                             robust_scale: float = 3.44, min_depth: float = 0.1) -> gtsam.CustomFactor | None:
     """Keypoint reprojection factor over K >= 1 labelled images on ``keys = [root, trans, body_pose, betas]``
     (kind ``stereo_reprojection``).
 
@@ -537,7 +537,7 @@ def make_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLi
 def make_stereo_reprojection_factor(keys: FrameKeys | Sequence[int], model: BodyModelLike,
                                     measurement: StereoKeypoints, calibration: StereoCalibration, sigma_px=2.0,
                                     sigma_occluded_px=6.0, keypoint_weights: np.ndarray | None = None,
-                                    robust: str = "gemanmcclure", robust_scale: float = 3.0,
+                                    robust: str = "gemanmcclure", robust_scale: float = 3.44,
                                     min_depth: float = 0.1) -> gtsam.CustomFactor | None:
     """:func:`make_reprojection_factor` of one stereo pair's left and right images."""
     return make_reprojection_factor(keys, model, measurement.images(calibration), sigma_px, sigma_occluded_px,

@@ -70,8 +70,9 @@ class SmplifyDispConfig:
     """2D label noise of keypoints labelled but not visible, pixels."""
     reprojection_loss: str = "geman_mcclure"
     """Robust loss per residual row: ``geman_mcclure``, ``huber``, ``cauchy`` or ``none``."""
-    reprojection_loss_scale: float = 3.0
-    """Scale of the robust loss in whitened units."""
+    reprojection_loss_scale: float = 3.44
+    """Scale of the robust loss in whitened units, on the length of a keypoint's 2D offset (as
+    ``NoiseConfig.reprojection_loss_scale``)."""
     hip_sigma_factor: float = 2.0
     """Hip keypoints get this times the sigma (the model's hip joints sit inside the pelvis)."""
     joint_limit_sigma_rad: float = 0.05

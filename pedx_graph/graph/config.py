@@ -72,9 +72,11 @@ class NoiseConfig:
     reprojection_loss: str = "geman_mcclure"
     """Robust loss of the reprojection term, on each keypoint's whitened 2D offset in each image (a label is
     kept or rejected with both coordinates): ``geman_mcclure``, ``huber``, ``cauchy`` or ``none``."""
-    reprojection_loss_scale: float = 3.0
+    reprojection_loss_scale: float = 3.44
     """Scale of the robust reprojection loss in whitened units (multiples of the keypoint's sigma, on the
-    length of its 2D offset)."""
+    length of its 2D offset).  Default: the length a Gaussian keypoint's 2D offset exceeds as often (0.27 %)
+    as one coordinate exceeds 3 sigma, ``sqrt(-2 ln 0.0027)``, the per-coordinate scale 3 the loss had
+    while it acted on each row alone."""
     left_right_swap_prob: float = 0.0
     """Prior probability that one image's labels of one left/right keypoint pair — or of every pair, the whole
     image — have the person's left and right exchanged (a click on the wrong side).  After the second stage
