@@ -59,11 +59,12 @@ class NoiseConfig:
     real body and the body model's keypoints are not exactly where they click; it also carries what the fit
     leaves unmodelled (priors, local minima).  On the simulator the labels are clicks on the model's own
     keypoints (residual at the truth = the click noise), yet with 0 here and 0 for ``lidar_model_sigma_m``
-    the covariances are overconfident: keypoint NEES/dof 1.62 (default rig) and 3.99 (PedX rig).  Default:
-    the part of the 3 px ``keypoint_sigma_px`` that the simulator's 2 px clicks do not explain
-    (``sqrt(3^2 - 2^2)``), so the default rig keeps the per-row sigma bench_calibration measured (NEES/dof
-    0.66 either way); not tuned on the PedX rig, where it gives 1.26 / 92 % coverage against 2.20 / 82 % with
-    3 px on every keypoint (benchmarks/results/bench_noise.md)."""
+    the covariances were overconfident while the reprojection kernel acted on each row: keypoint NEES/dof
+    1.62 (default rig) and 3.99 (PedX rig); with the kernel on each keypoint (2026-12-05) 0.96 and 2.27.
+    Default: the part of the 3 px ``keypoint_sigma_px`` that the simulator's 2 px clicks do not explain
+    (``sqrt(3^2 - 2^2)``), not tuned on either rig: NEES/dof 0.48 on the default rig (conservative) and
+    0.75 / 96 % coverage on the PedX rig, against 2.70 / 88 % with 3 px on every keypoint
+    (benchmarks/results/bench_noise.md)."""
     keypoint_noise_min_samples: int = 30
     """A keypoint with fewer stereo clicks than this in the dataset gets the pooled all-keypoint click noise;
     the whole dataset needs ``max(100, this)`` or there is no estimate (``keypoint_sigma_px`` is used)."""
