@@ -255,7 +255,10 @@ class SolverConfig:
     """LM iterations that judge one mirrored candidate, at most."""
     flip_screen_iterations: int = 3
     """A mirrored candidate whose error is not below the best after this many LM iterations is dropped
-    (a wrong mirror starts far above and stays there; a right one is below within two or three)."""
+    (a wrong mirror starts far above and stays there; a right one was below within two or three while
+    the reprojection kernel acted on each row.  With the kernel on whole keypoints, bench_solvers' track
+    66e5e454 needs more: at 3 no mirror is kept (67.8 mm), at 8 three are (objective 1436 -> 1088,
+    38.2 mm; 2026-12-05, not yet the default: every benchmark would need running again)."""
     flip_min_distance_m: float = 12.0
     """Tracks nearer than this (median camera distance) skip the flip search: stereo disparity resolves
     the swing depth there."""
