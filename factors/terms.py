@@ -4,8 +4,9 @@ A term (one ``factors/<term>.py`` file) declares, next to its residual and Jacob
 
 * its noise model as a :class:`RowNoise` — per-row sigmas in physical units (px, m, rad) or ``None`` when
   the residual is whitened inside (the max-mixtures, the per-point robust chamfer, the per-keypoint robust
-  reprojection), and a robust kernel acting on each whitened row (GTSAM's ``ReweightScheme.Scalar``).  The GTSAM factor takes its noise model
-  from it (:meth:`RowNoise.model`); the batched paths whiten with it (:meth:`RowNoise.weigh`);
+  reprojection), and a robust kernel acting on each whitened row (GTSAM's ``ReweightScheme.Scalar``).  The
+  GTSAM factor takes its noise model from it (:meth:`RowNoise.model`); the batched paths whiten with it
+  (:meth:`RowNoise.weigh`);
 * a :class:`Term`: its kind, whether it acts on one frame's variables only (the stream's frame systems form
   those in a batch), and its *assembler* ``assemble(cache, keys_list, jacobians)``: the terms of the
   factors ``keys_list`` at the term cache's last prefetch as :class:`NormalEquations`.
