@@ -253,12 +253,13 @@ class SolverConfig:
     no search."""
     flip_max_iterations: int = 8
     """LM iterations that judge one mirrored candidate, at most."""
-    flip_screen_iterations: int = 3
+    flip_screen_iterations: int = 8
     """A mirrored candidate whose error is not below the best after this many LM iterations is dropped
-    (a wrong mirror starts far above and stays there; a right one was below within two or three while
-    the reprojection kernel acted on each row.  With the kernel on whole keypoints, bench_solvers' track
-    66e5e454 needs more: at 3 no mirror is kept (67.8 mm), at 8 three are (objective 1436 -> 1088,
-    38.2 mm; 2026-12-05, not yet the default: every benchmark would need running again)."""
+    (a wrong mirror starts far above and stays there).  3 sufficed while the reprojection kernel acted on
+    each coordinate; with the kernel on whole keypoints a mirrored limb's labels carry little weight
+    until the limb is near them, so it settles more slowly: on bench_solvers' track 66e5e454 no mirror
+    is kept at 3 (67.8 mm), three are at 8 (objective 1436 -> 1088, 38.2 mm).  Equal to
+    ``flip_max_iterations``: every candidate is judged after the same iterations."""
     flip_min_distance_m: float = 12.0
     """Tracks nearer than this (median camera distance) skip the flip search: stereo disparity resolves
     the swing depth there."""
