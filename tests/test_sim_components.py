@@ -11,7 +11,7 @@ from pedx_graph.config import ConfigError, from_dict, load_config
 from pedx_graph.sim import cameras, labels, lidar
 from pedx_graph.sim.config import LEFT_PAIR, LidarConfig, SimConfig, StereoPairConfig
 from pedx_graph.sim.pedestrians import GaitClipSource, loop_clip, plan_pedestrians
-from pedx_graph.sim.scene import GROUND_ID, RayScene, build_scene, car_mesh
+from pedx_graph.sim.scene import GROUND_ID, MovingCar, RayScene, StaticScene, build_scene, car_mesh, retime_moving_cars
 from test_sim_standin import standin_body_model, standin_model_arrays
 
 
@@ -206,6 +206,57 @@ def test_planned_pedestrians_walk_on_walkways_with_feet_on_the_ground():
         from scipy.spatial.transform import Rotation
         forward = Rotation.from_rotvec(p.pose[mid, :3]).apply([0.0, 0.0, 1.0])
         assert forward[:2] @ travel > 0.8
+
+
+def _gap_to_car(car: MovingCar, time_s: float, xy: np.ndarray) -> float:
+    """Horizontal distance (m) from ``xy`` to the car's footprint at ``time_s`` (0 inside), from its placed
+    mesh (OpenCV's signed polygon distance to the convex hull of the vertices' xy)."""
+    import cv2
+
+    footprint = cv2.convexHull(car.world_vertices(time_s, 0.0)[:, :2].astype(np.float32))
+    return max(-cv2.pointPolygonTest(footprint, (float(xy[0]), float(xy[1])), True), 0.0)
+
+
+def _one_car_scene(start_xy, yaw_rad=np.pi / 2, speed=5.0) -> StaticScene:
+    v, f = car_mesh(4.5, 1.8, 1.5)
+    return StaticScene(ground_z=0.0, objects=[], static_meshes=[], walkways=[],
+                       moving_cars=[MovingCar(1, np.asarray(start_xy, float), yaw_rad, speed, v, f)])
+
+
+def test_moving_cars_yield_to_pedestrians():
+    """A car whose drive would pass through a walker is retimed by the smallest whole number of frame periods
+    that keeps its footprint the clearance away at every frame; one period less would not; a car that passes
+    clear, and any car with clearance 0, are left as they were."""
+    fps, frames, clearance = 10.0, 20, 1.0
+    times = np.arange(frames) / fps
+    walker = np.stack([np.full(frames, 0.4), -1.0 + 1.3 * times], axis=1)     # crossing the car's lane
+    far = np.stack([np.full(frames, 9.0), np.zeros(frames)], axis=1)          # on a sidewalk, clear of it
+    pelvis_xy = np.stack([walker, far])
+    present = np.ones((2, frames), dtype=bool)
+    present[1, :5] = False
+
+    def nearest(car):
+        return min(_gap_to_car(car, t, xy) for k, t in enumerate(times) for xy in pelvis_xy[:, k])
+
+    scene = _one_car_scene([0.0, -8.0])
+    car = scene.moving_cars[0]
+    assert nearest(car) < 0.1                                   # as drawn, it drives through the walker
+    start = car.start_xy.copy()
+    (shift,) = retime_moving_cars(scene, pelvis_xy, present, fps, clearance)
+    assert shift != 0 and abs(shift * fps - round(shift * fps)) < 1e-9
+    heading = np.array([np.cos(car.yaw_rad), np.sin(car.yaw_rad)])
+    np.testing.assert_allclose(car.start_xy, start + shift * car.speed_mps * heading)
+    assert nearest(car) >= clearance - 1e-6
+    for periods in range(-int(round(abs(shift) * fps)) + 1, int(round(abs(shift) * fps))):   # every smaller shift
+        trial = _one_car_scene(start + periods / fps * car.speed_mps * heading).moving_cars[0]
+        assert nearest(trial) < clearance
+
+    clear = _one_car_scene([0.0, 30.0])                          # beyond the walker for the whole sequence
+    assert retime_moving_cars(clear, pelvis_xy, present, fps, clearance) == [0.0]
+    np.testing.assert_array_equal(clear.moving_cars[0].start_xy, [0.0, 30.0])
+    off = _one_car_scene([0.0, -8.0])
+    assert retime_moving_cars(off, pelvis_xy, present, fps, 0.0) == [0.0]
+    np.testing.assert_array_equal(off.moving_cars[0].start_xy, [0.0, -8.0])
 
 
 # ------------------------------------------------------------------------------------------------- CLI

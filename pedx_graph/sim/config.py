@@ -235,6 +235,15 @@ class SceneConfig:
     """Cars parked along the kerbs (occluders)."""
     n_moving_cars: int = 2
     """Cars crossing the intersection on the cross road."""
+    car_clearance_m: float = 0.0
+    """Drivers yield: a moving car never comes nearer a pedestrian's pelvis than this, horizontally from the
+    car's footprint, metres (:func:`pedx_graph.sim.scene.retime_moving_cars`: a car whose drive would pass
+    nearer crosses the intersection earlier or later, by the smallest whole number of frame periods that keeps
+    it clear, its path and speed unchanged; no random draw, so scenes without such a car are unchanged).
+    0 (the default for now): cars drive through the people on the crosswalks, as in every scene of the
+    committed benchmarks: in 12 of 40 seeded default scenes (9 of 40 on the pedx rig) a car's footprint comes
+    within 0.3 m of a walker's pelvis; keeping 1.0 m (a yielding driver) retimes a car in 17 (14) of them
+    (benchmarks/results/bench_car_clearance.md; docs/simulator.md, "Moving cars")."""
     n_buildings_per_corner: int = 2
     """Building blocks behind the sidewalks at each corner (background for polygon mistakes)."""
     group_prob: float = 0.35
@@ -427,6 +436,7 @@ class SimConfig:
             ("labels.keypoint_noise_px", self.labels.keypoint_noise_px is None
              or (len(self.labels.keypoint_noise_px) == 18 and min(self.labels.keypoint_noise_px) >= 0)),
             ("scene.all_views_prob", 0 <= self.scene.all_views_prob <= 1),
+            ("scene.car_clearance_m", np.isfinite(self.scene.car_clearance_m) and self.scene.car_clearance_m >= 0),
             ("labels.polygon_only_prob", 0 <= self.labels.polygon_only_prob <= 1),
             ("labels.missing_keypoint_prob", 0 <= self.labels.missing_keypoint_prob <= 1),
             ("labels.one_camera_track_prob", 0 <= self.labels.one_camera_track_prob <= 1),

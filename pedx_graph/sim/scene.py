@@ -307,6 +307,55 @@ def build_scene(config: SimConfig, rng: np.random.Generator) -> StaticScene:
     return scene
 
 
+def car_gaps(car: MovingCar, pelvis_xy: np.ndarray, fps: float, shift_s: float = 0.0) -> np.ndarray:
+    """(P, F) horizontal distance from each pelvis ``pelvis_xy`` (P, F, 2, world xy at the frames, times
+    ``k / fps``) to ``car``'s footprint (the car mesh's extent in its own frame, a rectangle) at that frame,
+    with the car's drive shifted by ``shift_s`` seconds; 0 inside the footprint, metres."""
+    heading = np.array([np.cos(car.yaw_rad), np.sin(car.yaw_rad)])
+    left = np.array([-heading[1], heading[0]])
+    lo, hi = car.car_vertices[:, :2].min(axis=0), car.car_vertices[:, :2].max(axis=0)
+    rel = np.asarray(pelvis_xy, dtype=float) - car.start_xy
+    times = np.arange(rel.shape[1]) / float(fps)
+    along = rel @ heading - car.speed_mps * (times + shift_s)[None, :]
+    across = rel @ left
+    beyond_along = np.maximum(np.maximum(lo[0] - along, along - hi[0]), 0.0)
+    beyond_across = np.maximum(np.maximum(lo[1] - across, across - hi[1]), 0.0)
+    return np.hypot(beyond_along, beyond_across)
+
+
+def retime_moving_cars(scene: StaticScene, pelvis_xy: np.ndarray, present: np.ndarray, fps: float,
+                       clearance_m: float, max_shift_s: float = 60.0) -> list[float]:
+    """Retime ``scene.moving_cars`` in place so that none comes within ``clearance_m`` of a pedestrian.
+
+    ``pelvis_xy`` (P, F, 2): the pedestrians' world pelvis xy at the sequence's frames (times ``k / fps``);
+    ``present`` (P, F): where each is in the scene.  A car too near a present pelvis at some frame
+    (:func:`car_gaps` below ``clearance_m``) is shifted in time: ``start_xy`` moved along its heading by
+    ``s * speed`` with ``s`` the shift of smallest magnitude, a whole number of frame periods up to
+    ``max_shift_s`` (the later crossing first at equal magnitude: a driver waits for the crosswalk to clear),
+    that keeps it clear at every frame (none does: ``max_shift_s`` ahead, out of the scene).  Path, speed and
+    mesh are kept; no random draw is made, so scenes without such a car are unchanged.  Returns the shift of
+    each car, seconds (0 for cars left as they were)."""
+    shifts = []
+    if clearance_m <= 0 or not len(pelvis_xy):
+        return [0.0] * len(scene.moving_cars)
+    pelvis_xy = np.asarray(pelvis_xy, dtype=float)
+    present = np.asarray(present, dtype=bool) & np.all(np.isfinite(pelvis_xy), axis=2)
+    pelvis_xy = np.where(present[..., None], pelvis_xy, 0.0)
+    for car in scene.moving_cars:
+        def clear(shift: float) -> bool:
+            return not np.any(present & (car_gaps(car, pelvis_xy, fps, shift) < clearance_m))
+
+        chosen = 0.0
+        if not clear(0.0):
+            steps = np.arange(1, int(round(max_shift_s * fps)) + 1) / float(fps)
+            candidates = [s for step in steps for s in (-step, step)]
+            chosen = next((s for s in candidates if clear(s)), candidates[-1] if candidates else 0.0)
+            car.start_xy = car.start_xy + chosen * car.speed_mps * np.array([np.cos(car.yaw_rad),
+                                                                            np.sin(car.yaw_rad)])
+        shifts.append(float(chosen))
+    return shifts
+
+
 def outward_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``faces`` reordered, if needed, so the mesh's signed volume is positive (normals point outwards)."""
     v = np.asarray(vertices, dtype=np.float64)

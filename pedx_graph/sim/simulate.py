@@ -65,7 +65,7 @@ from pedx_graph.data.writer import write_calibration, write_scene_points, write_
 from pedx_graph.sim import cameras, labels, lidar
 from pedx_graph.sim.config import SimConfig
 from pedx_graph.sim.pedestrians import Pedestrian, plan_pedestrians
-from pedx_graph.sim.scene import RayScene, build_scene, outward_faces
+from pedx_graph.sim.scene import RayScene, StaticScene, build_scene, outward_faces, retime_moving_cars
 from pedx_graph.utils import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 logger = logging.getLogger(__name__)
@@ -414,6 +414,21 @@ OUTPUT_ENTRIES = ("calib", "labels", "pointclouds", "timestamps", "truth", "sim_
                   "detections")
 
 
+def plan_scene(config: SimConfig, seed: int, body_model, clip_source=None) -> tuple[StaticScene, list[Pedestrian]]:
+    """The intersection and its pedestrians that :func:`simulate` draws for ``seed`` (the same random streams),
+    the moving cars retimed to keep ``scene.car_clearance_m`` from the pedestrians
+    (:func:`~pedx_graph.sim.scene.retime_moving_cars`); nothing is rendered or written.  ``body_model`` and
+    ``clip_source`` as in :func:`simulate` (the body model is needed: ``BodyModel.load(config.body_model)``)."""
+    scene_rng, ped_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(2))
+    scene = build_scene(config, scene_rng)
+    people = plan_pedestrians(config, scene, body_model, ped_rng, clip_source)
+    if people:
+        retime_moving_cars(scene, np.stack([person.world_pelvis_xy for person in people]),
+                           np.stack([person.present for person in people]), config.scene.fps,
+                           config.scene.car_clearance_m)
+    return scene, people
+
+
 def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0, body_model=None,
              clip_source=None, progress: bool = False, overwrite: bool = False, workers: int = 1) -> dict:
     """Simulate ``config.scene.n_frames`` frames into ``out_dir`` (layout in the module docstring).
@@ -447,9 +462,7 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         body_model = BodyModel.load(config.body_model)
     sc = config.scene
     seq = sc.sequence
-    scene_rng, ped_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(2))
-
-    scene = build_scene(config, scene_rng)
+    scene, people = plan_scene(config, seed, body_model, clip_source)
     output_T_sim = config.output_frame.output_T_sim()
     calibs: dict[str, StereoCalibration] = cameras.rig_calibrations(config)    # sim frame
     if config.detections.formats:              # raw distorted images for the detector files (K_0x, D_0x)
@@ -458,7 +471,6 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         calibs = raw_cameras(calibs, config.detections, seed)
     for calib in calibs.values():
         write_calibration(out, cameras.output_calibration(calib, output_T_sim))
-    people = plan_pedestrians(config, scene, body_model, ped_rng, clip_source)
     for person in people:
         person.object_id = scene.add_object("pedestrian", person.tracking_id)
     rest_vertices = body_model.forward(np.zeros(72), np.zeros(body_model.num_betas)).vertices
