@@ -1,4 +1,4 @@
-"""Helpers shared by the benchmark scripts: the command line as recorded, a hardware note, table cells."""
+"""Helpers shared by the benchmark scripts: the command line as recorded, a hardware note, table cells, seed lists."""
 from __future__ import annotations
 
 import math
@@ -35,3 +35,20 @@ def cell(value, spec: str = ".1f") -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
     return format(value, spec)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-8,17-21"`` -> [0, ..., 8, 17, ..., 21] (comma-separated seeds and inclusive ranges)."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        first, _, last = part.partition("-")
+        try:
+            seeds.extend(range(int(first), int(last or first) + 1))
+        except ValueError:
+            raise ValueError(f"--seeds: {part!r} is neither a seed nor a range like 17-21") from None
+    if not seeds:
+        raise ValueError(f"--seeds: no seed in {text!r}")
+    return seeds

@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import hardware, public_args  # noqa: E402
+from _common import hardware, parse_seeds, public_args  # noqa: E402
 from bench_detections import (FORMATS, RIGS, SHARED_CMU, _truth_frames, crossing_people,  # noqa: E402
                               labelled_instances, read_format, scene_clouds, scene_configs)
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
@@ -73,23 +73,6 @@ PLACEMENT_COUNTS = ("placed_frames", "misplaced_centres", "overconfident_centres
 REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "switches_in_review",
                  "switches_first_quarter", "switches_first_half", "switches_first_quarter_shortest",
                  "switches_first_half_shortest")
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``"0-8,17-21"`` -> [0, ..., 8, 17, ..., 21] (comma-separated seeds and inclusive ranges)."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        first, _, last = part.partition("-")
-        try:
-            seeds.extend(range(int(first), int(last or first) + 1))
-        except ValueError:
-            raise ValueError(f"--seeds: {part!r} is neither a seed nor a range like 17-21") from None
-    if not seeds:
-        raise ValueError(f"--seeds: no seed in {text!r}")
-    return seeds
 
 
 def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> list[dict]:

@@ -31,7 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _common import cell, hardware, public_args  # noqa: E402
+from _common import cell, hardware, parse_seeds, public_args  # noqa: E402
 from pedx_graph.body import BodyModel  # noqa: E402
 from pedx_graph.sim.config import SimConfig, pedx_rig_config  # noqa: E402
 from pedx_graph.sim.scene import car_gaps, retime_moving_cars  # noqa: E402
@@ -41,14 +41,6 @@ from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 #: A pelvis nearer a car's footprint than this has the car's body overlapping the walker's, metres.
 THROUGH_M = 0.3
 RIGS = {"default": SimConfig, "pedx": pedx_rig_config}
-
-
-def seed_range(text: str) -> list[int]:
-    """``"0-39"`` or ``"3,5,8"`` -> the seeds."""
-    if "-" in text and "," not in text:
-        lo, hi = (int(x) for x in text.split("-"))
-        return list(range(lo, hi + 1))
-    return [int(x) for x in text.split(",")]
 
 
 def scene_row(config: SimConfig, seed: int, body_model, clearances: list[float]) -> dict:
@@ -108,11 +100,11 @@ def markdown(result: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seeds", default="0-39", help="seeds: 'A-B' or a comma list")
+    parser.add_argument("--seeds", default="0-39", help="seeds and inclusive ranges, comma-separated")
     parser.add_argument("--clearances", default="0.3,1.0", help="comma list of car clearances, metres")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
-    seeds = seed_range(args.seeds)
+    seeds = parse_seeds(args.seeds)
     clearances = [float(x) for x in args.clearances.split(",")]
     t0 = time.perf_counter()
     body_model = BodyModel.load(SimConfig().body_model)
