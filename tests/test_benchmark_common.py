@@ -9,11 +9,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _common():
-    spec = importlib.util.spec_from_file_location("bench_common", ROOT / "benchmarks" / "_common.py")
+def _load(name: str, path: Path):
+    """The script at ``path`` imported as module ``name`` (benchmarks/ and tools/ are not packages)."""
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _common():
+    return _load("bench_common", ROOT / "benchmarks" / "_common.py")
 
 
 def test_the_hardware_note_names_the_cpu_and_the_numerical_libraries_a_result_depends_on():
@@ -46,10 +51,7 @@ def test_parse_seeds_reads_seeds_and_inclusive_ranges():
 
 
 def _rerun():
-    spec = importlib.util.spec_from_file_location("rerun_results", ROOT / "tools" / "rerun_results.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _load("rerun_results", ROOT / "tools" / "rerun_results.py")
 
 
 def test_every_recorded_command_can_be_run_again_where_its_result_lies():
