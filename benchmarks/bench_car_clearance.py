@@ -12,7 +12,7 @@ seed, the scene and its pedestrians are drawn exactly as ``simulate`` draws them
   from its pelvis): a car driving through a person;
 * per clearance of ``--clearances``: the share of scenes in which
   :func:`~pedx_graph.sim.scene.retime_moving_cars` shifts a car (every simulated file of such a scene
-  changes; the other scenes stay byte-identical), and the shifts' sizes.
+  changes; the other scenes' files stay byte-identical but for ``sim_config.yaml``), and the shifts' sizes.
 
     python benchmarks/bench_car_clearance.py [--seeds 0-39] [--clearances 0.3,1.0] [--out benchmarks/results]
 

@@ -81,10 +81,14 @@ class MovingCar:
     faces: np.ndarray
     """(F, 3) triangle indices."""
 
+    @property
+    def heading(self) -> np.ndarray:
+        """(2,) unit vector of the driving direction in world xy."""
+        return np.array([np.cos(self.yaw_rad), np.sin(self.yaw_rad)])
+
     def world_vertices(self, time_s: float, ground_z: float) -> np.ndarray:
         """(V, 3) world vertices at ``time_s`` seconds."""
-        heading = np.array([np.cos(self.yaw_rad), np.sin(self.yaw_rad)])
-        xy = self.start_xy + time_s * self.speed_mps * heading
+        xy = self.start_xy + time_s * self.speed_mps * self.heading
         return _place(self.car_vertices, xy, self.yaw_rad, ground_z)
 
 
@@ -311,7 +315,7 @@ def car_gaps(car: MovingCar, pelvis_xy: np.ndarray, fps: float, shift_s: float =
     """(P, F) horizontal distance from each pelvis ``pelvis_xy`` (P, F, 2, world xy at the frames, times
     ``k / fps``) to ``car``'s footprint (the car mesh's extent in its own frame, a rectangle) at that frame,
     with the car's drive shifted by ``shift_s`` seconds; 0 inside the footprint, metres."""
-    heading = np.array([np.cos(car.yaw_rad), np.sin(car.yaw_rad)])
+    heading = car.heading
     left = np.array([-heading[1], heading[0]])
     lo, hi = car.car_vertices[:, :2].min(axis=0), car.car_vertices[:, :2].max(axis=0)
     rel = np.asarray(pelvis_xy, dtype=float) - car.start_xy
@@ -350,8 +354,7 @@ def retime_moving_cars(scene: StaticScene, pelvis_xy: np.ndarray, present: np.nd
             steps = np.arange(1, int(round(max_shift_s * fps)) + 1) / float(fps)
             candidates = [s for step in steps for s in (-step, step)]
             chosen = next((s for s in candidates if clear(s)), candidates[-1] if candidates else 0.0)
-            car.start_xy = car.start_xy + chosen * car.speed_mps * np.array([np.cos(car.yaw_rad),
-                                                                            np.sin(car.yaw_rad)])
+            car.start_xy = car.start_xy + chosen * car.speed_mps * car.heading
         shifts.append(float(chosen))
     return shifts
 
