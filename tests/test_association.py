@@ -2037,3 +2037,36 @@ def test_a_stretch_of_one_pairs_track_on_the_walker_alongside_moves_to_that_walk
     assert move_to_neighbours(people, pair_of, track_of, ground, AssociationConfig(), calibs) == 0
     people, pair_of, track_of, calibs = _side_by_side_people(set(range(9, 15)), lambda k: k < 9, lambda k: k < 9)
     assert move_to_neighbours(people, pair_of, track_of, ground, AssociationConfig(), calibs) == 0
+
+
+def _one_image(obs: Observation, side: str = "left") -> Observation:
+    """``obs`` as seen in the ``side`` image only (no disparity, no centre)."""
+    return Observation(frame=obs.frame, uv={side: obs.uv[side]}, score=obs.score, payload={side: obs.payload[side]})
+
+
+def test_a_one_image_track_end_another_track_explains_as_well_is_left_out():
+    """Two people of one height crossing at 20 and 22 m in opposite directions, in one image column at frame
+    10.  The near one's track ends at frame 9; its tracker carried it on to frame 10 with the far one's
+    detection in the left image only (no depth), where the far one's own track holds only the right image's.
+    The far one's walk (smaller in the image) explains that detection at least as well as the near one's:
+    it is left out.  The near one's own left detection there is kept (its walk explains it better), and so
+    is the far one's when the far track holds its own left detection at frame 10 (no rival lacks it)."""
+    from pedx_graph.detections.association import drop_ambiguous_ends
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    kept_own = left_out = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        near = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
+        far = _walker_of_height(calib, (22.0, 1.4 * 22.0 / 20.0), (0.0, -0.14 * 22.0 / 20.0), range(20), rng, 1.0)
+        far_track = [_one_image(far[10], "right")] + far[11:]
+        out = drop_ambiguous_ends([near[:10] + [_one_image(far[10])], far_track], calib, AssociationConfig())
+        left_out += [[id(o) for o in t] for t in out] == [[id(o) for o in near[:10]], [id(o) for o in far_track]]
+        tail = _one_image(near[10])
+        out = drop_ambiguous_ends([near[:10] + [tail], far_track], calib, AssociationConfig())
+        kept_own += [[id(o) for o in t] for t in out] == [[id(o) for o in near[:10] + [tail]],
+                                                           [id(o) for o in far_track]]
+        held = drop_ambiguous_ends([near[:10] + [_one_image(far[10])], far[10:]], calib, AssociationConfig())
+        assert [len(t) for t in held] == [11, 10]
+    assert left_out >= 9 and kept_own >= 9

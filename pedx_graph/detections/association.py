@@ -108,10 +108,14 @@ Steps:
    better (a tracker carrying each on with the other while they were missed in turns); after it, a
    detection whose image height is off its track's walk and on the walk of another track near it in that
    image is dropped, with its frame unless the frame is unpaired and seen in the other image too
-   (:func:`drop_other_heights`).  Before that, a person
-   the pair lost and found again (hidden, or missed in both images, for up to ``stitch_max_gap_frames``) is
-   made one track when one straight walk explains both pieces, each with its stereo depths
-   (:func:`stitch_tracks`).  A person with fewer than
+   (:func:`drop_other_heights`).  Last, a frame seen in one image only at a track's end (before its first
+   frame seen in both images or after its last), without a centre, is left out where another of the pair's
+   tracks, spanning it and without a detection in that image there, explains it by its walk in that image
+   at least as well as the track's own walk does (:func:`drop_ambiguous_ends`: one image cannot tell two
+   people on one ray apart, and a tracklet born from one detection has no velocity yet).  Before that, a
+   person the pair lost and found again (hidden, or missed in both images, for up to
+   ``stitch_max_gap_frames``) is made one track when one straight walk explains both pieces, each with its
+   stereo depths (:func:`stitch_tracks`).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
    flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
@@ -1369,7 +1373,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
     out = drop_other_heights(repair_swaps(split_reversals(out, calib, config), calib, config), calib, config)
     if clouds is not None and config.lidar_identity:
         settle_centres(out, calib, config)
-    return out
+    return drop_ambiguous_ends(out, calib, config)
 
 
 def _stereo_centre(obs: Observation, calib: StereoCalibration, ground: GroundFrame,
@@ -1912,6 +1916,68 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
                 keep = [side for side in obs.uv if side not in off]
                 kept.append(dataclasses.replace(obs, uv={side: obs.uv[side] for side in keep},
                                                 payload={side: obs.payload[side] for side in keep}))
+        if kept:
+            out.append(kept)
+    return out
+
+
+def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibration,
+                        config: AssociationConfig) -> list[list[Observation]]:
+    """Leave out of one pair's final tracks the one-image frames at their ends that another track explains
+    as well.
+
+    Before a track's first frame seen in both images and after its last, a frame seen in one image only has
+    no depth of its own where the LiDAR gave it no centre: two people on one ray of that image cannot be
+    told apart by it, and the per-camera tracker may have begun the track with the other person or carried
+    it on to them (a tracklet born from one detection has no velocity yet).  Such a frame, without a centre,
+    is left out when another of the pair's tracks spans it (its first and last frames within 2 of it), has
+    no detection of its own in that image there, and its straight walk in that image (:func:`_walk_misfits`:
+    column and image height, fitted as :func:`repair_swaps` fits them) explains the frame's detection at
+    least as well as the track's own walk without that frame.  Not moved: the two explain it alike.  A
+    track with no frame seen in both images is judged as a whole elsewhere (its frames are its own evidence).
+    Each frame is judged against the tracks as they come in.  A track left empty is removed.  Returns the
+    tracks."""
+    gate = config.gate_sigmas
+    spans = [(min(o.frame for o in t), max(o.frame for o in t)) if t else (0, -1) for t in tracks]
+    held = [{(o.frame, side) for o in t for side in o.uv} for t in tracks]
+    walks: dict[tuple[int, str], tuple | None] = {}
+
+    def walk(k: int, side: str, left_out: Observation | None = None) -> tuple | None:
+        """Track ``k``'s walk in ``side`` as ``(series, rate)``, without ``left_out``; None below 3 frames."""
+        key = (k, side)
+        if left_out is None and key in walks:
+            return walks[key]
+        rest = [o for o in tracks[k] if o is not left_out]
+        seen = _image_track(rest, calib, config, side) if len(rest) >= 3 else None
+        found = None if seen is None or len(seen[0]) < 3 else (seen, _track_walk(seen, calib, config)[1])
+        if left_out is None:
+            walks[key] = found
+        return found
+
+    def misfit(found: tuple, obs: Observation, side: str) -> float | None:
+        mine = _image_track([obs], calib, config, side)
+        if not len(mine[0]):
+            return None
+        seen, rate = found
+        return float(_walk_misfits(seen[:7], rate, gate, [mine[:7]])[0][0])
+
+    out = []
+    for k, track in enumerate(tracks):
+        both = [o.frame for o in track if len(o.uv) == 2]
+        kept = []
+        for obs in track:
+            if not both or len(obs.uv) != 1 or obs.world_p is not None or min(both) < obs.frame < max(both):
+                kept.append(obs)
+                continue
+            side = next(iter(obs.uv))
+            own = walk(k, side, obs)
+            own_misfit = misfit(own, obs, side) if own is not None else None
+            rivals = [j for j in range(len(tracks)) if j != k and spans[j][0] - 2 <= obs.frame <= spans[j][1] + 2
+                      and (obs.frame, side) not in held[j]]
+            other = [m for j in rivals for found in [walk(j, side)] if found is not None
+                     for m in [misfit(found, obs, side)] if m is not None]
+            if own_misfit is None or not other or min(other) > own_misfit:
+                kept.append(obs)
         if kept:
             out.append(kept)
     return out
