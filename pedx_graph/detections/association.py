@@ -1930,12 +1930,12 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
     no depth of its own where the LiDAR gave it no centre: two people on one ray of that image cannot be
     told apart by it, and the per-camera tracker may have begun the track with the other person or carried
     it on to them (a tracklet born from one detection has no velocity yet).  Such a frame, without a centre,
-    is left out when another of the pair's tracks spans it (its first and last frames within 2 of it), has
-    no detection of its own in that image there, and its straight walk in that image (:func:`_walk_misfits`:
-    column and image height, fitted as :func:`repair_swaps` fits them) explains the frame's detection at
-    least as well as the track's own walk without that frame.  Not moved: the two explain it alike.  A
-    track with no frame seen in both images is judged as a whole elsewhere (its frames are its own evidence).
-    Each frame is judged against the tracks as they come in.  A track left empty is removed.  Returns the
+    is left out when another of the pair's tracks spans it give or take 2 frames (its first frame at most 2
+    after it, its last at most 2 before), has no detection of its own in that image there, and its straight
+    walk in that image (:func:`_walk_misfits`: column and image height, fitted as :func:`repair_swaps` fits
+    them) explains the frame's detection at least as well as the track's own walk without that frame.  Not
+    moved: the two explain it alike.  A track with no frame seen in both images is left as it is (it has no
+    ends to tell from its middle).  Each frame is judged against the tracks as they come in.  A track left empty is removed.  Returns the
     tracks."""
     gate = config.gate_sigmas
     spans = [(min(o.frame for o in t), max(o.frame for o in t)) if t else (0, -1) for t in tracks]

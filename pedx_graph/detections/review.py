@@ -39,7 +39,7 @@ from pedx_graph.data.ground import GroundFrame
 @dataclass
 class ReviewConfig:
     """When two tracks count as close (module docstring).  Defaults: on ``benchmarks/bench_association.py``'s
-    inputs (crossings and walking groups) the stretches hold 14 of the 16 identity switches and flag 31 % of
+    inputs (crossings and walking groups) the stretches hold 12 of the 14 identity switches and flag 31 % of
     the track frames; wider tests flag more for little more (docs/detections.md, "Where to check who is
     who")."""
 
