@@ -1954,10 +1954,8 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
             walks[key] = found
         return found
 
-    def misfit(found: tuple, obs: Observation, side: str) -> float | None:
-        mine = _image_track([obs], calib, config, side)
-        if not len(mine[0]):
-            return None
+    def misfit(found: tuple, mine: tuple) -> float:
+        """The frame's misfit (``mine``: its :func:`_image_track` series) against the walk ``found``."""
         seen, rate = found
         return float(_walk_misfits(seen[:7], rate, gate, [mine[:7]])[0][0])
 
@@ -1970,13 +1968,16 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
                 kept.append(obs)
                 continue
             side = next(iter(obs.uv))
+            mine = _image_track([obs], calib, config, side)
             own = walk(k, side, obs)
-            own_misfit = misfit(own, obs, side) if own is not None else None
+            if not len(mine[0]) or own is None:
+                kept.append(obs)
+                continue
+            own_misfit = misfit(own, mine)
             rivals = [j for j in range(len(tracks)) if j != k and spans[j][0] - 2 <= obs.frame <= spans[j][1] + 2
                       and (obs.frame, side) not in held[j]]
-            other = [m for j in rivals for found in [walk(j, side)] if found is not None
-                     for m in [misfit(found, obs, side)] if m is not None]
-            if own_misfit is None or not other or min(other) > own_misfit:
+            other = [misfit(found, mine) for j in rivals for found in [walk(j, side)] if found is not None]
+            if not other or min(other) > own_misfit:
                 kept.append(obs)
         if kept:
             out.append(kept)
