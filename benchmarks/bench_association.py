@@ -57,7 +57,7 @@ from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, placement_counts,  # noqa: E402
                                             read_detection_truth, score_tracks)
-from pedx_graph.detections.review import review_summary  # noqa: E402
+from pedx_graph.detections.review import review_summary, untracked_detections  # noqa: E402
 from pedx_graph.keypoints import load_keypoint_set  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
@@ -101,7 +101,8 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> 
                 rows.append({"seed": seed, "scene": name, "format": fmt, "detections": len(detections),
                              "associate_seconds": seconds, **{k: score[k] for k in COUNTS},
                              **placement_counts(tracks, records, centres, ground),
-                             **review_counts(tracks, ground, score["switches"])})
+                             **review_counts(tracks, ground, score["switches"],
+                                                untracked_detections(detections, tracks))})
     return rows
 
 
@@ -114,11 +115,12 @@ def true_centres(scene: Path, frames: list[int]) -> dict[tuple[str, int], np.nda
             for frame, people in _truth_frames(scene, frames).items() for tid, keypoints, _ in people}
 
 
-def review_counts(tracks: list, ground, switches: list[tuple]) -> dict:
-    """The import's identity review (:func:`pedx_graph.detections.review.review_stretches`, default config)
-    against the truth: its stretches, the track frames they flag of all, and the identity switches
-    (``(track, frame, from, to)`` of :func:`score_tracks`) whose frame lies in a stretch naming their track."""
-    review = review_summary(tracks, ground)
+def review_counts(tracks: list, ground, switches: list[tuple], untracked: list | None = None) -> dict:
+    """The import's identity review (:func:`pedx_graph.detections.review.review_stretches`, default config,
+    with ``untracked``, the detections no track holds, as the import passes them) against the truth: its
+    stretches, the track frames they flag of all, and the identity switches (``(track, frame, from, to)`` of
+    :func:`score_tracks`) whose frame lies in a stretch naming their track."""
+    review = review_summary(tracks, ground, untracked=untracked)
     stretches = review["stretches"]
     inside = sum(1 for tid, frame, _, _ in switches if any(
         tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"] for s in stretches))

@@ -1,9 +1,10 @@
 """The import's identity review: stretches where two tracks came close in an image or on the ground, none elsewhere."""
 import numpy as np
 
+from pedx_graph.data.types import UNTRACKED
 from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
-from pedx_graph.detections.review import (ReviewConfig, check_order, close_frames, flagged_frames,
-                                         review_stretches, review_summary)
+from pedx_graph.detections.review import (ReviewConfig, check_order, close_detections, close_frames,
+                                         flagged_frames, review_stretches, review_summary, untracked_detections)
 from pedx_graph.detections.types import Detection
 
 
@@ -105,12 +106,16 @@ def test_the_review_reaches_the_fit_record_and_the_results_table(tmp_path, caplo
     a, b = sorted(t.tracking_id for t in tracks)[:2]
     first = min(fr.frame for t in tracks for fr in t.frames)
     stretches = [{"tracks": [a, b], "first_frame": first, "last_frame": first + 1, "close_frames": [first]},
-                 {"tracks": [a, b], "first_frame": first + 100, "last_frame": first + 101, "close_frames": []}]
+                 {"tracks": [a, b], "first_frame": first + 100, "last_frame": first + 101, "close_frames": []},
+                 {"tracks": [b], "first_frame": first + 200, "last_frame": first + 202, "close_frames": [first + 201],
+                  "untracked": [{"camera": "camL", "frame": first + 201, "source": "x.json#people[1]"}]}]
     summary = {"sequences": {seq: {"identity_review": {"stretches": stretches}}}}
     (root / "import_summary.json").write_text(json.dumps(summary))
     by_id = {t.tracking_id: t for t in read_dataset(root)}
     assert by_id[b].identity_review == [{"other": a, "first_frame": first, "last_frame": first + 1},
-                                        {"other": a, "first_frame": first + 100, "last_frame": first + 101}]
+                                        {"other": a, "first_frame": first + 100, "last_frame": first + 101},
+                                        {"other": UNTRACKED, "first_frame": first + 200, "last_frame": first + 202}]
+    assert len(by_id[a].identity_review) == 2                               # a one-track stretch names b only
     config = FitConfig()
     config.covariances = config.diagnostics = False
     record = fit_task(by_id[a], (config, "lm")).records[0]
@@ -150,3 +155,50 @@ def test_stretches_where_a_track_missed_its_person_are_checked_first():
     even = [{"frames_held": 9, "frames_missed": 0}, {"frames_held": 4, "frames_missed": 0},
             {"frames_held": 6, "frames_missed": 2}]
     assert check_order(even) == [2, 1, 0]
+
+
+def _loose(u: float, frame: int, height: float = 200.0, source: str = "loose", camera: str = "camL") -> Detection:
+    """A detection no track holds: a standing person at column ``u``."""
+    return Detection(camera=camera, frame=frame, keypoint_set="coco17", image_uv=_person(u, height),
+                     confidence=np.full(17, 0.7), score=0.7, source=f"{source}#{frame}")
+
+
+def test_a_detection_no_track_holds_beside_a_track_flags_that_track_alone():
+    """Track ``a`` walks right in one image.  At frame 7 a detection of someone its size stands a tenth of a
+    height beside it and no track holds it (the association kept one of two people on one ray): a stretch
+    naming ``a`` alone lists it, frames 6-8 (compared at one frame).  Detections no track holds that are far off
+    in the image, twice as tall, or in another camera flag nothing; with ``ReviewConfig.untracked`` off,
+    nothing either.  Compared one frame apart as well (the default), ``a``'s frames 6 and 8 are close to it
+    too (a at 560 and 580 px)."""
+    a = _track("a", {f: 500.0 + 10.0 * f for f in range(12)})
+    b = _track("b", {f: 2500.0 for f in range(12)})
+    beside = _loose(570.0 + 20.0, 7, source="beside")
+    loose = [beside, _loose(1500.0, 7, source="far"), _loose(580.0, 3, height=400.0, source="tall"),
+             _loose(560.0, 6, source="other_camera", camera="camR")]
+    same_frame = ReviewConfig(frame_step=0)
+    pairs, lone = close_detections([a, b], config=same_frame, untracked=loose)
+    assert pairs == {} and lone == {"a": {7: [beside]}}
+    assert review_stretches([a, b], config=same_frame, untracked=loose) == [
+        {"tracks": ["a"], "first_frame": 6, "last_frame": 8, "close_frames": [7], "frames_held": 3,
+         "frames_missed": 0, "untracked": [{"camera": "camL", "frame": 7, "source": "beside#7"}]}]
+    assert review_stretches([a, b], config=ReviewConfig(frame_step=0, untracked=False), untracked=loose) == []
+    assert review_stretches([a, b], config=same_frame) == []
+    _, lone = close_detections([a, b], untracked=loose)
+    assert lone == {"a": {6: [beside], 7: [beside], 8: [beside]}}
+    stretch, = review_stretches([a, b], untracked=loose)
+    assert (stretch["first_frame"], stretch["last_frame"], stretch["untracked"]) == \
+        (5, 9, [{"camera": "camL", "frame": 7, "source": "beside#7"}])
+
+
+def test_untracked_detections_are_those_no_track_holds_joined_parts_included():
+    """A track's detection joined from an upper and a lower part holds both parts' sources; the detections left
+    are those of no track, in their order."""
+    a = _track("a", {0: 500.0, 1: 510.0})
+    joined = a.frames[1].detections["camL"]
+    a.frames[1].detections["camL"] = Detection(camera="camL", frame=1, keypoint_set="coco17",
+                                               image_uv=joined.image_uv, confidence=joined.confidence, score=0.8,
+                                               source="up#1 + low#1")
+    read = [a.frames[0].detections["camL"], _loose(900.0, 0, source="x"), _loose(510.0, 1, source="up"),
+            _loose(510.0, 1, source="low"), _loose(510.0, 1, source="a"), _loose(510.0, 1, camera="camR",
+                                                                                source="up")]
+    assert [d.source for d in untracked_detections(read, [a])] == ["x#0", "a#1", "up#1"]

@@ -9,8 +9,8 @@ import pytest
 
 from pedx_graph.cli import main
 from pedx_graph.detections.openpose import read_openpose
-from pedx_graph.detections.review_sheets import (BLANK_GREY, TRACK_COLOURS, index_images, review_sheet,
-                                                 write_review_sheets)
+from pedx_graph.detections.review_sheets import (BLANK_GREY, TRACK_COLOURS, UNTRACKED_COLOUR, index_images,
+                                                 review_sheet, write_review_sheets)
 from pedx_graph.detections.types import Detection
 from pedx_graph.keypoints import keypoint_set_names, limb_edges, load_keypoint_set
 from scene_fixtures import small_scene
@@ -72,6 +72,33 @@ def test_a_sheet_draws_both_tracks_on_their_images_and_grey_where_an_image_is_mi
     assert len(columns) and columns.min() > sheet.shape[1] * 0.6
     index = write_review_sheets([], [stretch], images, tmp_path / "out")      # no tracks: nothing to draw
     assert index[0]["sheet"] is None and not (tmp_path / "out").exists()
+
+
+def test_a_one_track_stretch_draws_the_detections_no_track_holds_it_lists(tmp_path):
+    """A stretch naming one track and a detection no track holds (``untracked``): the sheet draws the track in
+    its colour and the listed detection in green; one not listed is not drawn; the file is named
+    ``<n>_<track>_untracked_<first>-<last>.jpg``."""
+    from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+
+    own = {f: detection("camA", f, 400 + 10 * f, None) for f in (3, 4, 5)}
+    loose = detection("camA", 4, 470, None)
+    loose.source = "loose#4"
+    unlisted = detection("camA", 5, 1500, None)
+    unlisted.source = "unlisted#5"
+    stretch = {"tracks": ["det000001"], "first_frame": 3, "last_frame": 5, "close_frames": [4],
+               "untracked": [{"camera": "camA", "frame": 4, "source": "loose#4"}]}
+    tracks = {"det000001": {f: {"camA": det} for f, det in own.items()}}
+    lookup = {(d.camera, d.frame, d.source): d for d in (loose, unlisted)}
+    sheet, held = review_sheet(tracks, stretch, {}, cell_height_px=200, untracked=lookup)
+    colours = {tuple(int(c) for c in px) for px in sheet.reshape(-1, 3)}
+    assert TRACK_COLOURS[0] in colours and UNTRACKED_COLOUR in colours and TRACK_COLOURS[1] not in colours
+    assert held["frames"] == [3, 4, 5] and held["cameras"] == ["camA"]
+    without = review_sheet(tracks, stretch, {}, cell_height_px=200)[0]        # nothing to look it up in
+    assert UNTRACKED_COLOUR not in {tuple(int(c) for c in px) for px in without.reshape(-1, 3)}
+    track = DetectedTrack("det000001", [DetectedTrackFrame(f, {"camA": det}) for f, det in own.items()], ("camA-camB",))
+    index = write_review_sheets([track], [stretch], {}, tmp_path / "out", untracked=[loose, unlisted])
+    assert index[0]["sheet"] == "1_det000001_untracked_3-5.jpg" and index[0]["tracks"] == ["det000001"]
+    assert (tmp_path / "out" / index[0]["sheet"]).is_file()
 
 
 def test_import_draws_each_review_stretch_and_refuses_a_missing_images_folder(tmp_path, capsys):

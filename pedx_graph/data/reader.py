@@ -41,7 +41,7 @@ from pedx_graph.data.ground import GroundConfig, GroundFrame, estimate_ground
 from pedx_graph.data.labels2d import Label2D, iter_label2d_files, read_label2d, screen_label
 from pedx_graph.data.ply import pointcloud_path, read_ply_points, segment_path
 from pedx_graph.data.smpl_labels import N_BETAS, parse_smpl_label_name, read_smpl_label
-from pedx_graph.data.types import DataFormatError, SmplLabel, StereoCalibration, Track, TrackFrame
+from pedx_graph.data.types import UNTRACKED, DataFormatError, SmplLabel, StereoCalibration, Track, TrackFrame
 
 logger = logging.getLogger(__name__)
 
@@ -391,7 +391,8 @@ def iter_tracks(root: str | os.PathLike, sequences: Iterable[str] | None = None,
 def identity_review(root: str | os.PathLike, sequence: str) -> dict[str, list[dict]]:
     """Track id -> the stretches ``pedx-graph import`` listed for it in ``<root>/import_summary.json``
     (``sequences.<seq>.identity_review.stretches``, :mod:`pedx_graph.detections.review`), each as
-    ``{"other", "first_frame", "last_frame"}``; empty without the file (hand labels).  A malformed file or
+    ``{"other", "first_frame", "last_frame"}`` (``other``: :data:`~pedx_graph.data.types.UNTRACKED` for a
+    stretch naming one track); empty without the file (hand labels).  A malformed file or
     entry logs a warning naming the file and field and gives no review (the labels are read all the same)."""
     path = Path(root) / "import_summary.json"
     if not path.is_file():
@@ -404,8 +405,14 @@ def identity_review(root: str | os.PathLike, sequence: str) -> dict[str, list[di
         stretches = [] if record is None else record.get("identity_review", {}).get("stretches", [])
         out: dict[str, list[dict]] = defaultdict(list)
         for stretch in stretches:
-            a, b = (str(t) for t in stretch["tracks"])
+            names = [str(t) for t in stretch["tracks"]]
+            if len(names) not in (1, 2):
+                raise ValueError(f"{len(names)} tracks in a stretch")
             first, last = int(stretch["first_frame"]), int(stretch["last_frame"])
+            if len(names) == 1:             # close to detections no track holds
+                out[names[0]].append({"other": UNTRACKED, "first_frame": first, "last_frame": last})
+                continue
+            a, b = names
             for tid, other in ((a, b), (b, a)):
                 out[tid].append({"other": other, "first_frame": first, "last_frame": last})
     except DataFormatError as exc:

@@ -235,6 +235,11 @@ class TrackFrame:
         return out
 
 
+#: :attr:`Track.identity_review`'s ``other`` for a stretch where the track came close to detections no track
+#: holds (:mod:`pedx_graph.detections.review`).
+UNTRACKED = "untracked"
+
+
 @dataclass
 class Track:
     """One pedestrian (one ``tracking_id``) over a sequence: frames sorted by frame number."""
@@ -252,7 +257,8 @@ class Track:
     calibration and point clouds); None here = derived from ``calibrations`` alone on construction."""
     identity_review: list[dict] = field(default_factory=list)
     """Stretches of frames where ``pedx-graph import`` found this track close to another, so that who is who
-    is worth a check there: ``{"other": track id, "first_frame", "last_frame"}`` (from the dataset's
+    is worth a check there: ``{"other": track id, "first_frame", "last_frame"}``, ``other`` being
+    :data:`UNTRACKED` where it was close to detections no track holds (from the dataset's
     ``import_summary.json``, :mod:`pedx_graph.detections.review`); empty for hand labels."""
 
     def __post_init__(self) -> None:

@@ -39,7 +39,7 @@ from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
-from pedx_graph.detections.review import ReviewConfig, review_summary
+from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.utils import atomic_write_json
@@ -80,8 +80,8 @@ class ImportConfig:
     association and the segments read each frame's cloud many times; 0 = one frame at a time)."""
     review: ReviewConfig = field(default_factory=ReviewConfig)
     """Which stretches of frames ``import_summary.json`` lists for a second look at who is who
-    (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground,
-    :mod:`pedx_graph.detections.review`)."""
+    (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground, or a track beside a
+    detection no track holds, :mod:`pedx_graph.detections.review`)."""
     write_images: bool = True
     """Given the raw images the detections were made on (``raw_images``): write them rectified into the
     dataset's ``images/`` (:mod:`pedx_graph.detections.rectified_images`), so ``pedx-graph export`` draws its
@@ -268,14 +268,15 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                                     config.association.tracker.frame_interval_s)
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
-    review = review_summary(tracks, ground, config.review)
+    untracked = untracked_detections(known, tracks)
+    review = review_summary(tracks, ground, config.review, untracked)
     sheets = written_images = None
     if images is not None:
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
         stems = image_stems(known)
         sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
                   "sheets": write_review_sheets(tracks, review["stretches"], images, out / "review" / seq,
-                                                stems, review["check_order"])}
+                                                stems, review["check_order"], untracked=untracked)}
         if config.write_images:
             from pedx_graph.detections.rectified_images import write_rectified_images
             written_images = write_rectified_images(out, seq, stems, images, calibrations, workers)

@@ -8,7 +8,9 @@ widened by ``pad_frac`` of its size — so that who walks where reads left to ri
 drawn as the detector wrote it (raw-image pixels, no rectification: what the image shows): its keypoints,
 its limbs (:func:`pedx_graph.keypoints.limb_edges`; the person's left side in the track's colour, the right
 side in a darker shade, so a left/right swap shows too) and its id.  The first track of the stretch is
-orange, the second blue; the other tracks are not drawn.
+orange, the second blue; the other tracks are not drawn.  A stretch of one track close to detections no track
+holds draws those detections in green, labelled ``untracked`` (a true duplicate of the track's person, or
+the other of two people on one ray whom the association left out).
 
 Images are found by the stem of the image each detection was made on (:attr:`Detection.image`: an OpenPose
 file's name, a COCO image's ``file_name``) among the files of a folder (searched recursively,
@@ -25,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pedx_graph.data.types import UNTRACKED
 from pedx_graph.detections.naming import strip_name
 from pedx_graph.keypoints import limb_edges
 from pedx_graph.utils import atomic_write_bytes, encode_image
@@ -33,6 +36,8 @@ from pedx_graph.utils import atomic_write_bytes, encode_image
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png")
 #: Colours (BGR) of the stretch's first and second track; the right side of each body in ``RIGHT_SHADE`` of it.
 TRACK_COLOURS = ((0, 140, 255), (255, 160, 0))
+#: Colour (BGR) of a detection no track holds, drawn on a stretch that lists it.
+UNTRACKED_COLOUR = (60, 200, 60)
 RIGHT_SHADE = 0.55
 #: Grey of a cell without its image.
 BLANK_GREY = 96
@@ -116,7 +121,8 @@ def image_stems(detections: list) -> dict[tuple[str, int], str]:
 
 def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frames: int = 10,
                  cell_height_px: int = 240, pad_frac: float = 0.15,
-                 stems: dict[tuple[str, int], str] | None = None) -> tuple[np.ndarray, dict] | None:
+                 stems: dict[tuple[str, int], str] | None = None,
+                 untracked: dict | None = None) -> tuple[np.ndarray, dict] | None:
     """The sheet of one stretch (module docstring) as a BGR image, and what it holds (``frames``, ``cameras``,
     ``cells``, ``cells_with_image`` and the ``[camera, frame]`` of the others, ``without_image``); None when
     neither track has a detection in it.  A cell is ``cell_height_px`` high, or less where its crop is more
@@ -124,18 +130,29 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
     camera -> :class:`~pedx_graph.detections.types.Detection`; ``stretch``: one of
     :func:`~pedx_graph.detections.review.review_stretches`; ``images``: :func:`index_images`; ``stems``:
     :func:`image_stems` of every detection read (a cell where neither track was detected finds its image
-    by another person's detection there; without, by the two tracks' only)."""
+    by another person's detection there; without, by the two tracks' only); ``untracked``: ``(camera, frame,
+    source)`` -> :class:`~pedx_graph.detections.types.Detection` of the detections no track holds, for the
+    ones the stretch lists (``"untracked"``; left out without it)."""
     import cv2
 
     names = list(stretch["tracks"])
     first, last = int(stretch["first_frame"]), int(stretch["last_frame"])
-    held = sorted({f for tid in names for f in tracks.get(tid, {}) if first <= f <= last})
+    lone: dict[int, dict[str, list]] = defaultdict(lambda: defaultdict(list))   # frame -> camera -> untracked
+    for entry in stretch.get("untracked", []):
+        det = (untracked or {}).get((entry["camera"], int(entry["frame"]), entry["source"]))
+        if det is not None:
+            lone[det.frame][det.camera].append(det)
+    held = sorted({f for tid in names for f in tracks.get(tid, {}) if first <= f <= last}
+                  | {f for f in lone if first <= f <= last})
     frames = _chosen_frames(held, max_frames)
     by_camera: dict[str, list] = defaultdict(list)
     for tid in names:
         for frame in frames:
             for camera, det in tracks.get(tid, {}).get(frame, {}).items():
                 by_camera[camera].append(det)
+    for frame in frames:
+        for camera, dets in lone.get(frame, {}).items():
+            by_camera[camera].extend(dets)
     if not by_camera:
         return None
     cameras = sorted(by_camera)
@@ -148,7 +165,8 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
     row_px = cell_height_px + CAPTION_PX
     sheet = np.full((TITLE_PX + row_px * len(cameras), LABEL_PX + column_px * len(frames), 3), 255, dtype=np.uint8)
     font = cv2.FONT_HERSHEY_SIMPLEX
-    title = f"tracks {names[0]} (orange) and {names[-1]} (blue), frames {first}-{last}"
+    title = (f"tracks {names[0]} (orange) and {names[-1]} (blue), frames {first}-{last}" if len(names) > 1 else
+             f"track {names[0]} (orange) and detections no track holds (green), frames {first}-{last}")
     cv2.putText(sheet, title, (8, 20), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     found = cells = 0
     missing = []
@@ -161,13 +179,17 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
             cv2.putText(sheet, f"frame {frame}", (x + 4, y + 13), font, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
             dets = [(k, tracks.get(tid, {}).get(frame, {}).get(camera)) for k, tid in enumerate(names)]
             dets = [(k, det) for k, det in dets if det is not None]
-            stem = next((det.image for _, det in dets if det.image), None) or (stems or {}).get((camera, frame))
+            extra = lone.get(frame, {}).get(camera, [])
+            stem = next((det.image for det in [d for _, d in dets] + extra if det.image), None) \
+                or (stems or {}).get((camera, frame))
             image = cv2.imread(str(images[stem]), cv2.IMREAD_COLOR) if stem in images else None
             cells += 1
             found += image is not None
             if image is None:
                 missing.append([camera, frame])
             cell = cv2.resize(_cut(image, box), size, interpolation=cv2.INTER_AREA)
+            for det in extra:
+                _draw_detection(cell, det, np.array(box[:2], dtype=float), scale, UNTRACKED_COLOUR, UNTRACKED)
             for k, det in dets:
                 _draw_detection(cell, det, np.array(box[:2], dtype=float), scale, TRACK_COLOURS[k % 2], names[k])
             sheet[y + CAPTION_PX:y + CAPTION_PX + size[1], x:x + size[0]] = cell
@@ -177,25 +199,30 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
 
 def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, Path], out: str | os.PathLike,
                         stems: dict[tuple[str, int], str] | None = None, order: list[int] | None = None,
-                        max_frames: int = 10, cell_height_px: int = 240) -> list[dict]:
-    """One JPEG per stretch under ``out`` (``<n>_<a>_<b>_<first>-<last>.jpg``, ``n`` its place in ``order``,
-    :func:`~pedx_graph.detections.review.check_order`, from 1: the files sort in the order to check them;
-    written atomically); returns the index: per stretch (in the list's order) its place, tracks, frames, the
-    sheet's file name (None when nothing was drawn) and how many of its cells had their image.  ``tracks``:
-    :class:`~pedx_graph.detections.association.DetectedTrack`; ``stems``: :func:`image_stems`."""
+                        max_frames: int = 10, cell_height_px: int = 240, untracked: list | None = None) -> list[dict]:
+    """One JPEG per stretch under ``out`` (``<n>_<a>_<b>_<first>-<last>.jpg``, ``<n>_<a>_untracked_...`` for a
+    stretch of one track, ``n`` its place in ``order``, :func:`~pedx_graph.detections.review.check_order`,
+    from 1: the files sort in the order to check them; written atomically); returns the index: per stretch
+    (in the list's order) its place, tracks, frames, the sheet's file name (None when nothing was drawn) and
+    how many of its cells had their image.  ``tracks``:
+    :class:`~pedx_graph.detections.association.DetectedTrack`; ``stems``: :func:`image_stems`; ``untracked``:
+    the detections no track holds (:func:`~pedx_graph.detections.review.untracked_detections`), drawn where a
+    stretch lists them."""
     by_id = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
+    loose = {(det.camera, det.frame, det.source): det for det in untracked or []}
     out = Path(out)
     place = {i: n for n, i in enumerate(order if order is not None else range(len(stretches)), start=1)}
     width = len(str(len(stretches)))
     index = []
     for k, stretch in enumerate(stretches):
-        drawn = review_sheet(by_id, stretch, images, max_frames, cell_height_px, stems=stems)
-        a, b = stretch["tracks"]
-        entry = {"check": place[k], "tracks": [a, b], "first_frame": stretch["first_frame"],
+        drawn = review_sheet(by_id, stretch, images, max_frames, cell_height_px, stems=stems, untracked=loose)
+        names = list(stretch["tracks"])
+        entry = {"check": place[k], "tracks": names, "first_frame": stretch["first_frame"],
                  "last_frame": stretch["last_frame"], "sheet": None}
         if drawn is not None:
             sheet, held = drawn
-            name = f"{place[k]:0{width}d}_{a}_{b}_{stretch['first_frame']}-{stretch['last_frame']}.jpg"
+            pair = "_".join(names if len(names) > 1 else names + [UNTRACKED])
+            name = f"{place[k]:0{width}d}_{pair}_{stretch['first_frame']}-{stretch['last_frame']}.jpg"
             atomic_write_bytes(out / name, encode_image(sheet, ".jpg"))
             entry.update(sheet=name, **held)
         index.append(entry)
