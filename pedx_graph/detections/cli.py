@@ -44,7 +44,8 @@ def register(subparsers) -> None:
                    help="the raw images the detections were made on (searched recursively, found by the names "
                         "the files give): written rectified into OUT/images/ (pedx-graph export draws on them; "
                         "write_images: false in --config to skip), and each stretch where two tracks came "
-                        "close drawn on them, one JPEG per stretch in OUT/review/<sequence>/")
+                        "close (or a track and a detection no track holds) drawn on them, one JPEG per stretch "
+                        "in OUT/review/<sequence>/")
     p.add_argument("--workers", type=positive_int, default=1,
                    help="local processes for the association, one stereo pair each (default 1: this process; "
                         "the same tracks with any number)")
@@ -83,15 +84,19 @@ def _run_import(args: argparse.Namespace) -> int:
     tracks = sum(s["tracks"] for s in summary["sequences"].values())
     labels = sum(s["labels_written"] for s in summary["sequences"].values())
     print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")
+    from pedx_graph.data.types import UNTRACKED
+
     for seq, record in sorted(summary["sequences"].items()):
         review = record.get("identity_review")
         if review and review["stretches"]:
-            print(f"  {seq}: {len(review['stretches'])} stretches where two tracks came close "
+            print(f"  {seq}: {len(review['stretches'])} stretches where two tracks came close, or a track and "
+                  f"a detection no track holds "
                   f"({review['flagged_track_frames']} of {review['track_frames']} track frames): check who is "
                   f"who there (import_summary.json, sequences.{seq}.identity_review)")
             for i in review.get("check_order", [])[:3]:
                 stretch = review["stretches"][i]
-                print(f"    check first: {' and '.join(stretch['tracks'])}, frames {stretch['first_frame']}-"
+                names = stretch["tracks"] if len(stretch["tracks"]) > 1 else stretch["tracks"] + [UNTRACKED]
+                print(f"    check first: {' and '.join(names)}, frames {stretch['first_frame']}-"
                       f"{stretch['last_frame']} ({stretch['frames_missed']} of "
                       f"{stretch['frames_held'] + stretch['frames_missed']} of their frames missed)")
         sheets = record.get("review_sheets")
