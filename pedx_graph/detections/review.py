@@ -44,10 +44,10 @@ from pedx_graph.data.ground import GroundFrame
 
 @dataclass
 class ReviewConfig:
-    """When two tracks count as close (module docstring).  Defaults: on ``benchmarks/bench_association.py``'s
-    inputs (crossings and walking groups) the stretches hold 12 of the 14 identity switches and flag 31 % of
-    the track frames; wider tests flag more for little more (docs/detections.md, "Where to check who is
-    who")."""
+    """When two tracks, or a track and a detection no track holds, count as close (module docstring).
+    Defaults: on ``benchmarks/bench_association.py``'s inputs (crossings and walking groups) the stretches hold
+    13 of the 14 identity switches and flag 34 % of the track frames (without ``untracked``: 12 and 31 %);
+    wider tests flag more for little more (docs/detections.md, "Where to check who is who")."""
 
     column_frac: float = 0.2
     """Two detections in one image are close when their median keypoint columns differ by at most this
