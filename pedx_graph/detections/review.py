@@ -195,10 +195,9 @@ def review_stretches(tracks: list, ground: GroundFrame | None = None,
                        "close_frames": sorted(int(f) for f in frames if start <= f <= end),
                        "frames_held": int(held), "frames_missed": int(missed)}
             if near is not None:
-                stretch["untracked"] = sorted(
-                    {(det.camera, int(det.frame), det.source) for f, dets in near.items() if start <= f <= end
-                     for det in dets})
-                stretch["untracked"] = [{"camera": c, "frame": f, "source": src} for c, f, src in stretch["untracked"]]
+                listed = sorted({(det.camera, int(det.frame), det.source) for f, dets in near.items()
+                                 if start <= f <= end for det in dets})
+                stretch["untracked"] = [{"camera": c, "frame": f, "source": src} for c, f, src in listed]
             out.append(stretch)
     return out
 
