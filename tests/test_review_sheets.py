@@ -95,6 +95,12 @@ def test_a_one_track_stretch_draws_the_detections_no_track_holds_it_lists(tmp_pa
     assert held["frames"] == [3, 4, 5] and held["cameras"] == ["camA"]
     without = review_sheet(tracks, stretch, {}, cell_height_px=200)[0]        # nothing to look it up in
     assert UNTRACKED_COLOUR not in {tuple(int(c) for c in px) for px in without.reshape(-1, 3)}
+    # one listed a frame before the stretch (close to the track's first frame) is drawn in a column of its own
+    early = detection("camA", 2, 420, None)
+    early.source = "early#2"
+    before = dict(stretch, untracked=stretch["untracked"] + [{"camera": "camA", "frame": 2, "source": "early#2"}])
+    _, held = review_sheet(tracks, before, {}, cell_height_px=200, untracked={**lookup, ("camA", 2, "early#2"): early})
+    assert held["frames"] == [2, 3, 4, 5]
     track = DetectedTrack("det000001", [DetectedTrackFrame(f, {"camA": det}) for f, det in own.items()], ("camA-camB",))
     index = write_review_sheets([track], [stretch], {}, tmp_path / "out", untracked=[loose, unlisted])
     assert index[0]["sheet"] == "1_det000001_untracked_3-5.jpg" and index[0]["tracks"] == ["det000001"]

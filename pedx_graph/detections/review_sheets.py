@@ -132,7 +132,8 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
     :func:`image_stems` of every detection read (a cell where neither track was detected finds its image
     by another person's detection there; without, by the two tracks' only); ``untracked``: ``(camera, frame,
     source)`` -> :class:`~pedx_graph.detections.types.Detection` of the detections no track holds, for the
-    ones the stretch lists (``"untracked"``; left out without it)."""
+    ones the stretch lists (``"untracked"``; left out without it; their frames are drawn too, a frame before
+    or after the stretch where one lies there: it was close to the track's frame next to it)."""
     import cv2
 
     names = list(stretch["tracks"])
@@ -142,8 +143,7 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
         det = (untracked or {}).get((entry["camera"], int(entry["frame"]), entry["source"]))
         if det is not None:
             lone[det.frame][det.camera].append(det)
-    held = sorted({f for tid in names for f in tracks.get(tid, {}) if first <= f <= last}
-                  | {f for f in lone if first <= f <= last})
+    held = sorted({f for tid in names for f in tracks.get(tid, {}) if first <= f <= last} | set(lone))
     frames = _chosen_frames(held, max_frames)
     by_camera: dict[str, list] = defaultdict(list)
     for tid in names:
@@ -163,10 +163,12 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
                       max(int(round((b[3] - b[1]) * scales[camera])), 1)) for camera, b in boxes.items()}
     column_px = max(w for w, _ in sizes.values())
     row_px = cell_height_px + CAPTION_PX
-    sheet = np.full((TITLE_PX + row_px * len(cameras), LABEL_PX + column_px * len(frames), 3), 255, dtype=np.uint8)
     font = cv2.FONT_HERSHEY_SIMPLEX
     title = (f"tracks {names[0]} (orange) and {names[-1]} (blue), frames {first}-{last}" if len(names) > 1 else
              f"track {names[0]} (orange) and detections no track holds (green), frames {first}-{last}")
+    title_px = cv2.getTextSize(title, font, 0.55, 1)[0][0] + 16
+    sheet = np.full((TITLE_PX + row_px * len(cameras), max(LABEL_PX + column_px * len(frames), title_px), 3), 255,
+                    dtype=np.uint8)
     cv2.putText(sheet, title, (8, 20), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     found = cells = 0
     missing = []
