@@ -91,10 +91,10 @@ def _image_items(tracks: list, untracked: list, config: ReviewConfig) -> dict[tu
     """``(camera, frame)`` -> ``(owner, extent, detection)`` of every detection in that image: owner the track
     id, or ``None`` for one of ``untracked``."""
     by_image: dict[tuple[str, int], list[tuple]] = defaultdict(list)
-    owned = [(track.track_id, fr.frame, camera, det) for track in tracks for fr in track.frames
-             for camera, det in fr.detections.items()]
-    owned += [(None, det.frame, det.camera, det) for det in untracked]
-    for owner, frame, camera, det in owned:
+    entries = [(track.track_id, fr.frame, camera, det) for track in tracks for fr in track.frames
+               for camera, det in fr.detections.items()]
+    entries += [(None, det.frame, det.camera, det) for det in untracked]
+    for owner, frame, camera, det in entries:
         extent = _extent(np.asarray(det.image_uv, dtype=float), det.confidence, config.min_confidence)
         if extent is not None:
             by_image[(camera, frame)].append((owner, extent, det))
