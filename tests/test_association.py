@@ -90,6 +90,45 @@ def test_crossing_pedestrians_keep_their_ids():
     assert all(len(tr) == n for tr in tracks)
 
 
+def test_a_person_the_repairs_leave_with_few_frames_is_not_a_track(monkeypatch):
+    """The two crossing walkers, with the merge's last repair (:func:`move_to_neighbours`) made to leave one of
+    them ``tracker.min_track_frames - 1`` frames (as a repair that moves a stretch to a neighbour can leave
+    a remnant): that remnant is not output; with exactly ``min_track_frames`` frames left it is."""
+    from pedx_graph.detections import association
+
+    calibs = _rig()
+    calib = calibs["ylw79D0-red707B"]
+    rng = np.random.default_rng(0)
+    dets, owners = [], {}
+    for k in range(24):
+        t = (k - 12) * 0.1
+        for name, points in (("a", _person_points((9.5, 1.3 * t), np.pi / 2, 5 * t)),
+                             ("b", _person_points((11.0, -1.3 * t), -np.pi / 2, 5 * t + 1))):
+            for det in _detections(calib, points, k, rng):
+                det.source += name
+                owners[det.source] = name
+                dets.append(det)
+    config = AssociationConfig()
+    keep = config.tracker.min_track_frames
+    original = association.move_to_neighbours
+
+    def leaving(count):
+        def leave_few(people, *args):
+            moved = original(people, *args)
+            frames, sources = people[0]
+            for frame in sorted(frames)[count:]:
+                del frames[frame]
+                sources.pop(frame, None)
+            return moved
+        return leave_few
+
+    for leave, expected in ((keep - 1, 1), (keep, 2)):
+        monkeypatch.setattr(association, "move_to_neighbours", leaving(leave))
+        tracks = associate(dets, calibs, config, ground=_ground(calibs))
+        assert len(tracks) == expected
+        assert sorted(len(track) for track in tracks) == sorted([24, keep][:expected])
+
+
 def test_false_detections_and_bystanders_never_become_tracks():
     """Random clutter in every image and a flickering far bystander (one frame in three, low score) give no
     track; a steady person beyond ``max_distance_m`` is dropped; the walker is the one track."""

@@ -135,7 +135,10 @@ Steps:
    pairs' walk of its person does not explain and another person's walk does, where that person lacks
    this pair, moves to that person (:func:`move_to_neighbours`: the pair's track went on with the walker
    alongside for a few frames, that walker's own track in this pair lost there).
-6. Tracks whose median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
+6. Tracks left with fewer than ``tracker.min_track_frames`` frames are dropped, as a pair's were in step 4:
+   the repairs since cut tracks, and a head, a tail or a remnant of two or three frames on its own is most
+   often a piece of someone held by a longer track, or of two people, too short to tell which.  Tracks whose
+   median horizontal distance from the rig lies outside ``[min_distance_m, max_distance_m]``
    are dropped (the labelled range of the data set; people beyond it are bystanders).
 7. **Smoothed centres** (:func:`smooth_centres`): each frame's centre (what the LiDAR cut's depth gate uses)
    becomes the weighted line fit, in the ground plane, of the ``2 smooth_window_frames + 1`` centres of the
@@ -349,7 +352,8 @@ class AssociationConfig:
     """A pair's track of a person lost and found again up to this many frames later is joined to the track
     that found it when one straight walk explains both (:func:`stitch_tracks`), frames; 0 = off."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
-    """What makes a pair's person a track: ``min_track_frames``, ``min_mean_score``, and the speed limits
+    """What makes a pair's person a track: ``min_track_frames`` (checked again on the output's tracks after
+    every repair), ``min_mean_score``, and the speed limits
     (``max_speed_mps``, ``frame_interval_s``) bounding how fast a person's disparity may change."""
     lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
     """How a person's LiDAR points are cut from a scene cloud (when clouds are given)."""
@@ -3144,7 +3148,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
     move_to_neighbours(groups, pair_of, track_of, ground, config, calibrations)
     people, smoothing = [], []
     for frames, sources in groups:
-        if not frames:
+        if len(frames) < max(config.tracker.min_track_frames, 1):
             continue
         for frame, entry in frames.items():
             _frame_centre(entry, sources[frame])
