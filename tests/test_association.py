@@ -93,7 +93,8 @@ def test_crossing_pedestrians_keep_their_ids():
 def test_a_person_the_repairs_leave_with_few_frames_is_not_a_track(monkeypatch):
     """The two crossing walkers, with the merge's last repair (:func:`move_to_neighbours`) made to leave one of
     them ``tracker.min_track_frames - 1`` frames (as a repair that moves a stretch to a neighbour can leave
-    a remnant): that remnant is not output; with exactly ``min_track_frames`` frames left it is."""
+    a remnant): that remnant is not output; with exactly ``min_track_frames`` frames left it is, and each track
+    output holds one walker's detections."""
     from pedx_graph.detections import association
 
     calibs = _rig()
@@ -127,6 +128,7 @@ def test_a_person_the_repairs_leave_with_few_frames_is_not_a_track(monkeypatch):
         tracks = associate(dets, calibs, config, ground=_ground(calibs))
         assert len(tracks) == expected
         assert sorted(len(track) for track in tracks) == sorted([24, keep][:expected])
+        assert all(len(_who(track, owners)) == 1 for track in tracks)
 
 
 def test_false_detections_and_bystanders_never_become_tracks():
