@@ -2111,3 +2111,39 @@ def test_a_one_image_track_end_another_track_explains_as_well_is_left_out():
         held = drop_ambiguous_ends([near[:10] + [_one_image(far[10])], far[10:]], calib, AssociationConfig())
         assert [len(t) for t in held] == [11, 10]
     assert left_out >= 9 and kept_own >= 9
+
+
+def test_a_one_image_track_end_its_own_walk_refuses_is_left_out_even_with_a_centre():
+    """A walker at 20 m crossing the view, seen in both images over frames 0-9.  The track's last frames
+    hold, in the left image only, the detections of someone 1.5 m beside it (the tracker carried it on to
+    them), each with a centre (a LiDAR cluster along that detection's ray): the track's own walk misses
+    them by far more than the gate, so they are left out from the end inwards, with no other track to
+    explain them.  The walker's own one-image tail frames are kept (its walk explains them), and so is an
+    off-walk one-image frame between two frames seen in both images (not an end)."""
+    from pedx_graph.detections.association import drop_ambiguous_ends, off_walk_ends
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    config = AssociationConfig()
+    left_out = kept_own = kept_middle = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        walker = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(14), rng, 1.0)
+        beside = _walker_of_height(calib, (20.0, 0.1), (0.0, 0.14), range(14), rng, 1.0)
+
+        def centred(obs):
+            obs = _one_image(obs)
+            obs.world_p, obs.depth_sigma_m = np.array([20.0, 0.0, 0.0]), 0.2
+            return obs
+
+        stray = [centred(beside[10]), centred(beside[12])]            # a gap at 11: ends are judged alike
+        out = drop_ambiguous_ends([walker[:10] + stray], calib, config)
+        left_out += [[id(o) for o in t] for t in out] == [[id(o) for o in walker[:10]]]
+        own = [centred(walker[10]), centred(walker[12])]
+        out = off_walk_ends(walker[:10] + own, calib, config)
+        kept_own += [id(o) for o in out] == [id(o) for o in walker[:10] + own]
+        middle = walker[:5] + [centred(beside[5])] + walker[6:10]
+        kept_middle += [id(o) for o in off_walk_ends(middle, calib, config)] == [id(o) for o in middle]
+        head = [centred(beside[0])] + walker[1:10]
+        assert [id(o) for o in off_walk_ends(head, calib, config)] == [id(o) for o in walker[1:10]]
+    assert left_out >= 9 and kept_own >= 9 and kept_middle == 10

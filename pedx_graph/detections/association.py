@@ -109,10 +109,13 @@ Steps:
    detection whose image height is off its track's walk and on the walk of another track near it in that
    image is dropped, with its frame unless the frame is unpaired and seen in the other image too
    (:func:`drop_other_heights`).  Last, a frame seen in one image only at a track's end (before its first
-   frame seen in both images or after its last), without a centre, is left out where another of the pair's
-   tracks, spanning it and without a detection in that image there, explains it by its walk in that image
-   at least as well as the track's own walk does (:func:`drop_ambiguous_ends`: one image cannot tell two
-   people on one ray apart, and a tracklet born from one detection has no velocity yet).  Before that, a
+   frame seen in both images or after its last) is left out where the track's own walk in that image misses
+   its detection by more than ``gate_sigmas^2`` (:func:`off_walk_ends`, with or without a centre: a
+   one-image centre is the LiDAR cluster along that detection's ray, whoever it is), and, without a centre,
+   where another of the pair's tracks, spanning it and without a detection in that image there, explains it
+   by its walk in that image at least as well as the track's own walk does (:func:`drop_ambiguous_ends`: one
+   image cannot tell two people on one ray apart, and a tracklet born from one detection has no velocity
+   yet).  Before that, a
    person the pair lost and found again (hidden, or missed in both images, for up to
    ``stitch_max_gap_frames``) is made one track when one straight walk explains both pieces, each with its
    stereo depths (:func:`stitch_tracks`).  A person with fewer than
@@ -1927,13 +1930,17 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
 
 def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibration,
                         config: AssociationConfig) -> list[list[Observation]]:
-    """Leave out of one pair's final tracks the one-image frames at their ends that another track explains
-    as well.
+    """Leave out of one pair's final tracks the one-image frames at their ends that their own walk refuses
+    or another track explains as well.
 
     Before a track's first frame seen in both images and after its last, a frame seen in one image only has
     no depth of its own where the LiDAR gave it no centre: two people on one ray of that image cannot be
     told apart by it, and the per-camera tracker may have begun the track with the other person or carried
-    it on to them (a tracklet born from one detection has no velocity yet).  Such a frame, without a centre,
+    it on to them (a tracklet born from one detection has no velocity yet).  First, such a frame whose
+    detection the track's own straight walk in that image, fitted without it (:func:`_walk_misfits`), misses
+    by more than ``gate_sigmas^2`` is left out, with or without a centre, from the outermost frame inwards
+    while they are refused (:func:`off_walk_ends`: a one-image centre is the LiDAR cluster along that
+    detection's ray, which does not tell whose detection it is).  Then such a frame, without a centre,
     is left out when another of the pair's tracks spans it give or take 2 frames (its first frame at most 2
     after it, its last at most 2 before), has no detection of its own in that image there, and its straight
     walk in that image (:func:`_walk_misfits`: column and image height, fitted as :func:`repair_swaps` fits
@@ -1942,6 +1949,7 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
     ends to tell from its middle).  Each frame is judged against the tracks as they come in.  A track left empty is removed.  Returns the
     tracks."""
     gate = config.gate_sigmas
+    tracks = [off_walk_ends(t, calib, config) for t in tracks]
     spans = [(min(o.frame for o in t), max(o.frame for o in t)) if t else (0, -1) for t in tracks]
     held = [{(o.frame, side) for o in t for side in o.uv} for t in tracks]
     walks: dict[tuple[int, str], tuple | None] = {}
@@ -1986,6 +1994,44 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
         if kept:
             out.append(kept)
     return out
+
+
+def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: AssociationConfig
+                  ) -> list[Observation]:
+    """``track`` (frame order) without the one-image frames at its ends that its own walk refuses.
+
+    From each end inwards, while the frame there is seen in one image only and lies outside the track's
+    frames seen in both images: the track's straight walk in that image (:func:`_image_track`,
+    :func:`_track_walk`: column and image height), fitted over the rest of the track as it stands, is
+    compared with the frame's detection (:func:`_walk_misfits`: its column and image height; the depth of its
+    one-image centre is not judged, as the walk's own depth at a pair's end rests on few, loose stereo
+    depths); a misfit above ``gate_sigmas^2`` leaves the frame out and the next one is judged, else the end
+    stays.  A track with no frame seen in both images, or
+    whose rest holds fewer than 3 frames in that image, is left as it is."""
+    gate = config.gate_sigmas
+    both = [o.frame for o in track if len(o.uv) == 2]
+    if not both:
+        return track
+    first, last = 0, len(track)
+
+    def refused(k: int) -> bool:
+        obs = track[k]
+        if len(obs.uv) != 1 or min(both) <= obs.frame <= max(both):
+            return False
+        side = next(iter(obs.uv))
+        mine = list(_image_track([obs], calib, config, side))
+        mine[3] = np.full(len(mine[0]), np.nan)        # its detection judged, not its one-image centre
+        seen = _image_track([o for o in track[first:last] if o is not obs], calib, config, side)
+        if not len(mine[0]) or len(seen[0]) < 3:
+            return False
+        rate = _track_walk(seen, calib, config)[1]
+        return float(_walk_misfits(seen[:7], rate, gate, [mine[:7]])[0][0]) > gate ** 2
+
+    while last - first > 1 and refused(first):
+        first += 1
+    while last - first > 1 and refused(last - 1):
+        last -= 1
+    return track[first:last]
 
 
 def _someone_elses_height(frame: int, side: str, k: int, walks: list[dict], gate: float) -> bool:
