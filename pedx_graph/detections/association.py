@@ -1998,7 +1998,7 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
 
 def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: AssociationConfig
                   ) -> list[Observation]:
-    """``track`` (frame order) without the one-image frames at its ends that its own walk refuses.
+    """``track`` in frame order without the one-image frames at its ends that its own walk refuses.
 
     From each end inwards, while the frame there is seen in one image only and lies outside the track's
     frames seen in both images: the track's straight walk in that image (:func:`_image_track`,
@@ -2009,6 +2009,7 @@ def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: As
     stays.  A track with no frame seen in both images, or
     whose rest holds fewer than 3 frames in that image, is left as it is."""
     gate = config.gate_sigmas
+    track = sorted(track, key=lambda o: o.frame)
     both = [o.frame for o in track if len(o.uv) == 2]
     if not both:
         return track
