@@ -110,13 +110,12 @@ Steps:
    image is dropped, with its frame unless the frame is unpaired and seen in the other image too
    (:func:`drop_other_heights`).  Last, a frame seen in one image only at a track's end (before its first
    frame seen in both images or after its last) is left out where the track's own walk in that image misses
-   its detection by more than ``gate_sigmas^2`` (:func:`off_walk_ends`, with or without a centre: a
-   one-image centre is the LiDAR cluster along that detection's ray, whoever it is), and, without a centre,
-   where another of the pair's tracks, spanning it and without a detection in that image there, explains it
-   by its walk in that image at least as well as the track's own walk does (:func:`drop_ambiguous_ends`: one
-   image cannot tell two people on one ray apart, and a tracklet born from one detection has no velocity
-   yet).  Before that, a
-   person the pair lost and found again (hidden, or missed in both images, for up to
+   its detection (column and image height) by more than ``gate_sigmas^2`` (:func:`off_walk_ends`, with or
+   without a centre: a one-image centre is the LiDAR cluster along that detection's ray, whoever it is), and,
+   without a centre, where another of the pair's tracks, spanning it and without a detection in that image
+   there, explains it by its walk in that image at least as well as the track's own walk does
+   (:func:`drop_ambiguous_ends`: one image cannot tell two people on one ray apart, and a tracklet born from
+   one detection has no velocity yet).  Before that, a person the pair lost and found again (hidden, or missed in both images, for up to
    ``stitch_max_gap_frames``) is made one track when one straight walk explains both pieces, each with its
    stereo depths (:func:`stitch_tracks`).  A person with fewer than
    ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
@@ -2006,8 +2005,8 @@ def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: As
     compared with the frame's detection (:func:`_walk_misfits`: its column and image height; the depth of its
     one-image centre is not judged, as the walk's own depth at a pair's end rests on few, loose stereo
     depths); a misfit above ``gate_sigmas^2`` leaves the frame out and the next one is judged, else the end
-    stays.  A track with no frame seen in both images, or
-    whose rest holds fewer than 3 frames in that image, is left as it is."""
+    stays.  A track with no frame seen in both images, or whose rest holds fewer than 3 frames in that image,
+    keeps its ends."""
     gate = config.gate_sigmas
     track = sorted(track, key=lambda o: o.frame)
     both = [o.frame for o in track if len(o.uv) == 2]
