@@ -2119,13 +2119,14 @@ def test_a_one_image_track_end_its_own_walk_refuses_is_left_out_even_with_a_cent
     them), each with a centre (a LiDAR cluster along that detection's ray): the track's own walk misses
     them by far more than the gate, so they are left out from the end inwards, with no other track to
     explain them.  The walker's own one-image tail frames are kept (its walk explains them), and so is an
-    off-walk one-image frame between two frames seen in both images (not an end)."""
+    off-walk one-image frame between two frames seen in both images (not an end), and an own tail frame
+    whose one-image centre is far off the walk's depth (its detection is judged, not that centre)."""
     from pedx_graph.detections.association import drop_ambiguous_ends, off_walk_ends
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
     config = AssociationConfig()
-    left_out = kept_own = kept_middle = 0
+    left_out = kept_own = kept_middle = kept_deep = 0
     for seed in range(10):
         rng = np.random.default_rng(seed)
         walker = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(14), rng, 1.0)
@@ -2146,4 +2147,13 @@ def test_a_one_image_track_end_its_own_walk_refuses_is_left_out_even_with_a_cent
         kept_middle += [id(o) for o in off_walk_ends(middle, calib, config)] == [id(o) for o in middle]
         head = [centred(beside[0])] + walker[1:10]
         assert [id(o) for o in off_walk_ends(head, calib, config)] == [id(o) for o in walker[1:10]]
-    assert left_out >= 9 and kept_own >= 9 and kept_middle == 10
+        # Its detection is judged, not its centre's depth: with a LiDAR centre on every frame seen in both
+        # images (the walk has a depth line), the walker's own tail frame whose one-image centre is 3 m
+        # too deep (someone behind on that ray) is kept.
+        for k, obs in enumerate(walker[:10]):
+            obs.world_p, obs.depth_sigma_m = np.array([20.0, -1.4 + 0.14 * k, GROUND_Z + 0.9]), 0.1
+        deep = _one_image(walker[10])
+        deep.world_p, deep.depth_sigma_m = np.array([23.0, -1.4 + 0.14 * 10, GROUND_Z + 0.9]), 0.1
+        kept_deep += [id(o) for o in off_walk_ends(walker[:10] + [deep], calib, config)] == \
+            [id(o) for o in walker[:10] + [deep]]
+    assert left_out >= 9 and kept_own >= 9 and kept_middle == 10 and kept_deep >= 9
