@@ -2157,3 +2157,36 @@ def test_a_one_image_track_end_its_own_walk_refuses_is_left_out_even_with_a_cent
         kept_deep += [id(o) for o in off_walk_ends(walker[:10] + [deep], calib, config)] == \
             [id(o) for o in walker[:10] + [deep]]
     assert left_out >= 9 and kept_own >= 9 and kept_middle == 10 and kept_deep >= 9
+
+
+def test_a_short_piece_a_gap_parts_from_a_pair_track_is_left_out_when_the_rest_s_walk_refuses_it():
+    """A walker at 20 m crossing the view, seen in both images over frames 4-15.  The track begins with two
+    frames, also seen in both images, of someone 1.5 m beside it, then holds nothing for frames 2-3 (the
+    per-camera trackers coasted across the gap onto the walker): the walk of the rest misses both frames
+    by far more than the gate, so the piece is left out, and so are two such frames after a gap at the
+    track's other end (through :func:`drop_ambiguous_ends`).  Kept: the walker's own first frames across that gap; someone else's frames
+    across a single missed frame (a detector's miss, not a gap); and a piece of four frames (long enough
+    for a walk of its own, not judged here)."""
+    from pedx_graph.detections.association import drop_ambiguous_ends, off_walk_pieces
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    config = AssociationConfig()
+
+    def ids(track):
+        return [id(o) for o in track]
+
+    left_out = tail_left_out = kept_own = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        walker = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
+        beside = _walker_of_height(calib, (20.0, 0.1), (0.0, 0.14), range(20), rng, 1.0)
+        left_out += ids(off_walk_pieces(beside[:2] + walker[4:16], calib, config)) == ids(walker[4:16])
+        out = drop_ambiguous_ends([walker[4:14] + beside[16:18]], calib, config)
+        tail_left_out += [ids(t) for t in out] == [ids(walker[4:14])]
+        kept_own += ids(off_walk_pieces(walker[:2] + walker[4:16], calib, config)) == ids(walker[:2] + walker[4:16])
+        across_a_miss = beside[:3] + walker[4:16]
+        assert ids(off_walk_pieces(across_a_miss, calib, config)) == ids(across_a_miss)
+        four = beside[:4] + walker[6:16]
+        assert ids(off_walk_pieces(four, calib, config)) == ids(four)
+    assert left_out >= 9 and tail_left_out >= 9 and kept_own >= 9

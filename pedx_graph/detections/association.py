@@ -108,10 +108,14 @@ Steps:
    better (a tracker carrying each on with the other while they were missed in turns); after it, a
    detection whose image height is off its track's walk and on the walk of another track near it in that
    image is dropped, with its frame unless the frame is unpaired and seen in the other image too
-   (:func:`drop_other_heights`).  Last, a frame seen in one image only at a track's end (before its first
-   frame seen in both images or after its last) is left out where the track's own walk in that image misses
-   its detection (column and image height) by more than ``gate_sigmas^2`` (:func:`off_walk_ends`, with or
-   without a centre: a one-image centre is the LiDAR cluster along that detection's ray, whoever it is), and,
+   (:func:`drop_other_heights`).  Last, a piece of at most 3 frames at a track's end that a gap of at least
+   ``end_gap_frames`` frames parts from the rest is left out where the rest's walk misses every frame of it
+   (column and image height, in each image the frame is seen in) by more than ``gate_sigmas^2``
+   (:func:`off_walk_pieces`: the per-camera trackers may have coasted across the gap onto someone else), and
+   a frame seen in one image only at a track's end (before its first frame seen in both images or after its
+   last) is left out where the track's own walk in that image misses its detection (column and image
+   height) by more than ``gate_sigmas^2`` (:func:`off_walk_ends`, with or without a centre: a one-image
+   centre is the LiDAR cluster along that detection's ray, whoever it is), and,
    without a centre, where another of the pair's tracks, spanning it and without a detection in that image
    there, explains it by its walk in that image at least as well as the track's own walk does
    (:func:`drop_ambiguous_ends`: one image cannot tell two people on one ray apart, and a tracklet born from
@@ -307,6 +311,11 @@ class AssociationConfig:
     tracklet_switch_cost: float = 1.0
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
+    end_gap_frames: int = 2
+    """A piece of at most 3 frames at a pair track's end that a gap of at least this many frames the track
+    does not hold parts from the rest is judged by the rest's walk (:func:`off_walk_pieces`): across such a
+    gap the per-camera tracker coasted on a prediction, which whoever walks into it can take up.  A single
+    missed frame is common (a detector's miss) and is not a gap here."""
     swap_motion_m: float = 0.05
     """How far a walker's position leaves a straight walk at constant speed over a track (sway, gentle curves,
     pace), metres: the slack of :func:`repair_swaps`' straight-walk test, added to the keypoint noise of the
@@ -1929,26 +1938,31 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
 
 def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibration,
                         config: AssociationConfig) -> list[list[Observation]]:
-    """Leave out of one pair's final tracks the one-image frames at their ends that their own walk refuses
-    or another track explains as well.
+    """Leave out of one pair's final tracks the short pieces a gap parts from their ends and the one-image
+    frames at their ends that their own walk refuses, and the one-image end frames another track explains
+    as well.
 
     Before a track's first frame seen in both images and after its last, a frame seen in one image only has
     no depth of its own where the LiDAR gave it no centre: two people on one ray of that image cannot be
     told apart by it, and the per-camera tracker may have begun the track with the other person or carried
-    it on to them (a tracklet born from one detection has no velocity yet).  First, such a frame whose
-    detection the track's own straight walk in that image, fitted without it (:func:`_walk_misfits`), misses
-    by more than ``gate_sigmas^2`` is left out, with or without a centre, from the outermost frame inwards
-    while they are refused (:func:`off_walk_ends`: a one-image centre is the LiDAR cluster along that
-    detection's ray, which does not tell whose detection it is).  Then such a frame, without a centre,
+    it on to them (a tracklet born from one detection has no velocity yet).  First, a piece of at most 3
+    frames at an end that a gap of at least ``end_gap_frames`` frames parts from the rest, seen in one image
+    or both, is left out where the rest's walk misses every frame of it by more than ``gate_sigmas^2``
+    (:func:`off_walk_pieces`: across a gap the trackers coasted on a prediction).  Then a one-image end
+    frame whose detection the track's own straight walk in that image, fitted without it
+    (:func:`_walk_misfits`), misses by more than ``gate_sigmas^2`` is left out, with or without a centre,
+    from the outermost frame inwards while they are refused (:func:`off_walk_ends`: a one-image centre is
+    the LiDAR cluster along that detection's ray, which does not tell whose detection it is).  Last, a
+    one-image end frame without a centre
     is left out when another of the pair's tracks spans it give or take 2 frames (its first frame at most 2
     after it, its last at most 2 before), has no detection of its own in that image there, and its straight
     walk in that image (:func:`_walk_misfits`: column and image height, fitted as :func:`repair_swaps` fits
     them) explains the frame's detection at least as well as the track's own walk without that frame.  Not
-    moved: the two explain it alike.  A track with no frame seen in both images is left as it is (it has no
-    ends to tell from its middle).  Each frame is judged against the tracks as they come in.  A track left empty is removed.  Returns the
-    tracks."""
+    moved: the two explain it alike.  Its pieces apart, a track with no frame seen in both images is left as
+    it is (it has no ends to tell from its middle).  Each frame is judged against the tracks as they come
+    in.  A track left empty is removed.  Returns the tracks."""
     gate = config.gate_sigmas
-    tracks = [off_walk_ends(t, calib, config) for t in tracks]
+    tracks = [off_walk_ends(off_walk_pieces(t, calib, config), calib, config) for t in tracks]
     spans = [(min(o.frame for o in t), max(o.frame for o in t)) if t else (0, -1) for t in tracks]
     held = [{(o.frame, side) for o in t for side in o.uv} for t in tracks]
     walks: dict[tuple[int, str], tuple | None] = {}
@@ -1995,6 +2009,62 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
     return out
 
 
+def _off_walk_misfit(obs: Observation, rest: list[Observation], calib: StereoCalibration,
+                     config: AssociationConfig) -> float | None:
+    """How far the straight walk of ``rest`` misses ``obs``' detections: per image ``obs`` is seen in, the
+    walk of ``rest`` in that image (:func:`_image_track`, :func:`_track_walk`) against the detection's column
+    and image height (:func:`_walk_misfits`; the depth of a one-image centre is not judged), the mean over
+    those images; None where no image has a detection to judge and a walk of 3 frames."""
+    gate = config.gate_sigmas
+    misfits = []
+    for side in obs.uv:
+        mine = list(_image_track([obs], calib, config, side))
+        seen = _image_track(rest, calib, config, side)
+        if not len(mine[0]) or len(seen[0]) < 3:
+            continue
+        mine[3] = np.full(len(mine[0]), np.nan)        # its detection judged, not its one-image centre
+        rate = _track_walk(seen, calib, config)[1]
+        misfits.append(float(_walk_misfits(seen[:7], rate, gate, [mine[:7]])[0][0]))
+    return float(np.mean(misfits)) if misfits else None
+
+
+def off_walk_pieces(track: list[Observation], calib: StereoCalibration, config: AssociationConfig
+                    ) -> list[Observation]:
+    """``track`` in frame order without the short pieces at its ends that a gap parts from the rest and the
+    rest's walk refuses.
+
+    A track's first frames up to a gap of at least ``end_gap_frames`` frames it does not hold, when they are
+    at most 3 (a walk of their own would have no frame to spare), are a piece the per-camera trackers may
+    have carried across the gap from someone else; likewise its last frames after such a gap.  The piece
+    is left out when the straight walk of the rest of the track misses every one of its frames that can be
+    judged by more than ``gate_sigmas^2`` (:func:`_off_walk_misfit`: column and image height in each image
+    the frame is seen in, stereo frames too; at least one frame judged), and the next piece is judged; else
+    that end stays.  The rest must keep at least 3 frames."""
+    gate = config.gate_sigmas
+    track = sorted(track, key=lambda o: o.frame)
+    frames = [o.frame for o in track]
+    gaps = [k for k in range(1, len(track)) if frames[k] - frames[k - 1] - 1 >= config.end_gap_frames]
+    first, last = 0, len(track)
+
+    def refused(piece: list[Observation], rest: list[Observation]) -> bool:
+        if len(piece) > 3 or len(rest) < 3:
+            return False
+        misfits = [m for m in (_off_walk_misfit(o, rest, calib, config) for o in piece) if m is not None]
+        return bool(misfits) and min(misfits) > gate ** 2
+
+    while True:
+        cut = next((k for k in gaps if first < k < last), None)
+        if cut is None or not refused(track[first:cut], track[cut:last]):
+            break
+        first = cut
+    while True:
+        cut = next((k for k in reversed(gaps) if first < k < last), None)
+        if cut is None or not refused(track[cut:last], track[first:cut]):
+            break
+        last = cut
+    return track[first:last]
+
+
 def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: AssociationConfig
                   ) -> list[Observation]:
     """``track`` in frame order without the one-image frames at its ends that its own walk refuses.
@@ -2018,14 +2088,8 @@ def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: As
         obs = track[k]
         if len(obs.uv) != 1 or min(both) <= obs.frame <= max(both):
             return False
-        side = next(iter(obs.uv))
-        mine = list(_image_track([obs], calib, config, side))
-        mine[3] = np.full(len(mine[0]), np.nan)        # its detection judged, not its one-image centre
-        seen = _image_track([o for o in track[first:last] if o is not obs], calib, config, side)
-        if not len(mine[0]) or len(seen[0]) < 3:
-            return False
-        rate = _track_walk(seen, calib, config)[1]
-        return float(_walk_misfits(seen[:7], rate, gate, [mine[:7]])[0][0]) > gate ** 2
+        misfit = _off_walk_misfit(obs, [o for o in track[first:last] if o is not obs], calib, config)
+        return misfit is not None and misfit > gate ** 2
 
     while last - first > 1 and refused(first):
         first += 1
