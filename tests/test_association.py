@@ -2164,9 +2164,9 @@ def test_a_short_piece_a_gap_parts_from_a_pair_track_is_left_out_when_the_rest_s
     frames, also seen in both images, of someone 1.5 m beside it, then holds nothing for frames 2-3 (the
     per-camera trackers coasted across the gap onto the walker): the walk of the rest misses both frames
     by far more than the gate, so the piece is left out, and so are two such frames after a gap at the
-    track's other end (through :func:`drop_ambiguous_ends`).  Kept: the walker's own first frames across that gap; someone else's frames
-    across a single missed frame (a detector's miss, not a gap); and a piece of four frames (long enough
-    for a walk of its own, not judged here)."""
+    track's other end (through :func:`drop_ambiguous_ends`).  Kept: the walker's own first frames across
+    that gap; someone else's frames across a single missed frame (a detector's miss, not a gap); and a
+    piece of four frames (long enough for a walk of its own, not judged here)."""
     from pedx_graph.detections.association import drop_ambiguous_ends, off_walk_pieces
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
