@@ -25,7 +25,12 @@ the inputs whose counts changed.
 
     python benchmarks/bench_association.py [--seeds 0-8,17-21] [--pedestrians 10] [--frames 20]
                                            [--rig default|pedx] [--workers 2] [--baseline OLD.json]
-                                           [--name bench_association] [--out benchmarks/results]
+                                           [--config FILE] [--name bench_association]
+                                           [--out benchmarks/results]
+
+``--config FILE`` associates with that import config's ``association`` section (a YAML file as ``pedx-graph
+import --config`` reads it, e.g. ``configs/import_backward_births.yaml``) instead of the defaults; the results
+name the fields it changes.
 
 ``--rig pedx`` simulates the scenes on the real PedX rig's preset (its cameras, the z-down LiDAR frame, the
 ground's tilt; :data:`bench_detections.RIGS`), nothing of which the association is told.
@@ -54,7 +59,9 @@ from bench_detections import (FORMATS, RIGS, SHARED_CMU, _truth_frames, crossing
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
-from pedx_graph.detections.association import associate  # noqa: E402
+from pedx_graph.config import ConfigError, load_config, to_dict  # noqa: E402
+from pedx_graph.detections.association import AssociationConfig, associate  # noqa: E402
+from pedx_graph.detections.importer import ImportConfig  # noqa: E402
 from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, placement_counts,  # noqa: E402
                                             read_detection_truth, score_tracks)
 from pedx_graph.detections.review import review_summary, untracked_detections  # noqa: E402
@@ -75,8 +82,10 @@ REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "s
                  "switches_first_half_shortest")
 
 
-def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> list[dict]:
-    """The scored inputs of one seed: one row per scene and format (module docstring)."""
+def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
+             config: AssociationConfig | None = None) -> list[dict]:
+    """The scored inputs of one seed: one row per scene and format (module docstring); ``config``: the
+    association's (None: its defaults)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
         for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
@@ -93,7 +102,7 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> 
                 detections = read_format(scene, fmt, seq)
                 records = read_detection_truth(scene, seq, fmt)
                 t0 = time.perf_counter()
-                tracks = associate(detections, calibs, clouds=clouds, ground=ground)
+                tracks = associate(detections, calibs, config, clouds=clouds, ground=ground)
                 seconds = time.perf_counter() - t0
                 score = score_tracks(tracks, records, labelled)
                 score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"]
@@ -144,6 +153,16 @@ def review_counts(tracks: list, ground, switches: list[tuple], untracked: list |
             "switches_first_half": caught(review["check_order"], 0.5),
             "switches_first_quarter_shortest": caught(shortest, 0.25),
             "switches_first_half_shortest": caught(shortest, 0.5)}
+
+
+def changed_fields(config: AssociationConfig) -> dict:
+    """The fields of an association config that differ from the defaults, as dotted names -> values."""
+    def flat(value, prefix=""):
+        if isinstance(value, dict):
+            return {k: v for key, item in value.items() for k, v in flat(item, f"{prefix}{key}.").items()}
+        return {prefix[:-1]: value}
+    mine, defaults = flat(to_dict(config)), flat(to_dict(AssociationConfig()))
+    return {k: v for k, v in mine.items() if defaults.get(k) != v}
 
 
 def changed_inputs(rows: list[dict], baseline: list[dict]) -> list[tuple[dict, dict]]:
@@ -228,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the simulated rig (pedx: the real PedX rig's preset)")
     parser.add_argument("--workers", type=int, default=2, help="processes, one seed each")
     parser.add_argument("--baseline", help="an earlier run's JSON to list the changed inputs against")
+    parser.add_argument("--config", help="an import config YAML whose association section is used")
     parser.add_argument("--name", default="bench_association", help="file name of the outputs, without suffix")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
@@ -247,10 +267,14 @@ def main(argv: list[str] | None = None) -> int:
         if baseline.get("rig", "default") != args.rig:
             parser.error(f"--baseline {args.baseline}: its scenes are on the {baseline.get('rig', 'default')} rig, "
                          f"this run's on the {args.rig} rig")
+    try:
+        config = load_config(ImportConfig, args.config).association
+    except ConfigError as exc:
+        parser.error(str(exc))
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
         per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds),
-                                 [args.rig] * len(seeds)))
+                                 [args.rig] * len(seeds), [config] * len(seeds)))
     rows = [row for seed_rows in per_seed for row in seed_rows]
     shown = public_args(argv)                 # the baseline by its file name: no machine paths in the results
     shown = [Path(a).name if k and shown[k - 1] == "--baseline" else
@@ -258,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
              for k, a in enumerate(shown)]
     result = {"command": " ".join(["python benchmarks/bench_association.py"] + shown),
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
-              "rig": args.rig, "workers": args.workers,
+              "rig": args.rig, "workers": args.workers, "association_changes": changed_fields(config),
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS},
               "associate_seconds": sum(r["associate_seconds"] for r in rows),

@@ -323,6 +323,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.swap_size_frac": NON_NEGATIVE,
     "AssociationConfig.min_height_frames": COUNT,
     "AssociationConfig.end_gap_frames": COUNT,
+    "AssociationConfig.backward_birth_frames": NON_NEGATIVE_INT,
     "AssociationConfig.stitch_max_gap_frames": NON_NEGATIVE_INT,
     "AssociationConfig.min_separation_m": NON_NEGATIVE,
     "AssociationConfig.separate_max_rounds": NON_NEGATIVE_INT,

@@ -2190,3 +2190,38 @@ def test_a_short_piece_a_gap_parts_from_a_pair_track_is_left_out_when_the_rest_s
         four = beside[:4] + walker[6:16]
         assert ids(off_walk_pieces(four, calib, config)) == ids(four)
     assert left_out >= 9 and tail_left_out >= 9 and kept_own >= 9
+
+
+def _image_person(centre_u: float, frame: int, name: str) -> tuple[Detection, np.ndarray]:
+    """One detection of a standing person in one rectified image: the stick's 17 points seen from the front,
+    120 px per metre, its centre column ``centre_u``; source ``<name><frame>``."""
+    uv = np.stack([centre_u + 120.0 * STICK[:, 0], 600.0 - 120.0 * STICK[:, 2]], axis=1)
+    det = Detection(camera="ylw79D0", frame=frame, keypoint_set="coco17", image_uv=uv, confidence=np.full(17, 0.8),
+                    score=0.8, source=f"{name}{frame}")
+    return det, uv
+
+
+def test_a_tracklet_begun_by_a_guess_takes_the_link_the_backward_pass_makes_with_the_person_known():
+    """Two people in one image: A walks right from column 100 (6 px per frame), B appears beside it at frame 1
+    and walks left.  The forward tracker's tracklet born on A at frame 0 has no velocity yet and takes B, the
+    nearer detection at frame 1 (A's own starts a second tracklet).  With ``backward_birth_frames`` the
+    tracker also runs backwards; its A tracklet reaches frame 0 with A's motion known, 7 detections behind
+    it, and that link replaces the guess: one tracklet per person.  Asking for more than the 7 the backward
+    pass knew leaves the guess."""
+    from pedx_graph.detections.association import camera_tracklets
+
+    per_frame = {0: [_image_person(100.0, 0, "a")]}
+    for k in range(1, 8):
+        per_frame[k] = [_image_person(100.0 + 6 * k, k, "a"), _image_person(98.0 - 6 * (k - 1), k, "b")]
+
+    def people(backward_birth_frames: int) -> list[str]:
+        config = dataclasses.replace(AssociationConfig(), backward_birth_frames=backward_birth_frames)
+        tracklets = camera_tracklets(per_frame, config)
+        held = [det.source for tracklet in tracklets for _, det, _ in tracklet]
+        assert sorted(held) == sorted(det.source for items in per_frame.values() for det, _ in items)
+        assert all([f for f, _, _ in t] == sorted(f for f, _, _ in t) for t in tracklets)
+        return sorted("".join(sorted({det.source[0] for _, det, _ in t})) + str(len(t)) for t in tracklets)
+
+    assert people(0) == ["a7", "ab8"]                    # the guess: A's first detection, then B's
+    assert people(3) == people(7) == ["a8", "b7"]
+    assert people(8) == ["a7", "ab8"]

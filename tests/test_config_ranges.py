@@ -67,6 +67,9 @@ def test_defaults_and_presets_pass():
         elif preset.name == "detector_noise.yaml":
             from pedx_graph.eval.detector_noise import DetectorNoiseConfig
             load_config(DetectorNoiseConfig, preset)
+        elif preset.name.startswith("import_"):
+            from pedx_graph.detections.importer import ImportConfig
+            load_config(ImportConfig, preset)
         else:
             load_config(FitConfig, preset)
 

@@ -311,6 +311,11 @@ class AssociationConfig:
     tracklet_switch_cost: float = 1.0
     """Added to the normalised distance when an unpaired frame of a tracklet goes to a person not holding
     that tracklet (a tracklet is trusted unless another person explains the frame clearly better)."""
+    backward_birth_frames: int = 0
+    """A per-camera tracklet's first link is made with no velocity, a guess where two people overlap in the
+    image; with this > 0 the tracker also runs backwards in time and a link it makes there with at least this
+    many of the person's detections behind it replaces such a guess (:func:`camera_tracklets`); 0 = the
+    forward pass alone."""
     end_gap_frames: int = 2
     """A piece of at most 3 frames at a pair track's end that a gap of at least this many frames the track
     does not hold parts from the rest is judged by the rest's walk (:func:`off_walk_pieces`): across such a
@@ -812,23 +817,85 @@ def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str,
 
 # ---------------------------------------------------------------------------------------------- tracklets
 
+def _tracklet_links(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]], config: AssociationConfig,
+                    ranges: Mapping[int, float], backward: bool) -> tuple[dict[tuple[int, int], int], list[int]]:
+    """One pass of the per-camera tracker over ``per_frame``, forwards or backwards in time: its links as (id
+    of the earlier detection, id of the later one) -> how many of the tracklet's detections lie behind the
+    link in the pass's direction (1: the tracklet's first link, made with no velocity), and the ids of the
+    detections its tracklets hold, tracklet by tracklet in the tracker's order."""
+    sign = -1 if backward else 1
+    tracker = Tracker(config.tracklet)
+    for frame in sorted(per_frame, key=lambda f: sign * f):
+        tracker.step(sign * frame, [Observation(frame=sign * frame, uv={"left": uv}, score=float(det.score),
+                                                payload=(det, uv), lidar_range_m=ranges.get(id(det)))
+                                    for det, uv in per_frame[frame]])
+    links, held = {}, []
+    for observations in tracker.tracks():
+        held += [id(o.payload[0]) for o in observations]
+        for k in range(1, len(observations)):
+            earlier, later = id(observations[k - 1].payload[0]), id(observations[k].payload[0])
+            links[(later, earlier) if backward else (earlier, later)] = k
+    return links, held
+
+
+def _birth_links_checked(forward: dict[tuple[int, int], int], backward: dict[tuple[int, int], int],
+                         min_frames: int) -> dict[int, int]:
+    """Id of a detection -> id of the next one in its tracklet: the forward pass's links, except its
+    tracklets' first links (made with no velocity) that the backward pass does not make, where a backward
+    link made with at least ``min_frames`` of the person behind it (its velocity known) and sharing a
+    detection with one of them takes its place first (the more it knew, the earlier; then in the backward
+    pass's order).  ``forward`` / ``backward``: :func:`_tracklet_links`' links; each detection keeps at most one
+    link to the past and one to the future."""
+    guesses = {link for link, known in forward.items() if known == 1 and link not in backward}
+    earlier, later = {a for a, _ in guesses}, {b for _, b in guesses}
+    options = [(0, 0, link) for link in forward if link not in guesses]
+    options += [(1, -known, link) for link, known in backward.items()
+                if link not in forward and known >= min_frames and (link[0] in earlier or link[1] in later)]
+    options += [(2, 0, link) for link in guesses]
+    links: dict[int, int] = {}
+    linked_to: set[int] = set()
+    for _, _, (a, b) in sorted(options, key=lambda option: option[:2]):   # stable: the passes' own order
+        if a in links or b in linked_to:
+            continue
+        links[a] = b
+        linked_to.add(b)
+    return links
+
+
 def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]], config: AssociationConfig,
                      ranges: Mapping[int, float] | None = None) -> list[list[tuple[int, Detection, np.ndarray]]]:
     """One camera's detections linked over frames (module docstring, step 3): ``per_frame`` maps a frame to its
     de-duplicated ``(detection, rectified uv)``; returns tracklets, each a list of ``(frame, detection, uv)`` in
-    frame order (a detection in exactly one tracklet, low-score ones alone); ``ranges``: id of a detection ->
-    its LiDAR range (:func:`detection_ranges`), a term of the tracker's cost."""
-    tracker = Tracker(config.tracklet)
+    frame order, in order of their first detection (a detection in exactly one tracklet; the low-score ones
+    alone, last); ``ranges``: id of a detection -> its LiDAR range (:func:`detection_ranges`), a term of the
+    tracker's cost.
+
+    A tracklet just born has no velocity and takes its next detection by position alone: where two people
+    overlap in the image at a person's first frames (a sequence's start, or one person emerging from behind
+    the other) that is a guess.  With ``backward_birth_frames`` > 0 the tracker also runs backwards in time,
+    reaching those frames with the people's motion known, and its links replace the forward pass's guesses
+    (:func:`_birth_links_checked`)."""
     ranges = ranges or {}
     frames = sorted(per_frame)
-    for frame in frames:
-        tracker.step(frame, [Observation(frame=frame, uv={"left": uv}, score=float(det.score), payload=(det, uv),
-                                         lidar_range_m=ranges.get(id(det)))
-                             for det, uv in per_frame[frame]])
-    out = [[(o.frame, o.payload[0], o.payload[1]) for o in obs] for obs in tracker.tracks()]
-    seen = {id(det) for tracklet in out for _, det, _ in tracklet}
+    position = {id(det): (frame, k) for frame in frames for k, (det, _) in enumerate(per_frame[frame])}
+    item = {id(det): (frame, det, uv) for frame in frames for det, uv in per_frame[frame]}
+    forward, held = _tracklet_links(per_frame, config, ranges, backward=False)
+    if config.backward_birth_frames > 0:
+        backward, _ = _tracklet_links(per_frame, config, ranges, backward=True)
+        links = _birth_links_checked(forward, backward, config.backward_birth_frames)
+    else:
+        links = {a: b for a, b in forward}
+    linked_to = set(links.values())
+    out = []
+    for start in sorted((key for key in set(held) | set(links) if key not in linked_to), key=position.__getitem__):
+        tracklet, key = [item[start]], start
+        while key in links:
+            key = links[key]
+            tracklet.append(item[key])
+        out.append(tracklet)
+    in_tracklets = set(held) | set(links) | linked_to
     for frame in frames:                                   # below the birth score: one-frame tracklets
-        out += [[(frame, det, uv)] for det, uv in per_frame[frame] if id(det) not in seen]
+        out += [[(frame, det, uv)] for det, uv in per_frame[frame] if id(det) not in in_tracklets]
     return out
 
 
