@@ -818,20 +818,20 @@ def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str,
 # ---------------------------------------------------------------------------------------------- tracklets
 
 def _tracklet_links(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]], config: AssociationConfig,
-                    ranges: Mapping[int, float], backward: bool) -> tuple[dict[tuple[int, int], int], list[int]]:
+                    ranges: Mapping[int, float], backward: bool) -> tuple[dict[tuple[int, int], int], set[int]]:
     """One pass of the per-camera tracker over ``per_frame``, forwards or backwards in time: its links as (id
     of the earlier detection, id of the later one) -> how many of the tracklet's detections lie behind the
     link in the pass's direction (1: the tracklet's first link, made with no velocity), and the ids of the
-    detections its tracklets hold, tracklet by tracklet in the tracker's order."""
+    detections its tracklets hold (every one scored at least ``tracklet.birth_min_score``, in either pass)."""
     sign = -1 if backward else 1
     tracker = Tracker(config.tracklet)
     for frame in sorted(per_frame, key=lambda f: sign * f):
         tracker.step(sign * frame, [Observation(frame=sign * frame, uv={"left": uv}, score=float(det.score),
                                                 payload=(det, uv), lidar_range_m=ranges.get(id(det)))
                                     for det, uv in per_frame[frame]])
-    links, held = {}, []
+    links, held = {}, set()
     for observations in tracker.tracks():
-        held += [id(o.payload[0]) for o in observations]
+        held.update(id(o.payload[0]) for o in observations)
         for k in range(1, len(observations)):
             earlier, later = id(observations[k - 1].payload[0]), id(observations[k].payload[0])
             links[(later, earlier) if backward else (earlier, later)] = k
@@ -887,15 +887,14 @@ def camera_tracklets(per_frame: Mapping[int, list[tuple[Detection, np.ndarray]]]
         links = {a: b for a, b in forward}
     linked_to = set(links.values())
     out = []
-    for start in sorted((key for key in set(held) | set(links) if key not in linked_to), key=position.__getitem__):
+    for start in sorted(held - linked_to, key=position.__getitem__):
         tracklet, key = [item[start]], start
         while key in links:
             key = links[key]
             tracklet.append(item[key])
         out.append(tracklet)
-    in_tracklets = set(held) | set(links) | linked_to
     for frame in frames:                                   # below the birth score: one-frame tracklets
-        out += [[(frame, det, uv)] for det, uv in per_frame[frame] if id(det) not in in_tracklets]
+        out += [[(frame, det, uv)] for det, uv in per_frame[frame] if id(det) not in held]
     return out
 
 
