@@ -33,7 +33,9 @@ Steps:
 3. **Each camera over time first** (:func:`camera_tracklets`): a
    :class:`~pedx_graph.detections.tracker.Tracker` per camera (``tracklet`` config) links its detections into
    2D tracklets — Hungarian matching on constant-velocity predicted keypoints and keypoint-span size, gated;
-   identity in one image is decided by motion, before any stereo pairing.  With ``clouds`` (and
+   identity in one image is decided by motion, before any stereo pairing (with ``backward_birth_frames``,
+   off by default, a tracklet's first link, made with no velocity yet, gives way to the link the tracker
+   running backwards in time makes with the person's motion known).  With ``clouds`` (and
    ``lidar_identity``), each detection first gets the range of its LiDAR cluster (:func:`detection_ranges`),
    a capped term of the tracker's cost (``tracklet.range_sigma_m``): two people overlapping in one image a
    metre apart in range are told apart where the LiDAR sees both (a cluster at a range where the person's
