@@ -2225,3 +2225,31 @@ def test_a_tracklet_begun_by_a_guess_takes_the_link_the_backward_pass_makes_with
     assert people(0) == ["a7", "ab8"]                    # the guess: A's first detection, then B's
     assert people(3) == people(7) == ["a8", "b7"]
     assert people(8) == ["a7", "ab8"]
+
+
+def test_a_fragment_scored_above_its_person_gives_way_to_the_whole_detection():
+    """One image, a person 400 px tall (240 px per metre): a fragment of it (its hips and legs alone, shifted
+    by 4 % of its height) scored above it is dropped and the whole detection kept; a copy of the person with
+    3 px of noise, scored above it, is kept in its place (the lower score of two whole detections goes); the
+    legs a fifth of a height aside are someone else's and stay; two fragments of one another (upper body and
+    legs sharing the hips and knees) keep the higher score."""
+    from pedx_graph.detections.association import drop_duplicates
+
+    rng = np.random.default_rng(3)
+    front = np.stack([240.0 * STICK[:, 0], -240.0 * STICK[:, 2]], axis=1) + [1000.0, 900.0]
+    legs = np.where((np.arange(17) >= 11)[:, None], front + [12.0, 10.0], np.nan)
+    upper = np.where((np.arange(17) <= 14)[:, None], front + [-8.0, 6.0], np.nan)
+
+    def kept(*named) -> list[str]:
+        items = [(Detection(camera="ylw79D0", frame=0, keypoint_set="coco17", image_uv=uv,
+                            confidence=np.full(17, score), score=score, source=name), uv)
+                 for name, uv, score in named]
+        return [det.source for det, _ in drop_duplicates(items, AssociationConfig())]
+
+    assert kept(("front", front, 0.7), ("legs", legs, 0.8)) == ["front"]
+    assert kept(("front", front, 0.8), ("legs", legs, 0.7)) == ["front"]
+    assert kept(("front", front, 0.8), ("again", front + rng.normal(0.0, 3.0, front.shape), 0.9)) == ["again"]
+    assert kept(("front", front, 0.7), ("legs", legs + [80.0, 0.0], 0.8)) == ["front", "legs"]
+    assert kept(("upper", upper, 0.7), ("legs", legs, 0.8)) == ["legs"]
+    assert kept(("upper", upper, 0.8), ("legs", legs, 0.7)) == ["upper"]
+    assert kept(("upper", upper, 0.6), ("front", front, 0.7), ("legs", legs, 0.8)) == ["front"]

@@ -244,3 +244,44 @@ def test_an_exchanged_keypoint_keeps_its_confidence_when_asked(tmp_path, scene):
             np.testing.assert_allclose(new.confidence[~paired], old.confidence[~paired], atol=1e-6)
             raised += int(np.sum((old.confidence < 0.1) & (new.confidence > 0.3)))
     assert raised >= 5
+
+
+def test_a_duplicated_person_is_the_same_detection_again_and_the_association_drops_the_copy(tmp_path, scene):
+    """``duplicate_prob`` 1: every person is reported twice in each image — the detection of the same seed
+    without duplicates, unchanged, and a copy of its own noise draw (truth ``"duplicate": true``); the other
+    draws are unchanged.  The association's duplicate test drops the copy or the original in nearly every
+    image."""
+    from pedx_graph.detections.association import AssociationConfig, _usable, drop_duplicates
+
+    cfg = _config()
+    cfg.detections.duplicate_prob = 1.0
+    twice = small_scene(tmp_path / "twice", pedestrians=6, frames=4, seed=5, config=cfg)
+    seq = json.loads((scene / "truth" / "meta.json").read_text())["sequence"]
+    calibs = read_calibrations(twice / "calib")
+    config = AssociationConfig()
+    pairs = both_kept = 0
+    for fmt in FORMATS:
+        base_records, records = read_detection_truth(scene, seq, fmt), read_detection_truth(twice, seq, fmt)
+        base = {}
+        for det in _read(scene, fmt, seq):
+            record = detection_truth(det, base_records)
+            if record["kind"] == "person":
+                base[(det.camera, det.frame, record["tracking_id"])] = det
+        per_person: dict[tuple, list] = {}
+        for det in _read(twice, fmt, seq):
+            record = detection_truth(det, records)
+            if record["kind"] == "person":
+                key = (det.camera, det.frame, record["tracking_id"])
+                per_person.setdefault(key, []).append((record.get("duplicate", False), det))
+        assert set(per_person) == set(base) and len(base) > 10
+        for key, found in per_person.items():
+            assert sorted(flag for flag, _ in found) == [False, True]
+            original = next(det for flag, det in found if not flag)
+            np.testing.assert_array_equal(original.image_uv, base[key].image_uv)
+            calib = find_camera(calibs, key[0])[0]
+            items = [(det, _usable(rectified(det, calib), det.confidence, config.min_confidence)) for _, det in found]
+            if min(np.all(np.isfinite(uv), axis=1).sum() for _, uv in items) < config.min_shared_keypoints:
+                continue
+            pairs += 1
+            both_kept += len(drop_duplicates(items, config)) == 2
+    assert pairs > 50 and both_kept <= 0.03 * pairs, (pairs, both_kept)

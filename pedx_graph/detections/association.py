@@ -29,7 +29,8 @@ Steps:
    ``join_column_sigma`` (both fractions of the fitted height); the best-fitting pairs first.  Then a
    detector reporting a person twice, or a fragment (legs alone), is dropped:
    two detections sharing at least ``min_shared_keypoints`` keypoints whose median distance is below
-   ``duplicate_frac`` of the larger one's height keep only the higher score.
+   ``duplicate_frac`` of the larger one's height keep only the higher score, unless one lacks the top or the
+   bottom third of the other's keypoints (a fragment, :func:`_fragment_of`): the whole one stays.
 3. **Each camera over time first** (:func:`camera_tracklets`): a
    :class:`~pedx_graph.detections.tracker.Tracker` per camera (``tracklet`` config) links its detections into
    2D tracklets — Hungarian matching on constant-velocity predicted keypoints and keypoint-span size, gated;
@@ -211,7 +212,8 @@ class AssociationConfig:
     ``gate_sigmas`` of it)."""
     duplicate_frac: float = 0.1
     """Two detections in one image whose shared keypoints lie within this fraction of the larger one's
-    height (median distance) are one person: the lower score is dropped."""
+    height (median distance) are one person: the lower score is dropped, unless one is a fragment of the
+    other (it lacks the top or the bottom third of the other's keypoints): then the fragment is."""
     keypoint_sigma_px: float = 3.0
     """Size-independent part of one detected keypoint's noise per axis, pixels (the rectification error of a
     real pair adds a little)."""
@@ -426,24 +428,46 @@ def _height(uv: np.ndarray) -> float:
 
 def drop_duplicates(items: list[tuple[Detection, np.ndarray]], config: AssociationConfig
                     ) -> list[tuple[Detection, np.ndarray]]:
-    """The (detection, rectified uv) of one image without duplicates (module docstring, step 2); order kept."""
+    """The (detection, rectified uv) of one image without duplicates (module docstring, step 2); order kept.
+
+    Detections are taken by score, highest first.  One sharing at least ``min_shared_keypoints`` keypoints
+    with a detection already kept, their median distance below ``duplicate_frac`` of the larger one's height,
+    is a duplicate: it is dropped, unless the kept one is a fragment of it (:func:`_fragment_of`: a
+    detector's partial duplicate, legs or upper body alone, scored above the whole person), which then gives
+    way to it."""
     order = sorted(range(len(items)), key=lambda i: -items[i][0].score)
     kept: list[int] = []
     for i in order:
-        uv_i = items[i][1]
-        duplicate = False
-        for j in kept:
-            uv_j = items[j][1]
-            both = np.all(np.isfinite(uv_i), axis=1) & np.all(np.isfinite(uv_j), axis=1)
-            if both.sum() < config.min_shared_keypoints:
-                continue
-            scale = max(_height(uv_i), _height(uv_j), 1.0)
-            if np.median(np.linalg.norm(uv_i[both] - uv_j[both], axis=1)) < config.duplicate_frac * scale:
-                duplicate = True
-                break
-        if not duplicate:
-            kept.append(i)
+        uv = items[i][1]
+        near = [j for j in kept if _within_duplicate_distance(uv, items[j][1], config)]
+        if any(not _fragment_of(items[j][1], uv) or _fragment_of(uv, items[j][1]) for j in near):
+            continue                                    # a duplicate, or no more whole than what is kept
+        kept = [j for j in kept if j not in near] + [i]
     return [items[i] for i in sorted(kept)]
+
+
+def _within_duplicate_distance(uv: np.ndarray, other_uv: np.ndarray, config: AssociationConfig) -> bool:
+    """Whether two detections of one image (``(K, 2)`` rectified px, NaN where absent) share at least
+    ``min_shared_keypoints`` keypoints whose median distance is below ``duplicate_frac`` of the larger one's
+    height."""
+    both = np.all(np.isfinite(uv), axis=1) & np.all(np.isfinite(other_uv), axis=1)
+    if both.sum() < config.min_shared_keypoints:
+        return False
+    scale = max(_height(uv), _height(other_uv), 1.0)
+    return bool(np.median(np.linalg.norm(uv[both] - other_uv[both], axis=1)) < config.duplicate_frac * scale)
+
+
+def _fragment_of(uv: np.ndarray, other_uv: np.ndarray) -> bool:
+    """Whether a detection (``uv`` (K, 2), NaN where absent) lacks every keypoint of the top third, or every
+    one of the bottom third, of ``other_uv``'s present keypoints ordered by row (at least one keypoint a
+    third): a part of a body beside a whole one."""
+    present = np.flatnonzero(np.all(np.isfinite(other_uv), axis=1))
+    if len(present) < 3:
+        return False
+    by_row = present[np.argsort(other_uv[present, 1], kind="stable")]
+    third = len(by_row) // 3
+    has = np.all(np.isfinite(uv), axis=1)
+    return not has[by_row[:third]].any() or not has[by_row[-third:]].any()
 
 
 @functools.lru_cache(maxsize=None)

@@ -336,6 +336,10 @@ class DetectorOutputConfig:
     fragment_prob: float = 0.05
     """Probability that a detected person also yields a second, partial detection (its legs or its upper
     body, slightly off): the bystander-like clutter of bottom-up detectors."""
+    duplicate_prob: float = 0.0
+    """Probability that a detected person is reported twice in one image, the second time whole and with the
+    keypoints detected anew (their own noise draw): a top-down detector's second box of the person passing
+    non-maximum suppression (truth kind ``person``, ``"duplicate": true``); 0 = never."""
     split_prob: float = 0.0
     """OpenPose formats only: probability that a detected person's skeleton is broken in two by the
     bottom-up grouping, written as two people — the upper body (head, neck, arms) and the hips and legs
@@ -455,6 +459,7 @@ class SimConfig:
             ("detections.min_visible_keypoints", det.min_visible_keypoints >= 1),
             ("detections.clutter_per_image", 0 <= det.clutter_per_image <= 100),
             ("detections.fragment_prob", 0 <= det.fragment_prob <= 1),
+            ("detections.duplicate_prob", 0 <= det.duplicate_prob <= 1),
             ("detections.split_prob", 0 <= det.split_prob <= 1),
             ("detections.flip_prob", 0 <= det.flip_prob <= 1),
             ("detections.confidence_visible", 0 < det.confidence_visible <= 1),

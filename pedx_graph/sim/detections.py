@@ -24,6 +24,9 @@ the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are
   its own and its mirror point: confident of the wrong side);
 * false positives: a Poisson number (mean ``clutter_per_image``) of skeletons at random places and sizes, and
   with probability ``fragment_prob`` per detected person a partial duplicate of it (legs or upper body);
+* with ``duplicate_prob`` > 0, a person reported twice in one image, the second time whole with its own
+  noise draw (a top-down detector's second box past non-maximum suppression; truth kind ``person``,
+  ``"duplicate": true``);
 * with ``flip_prob`` > 0, a person's left taken for its right on the whole body at a frame, in every camera
   alike (truth kind stays ``person``, with ``"flipped": true``);
 * OpenPose formats, with ``split_prob`` > 0: a person's skeleton broken in two by the bottom-up grouping, its
@@ -277,6 +280,7 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                                                  shared)
                     if not (conf > 0).any():
                         continue
+                    order = None
                     if det_cfg.flip_prob > 0 and np.random.default_rng(
                             [int(ctx.seed), 9, int(k), f_index, p_index]).random() < det_cfg.flip_prob:
                         # own generator, one draw per person and frame: every camera flipped alike
@@ -285,6 +289,18 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                         record = {"kind": "person", "tracking_id": tid, "labelled": tid in labelled, "flipped": True}
                     else:
                         record = {"kind": "person", "tracking_id": tid, "labelled": tid in labelled}
+                    duplicate = None
+                    if det_cfg.duplicate_prob > 0:
+                        # own generator: the other draws (and so the files at duplicate_prob 0) are unchanged
+                        dup_rng = np.random.default_rng([int(ctx.seed), 10, int(k), f_index, p_index,
+                                                         zlib.crc32(view.camera.encode())])
+                        if dup_rng.random() < det_cfg.duplicate_prob:
+                            d_uv, d_conf = _person_detection(raw_uv, visible, in_image, raw, size, set_name, det_cfg,
+                                                             dup_rng, shared)
+                            if order is not None:
+                                d_uv, d_conf = d_uv[order], d_conf[order]
+                            if (d_conf > 0).any():
+                                duplicate = (d_uv, d_conf, {**record, "duplicate": True})
                     if det_cfg.split_prob > 0 and fmt.startswith("openpose_") and np.random.default_rng(
                             [int(ctx.seed), 8, int(k), f_index, p_index, zlib.crc32(view.camera.encode())]).random() < det_cfg.split_prob:
                         # own generator: the other draws (and so the files at split_prob 0) are unchanged
@@ -292,6 +308,8 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                                       for part_uv, part_conf in _split(uv, conf, set_name)]
                     else:
                         people_uv.append((uv, conf, record))
+                    if duplicate is not None:
+                        people_uv.append(duplicate)
                     if draws[1] < det_cfg.fragment_prob:
                         f_uv, f_conf = _fragment(uv, conf, rng)
                         if (f_conf > 0).sum() >= 2:
