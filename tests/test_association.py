@@ -2231,8 +2231,9 @@ def test_a_fragment_scored_above_its_person_gives_way_to_the_whole_detection():
     """One image, a person 400 px tall (240 px per metre): a fragment of it (its hips and legs alone, shifted
     by 4 % of its height) scored above it is dropped and the whole detection kept; a copy of the person with
     3 px of noise, scored above it, is kept in its place (the lower score of two whole detections goes); the
-    legs a fifth of a height aside are someone else's and stay; two fragments of one another (upper body and
-    legs sharing the hips and knees) keep the higher score."""
+    legs a fifth of a height aside are someone else's and stay.  Two partial detections overlapping, neither
+    within the other (an upper body to the knees and the legs; someone with the legs hidden beside someone
+    whole but for the head), keep the higher score."""
     from pedx_graph.detections.association import drop_duplicates
 
     rng = np.random.default_rng(3)
@@ -2253,3 +2254,6 @@ def test_a_fragment_scored_above_its_person_gives_way_to_the_whole_detection():
     assert kept(("upper", upper, 0.7), ("legs", legs, 0.8)) == ["legs"]
     assert kept(("upper", upper, 0.8), ("legs", legs, 0.7)) == ["upper"]
     assert kept(("upper", upper, 0.6), ("front", front, 0.7), ("legs", legs, 0.8)) == ["front"]
+    headless = np.where((np.arange(17) >= 5)[:, None], front + [-10.0, 8.0], np.nan)
+    assert kept(("upper", upper, 0.8), ("headless", headless, 0.7)) == ["upper"]
+    assert kept(("upper", upper, 0.7), ("headless", headless, 0.8)) == ["headless"]

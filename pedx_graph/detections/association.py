@@ -29,8 +29,9 @@ Steps:
    ``join_column_sigma`` (both fractions of the fitted height); the best-fitting pairs first.  Then a
    detector reporting a person twice, or a fragment (legs alone), is dropped:
    two detections sharing at least ``min_shared_keypoints`` keypoints whose median distance is below
-   ``duplicate_frac`` of the larger one's height keep only the higher score, unless one lacks the top or the
-   bottom third of the other's keypoints (a fragment, :func:`_fragment_of`): the whole one stays.
+   ``duplicate_frac`` of the larger one's height keep only the higher score, unless one is a fragment of the
+   other (:func:`_fragment_of`: its keypoints are among the other's, and it lacks the top or the bottom
+   third of them): the whole one stays.
 3. **Each camera over time first** (:func:`camera_tracklets`): a
    :class:`~pedx_graph.detections.tracker.Tracker` per camera (``tracklet`` config) links its detections into
    2D tracklets — Hungarian matching on constant-velocity predicted keypoints and keypoint-span size, gated;
@@ -213,7 +214,8 @@ class AssociationConfig:
     duplicate_frac: float = 0.1
     """Two detections in one image whose shared keypoints lie within this fraction of the larger one's
     height (median distance) are one person: the lower score is dropped, unless one is a fragment of the
-    other (it lacks the top or the bottom third of the other's keypoints): then the fragment is."""
+    other (its keypoints are among the other's, and it lacks the top or the bottom third of them): then the
+    fragment is."""
     keypoint_sigma_px: float = 3.0
     """Size-independent part of one detected keypoint's noise per axis, pixels (the rectification error of a
     real pair adds a little)."""
@@ -440,8 +442,8 @@ def drop_duplicates(items: list[tuple[Detection, np.ndarray]], config: Associati
     for i in order:
         uv = items[i][1]
         near = [j for j in kept if _within_duplicate_distance(uv, items[j][1], config)]
-        if any(not _fragment_of(items[j][1], uv) or _fragment_of(uv, items[j][1]) for j in near):
-            continue                                    # a duplicate, or no more whole than what is kept
+        if any(not _fragment_of(items[j][1], uv) for j in near):
+            continue
         kept = [j for j in kept if j not in near] + [i]
     return [items[i] for i in sorted(kept)]
 
@@ -458,15 +460,17 @@ def _within_duplicate_distance(uv: np.ndarray, other_uv: np.ndarray, config: Ass
 
 
 def _fragment_of(uv: np.ndarray, other_uv: np.ndarray) -> bool:
-    """Whether a detection (``uv`` (K, 2), NaN where absent) lacks every keypoint of the top third, or every
-    one of the bottom third, of ``other_uv``'s present keypoints ordered by row (at least one keypoint a
-    third): a part of a body beside a whole one."""
-    present = np.flatnonzero(np.all(np.isfinite(other_uv), axis=1))
-    if len(present) < 3:
+    """Whether a detection (``uv`` (K, 2), NaN where absent) is a fragment of ``other_uv``: a part of that body
+    beside the whole of it — each of its present keypoints is present in ``other_uv``, and it lacks every
+    keypoint of the top third, or every one of the bottom third, of ``other_uv``'s present keypoints ordered
+    by row (at least one keypoint a third).  Two people overlapping in the image, one with its legs hidden,
+    hold keypoints the other lacks: neither is a fragment of the other."""
+    has, other_has = np.all(np.isfinite(uv), axis=1), np.all(np.isfinite(other_uv), axis=1)
+    present = np.flatnonzero(other_has)
+    if len(present) < 3 or np.any(has & ~other_has):
         return False
     by_row = present[np.argsort(other_uv[present, 1], kind="stable")]
     third = len(by_row) // 3
-    has = np.all(np.isfinite(uv), axis=1)
     return not has[by_row[:third]].any() or not has[by_row[-third:]].any()
 
 
