@@ -338,8 +338,9 @@ class DetectorOutputConfig:
     body, slightly off): the bystander-like clutter of bottom-up detectors."""
     duplicate_prob: float = 0.0
     """Probability that a detected person is reported twice in one image, the second time whole and with the
-    keypoints detected anew (their own noise draw): a top-down detector's second box of the person passing
-    non-maximum suppression (truth kind ``person``, ``"duplicate": true``); 0 = never."""
+    keypoints detected anew (their own noise draw; the part every camera shares, ``stereo_shared_noise``, is
+    the person's as in the first): a top-down detector's second box of the person passing non-maximum
+    suppression (truth kind ``person``, ``"duplicate": true``); 0 = never."""
     split_prob: float = 0.0
     """OpenPose formats only: probability that a detected person's skeleton is broken in two by the
     bottom-up grouping, written as two people — the upper body (head, neck, arms) and the hips and legs
