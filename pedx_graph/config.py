@@ -25,8 +25,18 @@ def _is_dataclass_type(tp: Any) -> bool:
     return isinstance(tp, type) and dataclasses.is_dataclass(tp)
 
 
-def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix: str = "") -> T:
-    """Build dataclass ``cls`` from a nested dict; missing fields keep their defaults."""
+def _field_default(f: dataclasses.Field) -> Any:
+    """A dataclass field's default value (its factory called), or None without one."""
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None if f.default is dataclasses.MISSING else f.default
+
+
+def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix: str = "", base: T | None = None) -> T:
+    """Build dataclass ``cls`` from a nested dict; missing fields keep their defaults: ``base``'s values when
+    given, else the class's.  A nested dataclass field starts from its parent's default for it (e.g. the
+    association's own per-camera tracker settings, not ``TrackerConfig``'s class defaults), so a preset that
+    sets one of its fields changes that field alone."""
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -43,10 +53,12 @@ def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix
         value = data[f.name]
         tp = hints.get(f.name)
         if _is_dataclass_type(tp):
-            kwargs[f.name] = from_dict(tp, value, source=source, prefix=f"{prefix}{f.name}.")
+            nested = getattr(base, f.name) if base is not None else _field_default(f)
+            kwargs[f.name] = from_dict(tp, value, source=source, prefix=f"{prefix}{f.name}.",
+                                       base=nested if isinstance(nested, tp) else None)
         else:
             kwargs[f.name] = _coerce(value, tp, source, f"{prefix}{f.name}")
-    return cls(**kwargs)
+    return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
 
 
 def _list_element(tp: Any) -> type | None:

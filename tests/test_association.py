@@ -207,6 +207,27 @@ def test_two_pairs_seeing_one_person_give_one_track():
     assert all(d.track_id == tracks[0].track_id for fr in tracks[0].frames for d in fr.detections.values())
 
 
+def test_a_range_that_is_the_missed_person_in_front_s_does_not_pull_the_detection_to_that_person():
+    """Two people overlap in one image, the near one (17 m, 300 px tall) in front of the far one (21 m, 250 px):
+    while both are detected each keeps its own tracklet.  Then the detector misses the near one, and the far
+    one's detection gets the only LiDAR cluster its hull holds, the near one's (17.1 m).  With the range as
+    evidence the near person's tracklet takes the detection; with ``range_claims`` the range is the near
+    person's, whom the tracker follows over the detection, and the far person's own tracklet keeps it."""
+    def person(px_per_m, column, feet_row):
+        return np.stack([column + px_per_m * STICK[:, 0], feet_row - px_per_m * (STICK[:, 2] - STICK[:, 2].min())],
+                        axis=1)
+
+    near, far = person(175.0, 1000.0, 1200.0), person(146.0, 1010.0, 1150.0)
+    for claims, owner in ((False, 0), (True, 1)):
+        tracker = Tracker(TrackerConfig(confirm_hits=1, min_track_frames=1, min_mean_score=0.0, max_misses=4,
+                                        size_sigma=0.25, range_sigma_m=0.25, range_claims=claims))
+        for frame in range(4):
+            assert tracker.step(frame, [Observation(frame=frame, uv={"left": near}, score=0.8, lidar_range_m=17.0),
+                                        Observation(frame=frame, uv={"left": far}, score=0.8, lidar_range_m=21.0)]) \
+                == [0, 1]
+        assert tracker.step(4, [Observation(frame=4, uv={"left": far}, score=0.8, lidar_range_m=17.1)]) == [owner]
+
+
 def test_tracker_birth_and_death():
     """A track is output only after ``confirm_hits`` observations and ``min_track_frames`` frames; a confirmed
     track survives ``max_misses - 1`` missing frames and dies at ``max_misses``."""

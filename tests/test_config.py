@@ -1,4 +1,6 @@
 """Config loading: presets fill nested dataclasses; bad keys and types name the file and key."""
+import dataclasses
+
 import pytest
 
 from pedx_graph.config import ConfigError, load_config, save_config
@@ -38,3 +40,23 @@ def test_default_preset_mirrors_the_dataclass():
     from pathlib import Path
     preset = Path(__file__).resolve().parents[1] / "configs" / "fit_default.yaml"
     assert load_config(FitConfig, preset) == FitConfig()
+
+
+def test_a_nested_section_changes_only_the_fields_it_names(tmp_path):
+    """A preset setting one field of a nested section keeps the parent's own defaults for the others: the
+    association's per-camera tracker (confirms at once, keeps every tracklet) and the simulated detector's
+    keypoint noise (drawn from the truth) are not their classes' defaults."""
+    from pedx_graph.detections.importer import ImportConfig
+    from pedx_graph.sim.config import SimConfig
+
+    path = tmp_path / "import.yaml"
+    path.write_text("association:\n  tracklet:\n    max_misses: 6\n")
+    loaded = load_config(ImportConfig, path).association.tracklet
+    default = ImportConfig().association.tracklet
+    assert loaded.max_misses == 6
+    assert loaded == dataclasses.replace(default, max_misses=6)
+    assert (loaded.confirm_hits, loaded.min_track_frames, loaded.range_sigma_m) == (1, 1, 0.25)
+    path = tmp_path / "sim.yaml"
+    path.write_text("detections:\n  keypoint_noise:\n    sigma_px: 2.0\n")
+    noise = load_config(SimConfig, path).detections.keypoint_noise
+    assert noise.use_truth and noise.sigma_px == 2.0

@@ -16,6 +16,8 @@ ray.  :class:`Tracker` links them over frames:
   - 3D centre, when both have one: the residual split along the viewing ray (divided by the two depth
     uncertainties and the motion noise, added in quadrature) and across it (divided by
     ``lateral_sigma_m`` and the motion noise) — stereo depth is poor at range, bearings are not;
+  - LiDAR range, when the track and the observation have one (``range_sigma_m``; with ``range_claims`` left
+    out where it is the range of someone else the tracker follows, missed at this frame, in front);
 
   a pair is *gated out* (never matched) when any normalised residual exceeds ``gate_sigmas`` or when no
   image side and no 3D centre are shared, or when the boxes of every shared side overlap less than
@@ -80,6 +82,14 @@ class TrackerConfig:
     predicted walking change), metres: two people overlapping in the image but a metre apart in range are told
     apart by their LiDAR points; 0 = no range term.  The term is capped at ``gate_sigmas`` (it never gates: a
     detection's range can lie on a neighbour)."""
+    range_claims: bool = False
+    """Leave the range term out of a track's cost where the observation's range is another person's: another
+    live track, missed at this frame (its predicted keypoint box covers half of no other observation's box),
+    lies over the observation in the image (covering half of the smaller box) and predicts the observation's
+    range within its ``range_sigma_m`` (grown by the walking change since).  The LiDAR cluster under the
+    detection is then that person's, standing in front of the one detected, whose own returns it hides; it
+    says nothing against this track.  Only a range more than one sigma from this track's prediction is
+    judged."""
     velocity_smoothing: float = 0.5
     """Weight of the newest velocity measurement in the smoothed velocity (1 = no smoothing)."""
     birth_min_score: float = 0.2
@@ -202,6 +212,8 @@ class Tracker:
         self.config = config or TrackerConfig()
         self._up = None if world_up is None else np.asarray(world_up, dtype=float) / np.linalg.norm(world_up)
         self._tracks: list[_Track] = []
+        self._live: list[_Track] = []
+        self._covers: dict[int, set[int]] = {}
         self._frame: int | None = None
 
     # ------------------------------------------------------------------------------------------ costs
@@ -246,7 +258,8 @@ class Tracker:
             predicted_range = track.range_m + track.range_velocity * df
             sigma = float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s))
             residual = min(abs(obs.lidar_range_m - predicted_range) / sigma, cfg.gate_sigmas)
-            terms.append(residual ** 2)           # weighs, never gates: a range can lie on a neighbour
+            if not (cfg.range_claims and residual > 1.0 and self._claimed(track, obs)):
+                terms.append(residual ** 2)       # weighs, never gates: a range can lie on a neighbour
         has_3d = track.world_p is not None and obs.world_p is not None
         if has_3d:
             dt_frames = obs.frame - track.world_frame
@@ -278,6 +291,38 @@ class Tracker:
                 return _GATED
             terms.append(cross ** 2)
         return float(np.mean(terms))
+
+    def _claimed(self, track: _Track, obs: Observation) -> bool:
+        """Whether ``obs``'s LiDAR range is another person's (``TrackerConfig.range_claims``): a live track other
+        than ``track``, covering no other observation of the frame (:meth:`step`), lies over ``obs`` in one of
+        its image sides and predicts its range."""
+        cfg = self.config
+        for other in self._live:
+            if other is track or other.range_m is None or self._covers[id(other)] - {id(obs)}:
+                continue
+            df = obs.frame - other.range_frame
+            sigma = float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s))
+            if abs(obs.lidar_range_m - other.range_m - other.range_velocity * df) > sigma:
+                continue
+            if id(obs) in self._covers[id(other)]:
+                return True
+        return False
+
+    def _covering(self, track: _Track, observations: list[Observation]) -> set[int]:
+        """Ids of the observations whose keypoint box, in an image side ``track`` holds, is at least half covered
+        by (or covers half of) the track's keypoint box predicted to their frame."""
+        out = set()
+        for obs in observations:
+            for side, uv_obs in obs.uv.items():
+                state = track.sides.get(side)
+                if state is None:
+                    continue
+                predicted = keypoint_box(state.uv + state.velocity * (obs.frame - state.frame))
+                box = keypoint_box(uv_obs)
+                if predicted is not None and box is not None and box_cover(predicted, box) >= 0.5:
+                    out.add(id(obs))
+                    break
+        return out
 
     def _cross_side_residual(self, track: _Track, obs: Observation) -> float | None:
         """Normalised row residual between a one-image track and an observation in the other image of the pair
@@ -367,6 +412,8 @@ class Tracker:
             if track.alive and frame - track.last_frame - 1 >= self._miss_limit(track):
                 track.alive = False
         live = [t for t in self._tracks if t.alive]
+        self._live = live
+        self._covers = {id(t): self._covering(t, observations) for t in live} if cfg.range_claims else {}
         assigned = [-1] * len(observations)
         if live and observations:
             cost = np.array([[self._cost(t, o) for o in observations] for t in live])
