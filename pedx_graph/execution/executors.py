@@ -322,9 +322,12 @@ class DaskExecutor:
         n_local = parse_local_cluster(address)
         try:
             if n_local is not None:
+                # the workers' own logs stay quiet up to CRITICAL: a worker still alive after a Ctrl-C closed
+                # the scheduler logs its failed heartbeat as an error with a traceback (seen once, under load);
+                # a local worker's failures reach the run through its futures (outcome)
                 self.cluster = distributed.LocalCluster(
                     n_workers=n_local, threads_per_worker=1, processes=True, dashboard_address=None,
-                    silence_logs=logging.ERROR, preload=[__name__])
+                    silence_logs=logging.CRITICAL, preload=[__name__])
                 self.client = distributed.Client(self.cluster, set_as_default=False)
             elif os.path.isfile(address):
                 self.client = distributed.Client(scheduler_file=address, set_as_default=False,
