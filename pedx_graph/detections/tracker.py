@@ -298,13 +298,11 @@ class Tracker:
         its image sides and predicts its range."""
         cfg = self.config
         for other in self._live:
-            if other is track or other.range_m is None or self._covers[id(other)] - {id(obs)}:
+            if other is track or other.range_m is None or self._covers[id(other)] != {id(obs)}:
                 continue
             df = obs.frame - other.range_frame
             sigma = float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s))
-            if abs(obs.lidar_range_m - other.range_m - other.range_velocity * df) > sigma:
-                continue
-            if id(obs) in self._covers[id(other)]:
+            if abs(obs.lidar_range_m - other.range_m - other.range_velocity * df) <= sigma:
                 return True
         return False
 
