@@ -254,9 +254,7 @@ class Tracker:
                         return _GATED
                     terms.append(size ** 2)
         if cfg.range_sigma_m > 0 and obs.lidar_range_m is not None and track.range_m is not None:
-            df = obs.frame - track.range_frame
-            predicted_range = track.range_m + track.range_velocity * df
-            sigma = float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s))
+            predicted_range, sigma = self._predicted_range(track, obs.frame)
             residual = min(abs(obs.lidar_range_m - predicted_range) / sigma, cfg.gate_sigmas)
             if not (cfg.range_claims and residual > 1.0 and self._claimed(track, obs)):
                 terms.append(residual ** 2)       # weighs, never gates: a range can lie on a neighbour
@@ -296,15 +294,21 @@ class Tracker:
         """Whether ``obs``'s LiDAR range is another person's (``TrackerConfig.range_claims``): a live track other
         than ``track``, covering no other observation of the frame (:meth:`step`), lies over ``obs`` in one of
         its image sides and predicts its range."""
-        cfg = self.config
         for other in self._live:
             if other is track or other.range_m is None or self._covers[id(other)] != {id(obs)}:
                 continue
-            df = obs.frame - other.range_frame
-            sigma = float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s))
-            if abs(obs.lidar_range_m - other.range_m - other.range_velocity * df) <= sigma:
+            predicted_range, sigma = self._predicted_range(other, obs.frame)
+            if abs(obs.lidar_range_m - predicted_range) <= sigma:
                 return True
         return False
+
+    def _predicted_range(self, track: _Track, frame: int) -> tuple[float, float]:
+        """A track's LiDAR range carried on to ``frame`` at its range velocity, and its sigma there
+        (``range_sigma_m`` and the walking change since, in quadrature), metres."""
+        cfg = self.config
+        df = frame - track.range_frame
+        return (track.range_m + track.range_velocity * df,
+                float(np.hypot(cfg.range_sigma_m, cfg.accel_sigma_mps * df * cfg.frame_interval_s)))
 
     def _covering(self, track: _Track, observations: list[Observation]) -> set[int]:
         """Ids of the observations whose keypoint box, in an image side ``track`` holds, is at least half covered
