@@ -40,6 +40,7 @@ Writes ``<name>.json`` and ``<name>.md`` into ``--out``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import tempfile
@@ -60,13 +61,15 @@ from pedx_graph.data.calib import read_calibrations  # noqa: E402
 from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
 from pedx_graph.data.reader import read_dataset  # noqa: E402
 from pedx_graph.config import ConfigError, load_config, to_dict  # noqa: E402
+import pedx_graph.detections.association as association  # noqa: E402
 from pedx_graph.detections.association import AssociationConfig, associate  # noqa: E402
 from pedx_graph.detections.importer import ImportConfig  # noqa: E402
-from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, placement_counts,  # noqa: E402
-                                            read_detection_truth, score_tracks)
+from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, detection_records,  # noqa: E402
+                                            placement_counts, read_detection_truth, score_tracks)
+from pedx_graph.detections.lidar_cut import project_cloud  # noqa: E402
 from pedx_graph.detections.review import review_summary, untracked_detections  # noqa: E402
 from pedx_graph.keypoints import load_keypoint_set  # noqa: E402
-from pedx_graph.sim.simulate import simulate  # noqa: E402
+from pedx_graph.sim.simulate import read_truth_frame, simulate  # noqa: E402
 from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 #: Counts summed over the inputs, in the tables' order.
@@ -82,10 +85,82 @@ REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "s
                  "switches_first_half_shortest")
 
 
+#: ``--range-oracle`` modes (:func:`truth_ranges`).
+RANGE_ORACLES = ("given", "all")
+#: Counts of :func:`truth_ranges`, per input and summed.
+ORACLE_COUNTS = ("oracle_ranges_given", "oracle_ranges_replaced", "oracle_ranges_removed", "oracle_ranges_added")
+#: A range farther than this from its person's counts as replaced (another person's or the background's), metres.
+ORACLE_OFF_M = 0.5
+
+
+@contextlib.contextmanager
+def truth_ranges(scene: Path, sequence: str, records: list[dict], mode: str, counts: dict):
+    """Within the block, the association's LiDAR range of a detection
+    (:func:`pedx_graph.detections.association.detection_ranges`) is its person's as a perfect cut of the LiDAR
+    would give it: the median depth, along the pair's rectified optical axis, of the scan points that the
+    simulator's truth says hit that person and that the association keeps (``lidar_cut.ground_clearance_m``
+    above the ground); none where fewer than ``lidar_identity_min_points`` did (the LiDAR did not see them).
+    ``mode`` ``given``: only the detections the association gave a range are told the truth (a range on the
+    wrong cluster is corrected, one of a person the LiDAR missed removed); ``all``: every detection of a person
+    the LiDAR saw gets its range.  Clutter and fragments keep what the association gave them.  A diagnostic:
+    what better LiDAR evidence could buy the association, not a way to run it.  ``counts`` gathers, over the
+    block, the ranges the association gave, those replaced (more than :data:`ORACLE_OFF_M` off), removed and
+    added."""
+    original = association.detection_ranges
+    index = {(r["camera"], r["frame"], r["index"]): r for r in records}
+    frames: dict[int, dict] = {}
+
+    def person_range(tid: str, frame: int, calib, side: str, ground, config) -> float | None:
+        if frame not in frames:
+            frames[frame] = read_truth_frame(scene, frame, sequence)
+        truth = frames[frame]
+        person = truth["people"].get(tid)
+        if person is None:
+            return None
+        points = np.asarray(truth["scene_points"], dtype=float)[truth["scene_object_id"] == person["object_id"]]
+        if ground.ground_offset_m is not None and len(points):
+            points = points[ground.height(points) >= config.lidar_cut.ground_clearance_m]
+        if len(points) < config.lidar_identity_min_points:
+            return None
+        return float(np.median(project_cloud(calib, side, points)[1]))
+
+    def told(items, calib, side, cloud, ground, config):
+        found = original(items, calib, side, cloud, ground, config)
+        out = {}
+        for det, _ in items:
+            key = id(det)
+            people = {r["tracking_id"] for r in detection_records(det, records, index)
+                      if r["kind"] in ("person", "part")}
+            if len(people) != 1:
+                if key in found:
+                    out[key] = found[key]
+                continue
+            if key not in found and mode == "given":
+                continue
+            truth = person_range(people.pop(), det.frame, calib, side, ground, config)
+            counts["oracle_ranges_given"] += key in found
+            if truth is None:
+                counts["oracle_ranges_removed"] += key in found
+                continue
+            if key not in found:
+                counts["oracle_ranges_added"] += 1
+            elif abs(found[key] - truth) > ORACLE_OFF_M:
+                counts["oracle_ranges_replaced"] += 1
+            out[key] = truth
+        return out
+
+    association.detection_ranges = told
+    try:
+        yield
+    finally:
+        association.detection_ranges = original
+
+
 def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
-             config: AssociationConfig | None = None) -> list[dict]:
+             config: AssociationConfig | None = None, range_oracle: str | None = None) -> list[dict]:
     """The scored inputs of one seed: one row per scene and format (module docstring); ``config``: the
-    association's (None: its defaults)."""
+    association's (None: its defaults); ``range_oracle``: a mode of :func:`truth_ranges` (None: the
+    association's own LiDAR ranges)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
         for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
@@ -101,14 +176,18 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
             for fmt in FORMATS:
                 detections = read_format(scene, fmt, seq)
                 records = read_detection_truth(scene, seq, fmt)
-                t0 = time.perf_counter()
-                tracks = associate(detections, calibs, config, clouds=clouds, ground=ground)
-                seconds = time.perf_counter() - t0
+                oracle = dict.fromkeys(ORACLE_COUNTS, 0)
+                with (truth_ranges(scene, seq, records, range_oracle, oracle) if range_oracle
+                      else contextlib.nullcontext()):
+                    t0 = time.perf_counter()
+                    tracks = associate(detections, calibs, config, clouds=clouds, ground=ground)
+                    seconds = time.perf_counter() - t0
                 score = score_tracks(tracks, records, labelled)
                 score["crossing_id_switches"] = sum(1 for _, _, a, b in score["switches"]
                                                     if a in crossing or b in crossing)
                 rows.append({"seed": seed, "scene": name, "format": fmt, "detections": len(detections),
                              "associate_seconds": seconds, **{k: score[k] for k in COUNTS},
+                             **(oracle if range_oracle else {}),
                              **placement_counts(tracks, records, centres, ground),
                              **review_counts(tracks, ground, score["switches"],
                                                 untracked_detections(detections, tracks))})
@@ -205,6 +284,17 @@ def markdown(result: dict) -> str:
              f"to, in brackets those whose error is also more than {PLACE_SIGMAS:g} times the depth sigma they "
              "claim, of all track frames with a centre.", "",
              "## Totals", "", header, rule, line(total, "all | | "), ""]
+    if result.get("range_oracle"):
+        lines += ["## LiDAR ranges from the truth", "",
+                  f"A diagnostic run (`--range-oracle {result['range_oracle']}`, `truth_ranges` in the script): the "
+                  "association's LiDAR range of a detection is its person's as a perfect cut of the scan would give "
+                  "it (the median depth of the points the simulator says hit that person), "
+                  + ("only where the association found a range" if result["range_oracle"] == "given" else
+                     "for every detection of a person the LiDAR saw")
+                  + f".  Ranges the association found: {total['oracle_ranges_given']}; of those more than "
+                  f"{ORACLE_OFF_M:g} m off their person's and replaced: {total['oracle_ranges_replaced']}; of a "
+                  f"person the LiDAR did not see, removed: {total['oracle_ranges_removed']}; added: "
+                  f"{total['oracle_ranges_added']}.", ""]
     if "switches_in_review" in total:
         lines += ["## Identity review", "",
                   f"The import lists where two tracks came close (`import_summary.json`, "
@@ -248,6 +338,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="processes, one seed each")
     parser.add_argument("--baseline", help="an earlier run's JSON to list the changed inputs against")
     parser.add_argument("--config", help="an import config YAML whose association section is used")
+    parser.add_argument("--range-oracle", choices=RANGE_ORACLES,
+                        help="tell the association its people's true LiDAR ranges (a diagnostic: truth_ranges)")
     parser.add_argument("--name", default="bench_association", help="file name of the outputs, without suffix")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
@@ -274,7 +366,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
         per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds),
-                                 [args.rig] * len(seeds), [config] * len(seeds)))
+                                 [args.rig] * len(seeds), [config] * len(seeds),
+                                 [args.range_oracle] * len(seeds)))
     rows = [row for seed_rows in per_seed for row in seed_rows]
     shown = public_args(argv)                 # the baseline by its file name: no machine paths in the results
     shown = [Path(a).name if k and shown[k - 1] == "--baseline" else
@@ -283,8 +376,10 @@ def main(argv: list[str] | None = None) -> int:
     result = {"command": " ".join(["python benchmarks/bench_association.py"] + shown),
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
               "rig": args.rig, "workers": args.workers, "association_changes": changed_fields(config),
+              "range_oracle": args.range_oracle,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
-              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS},
+              "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS
+                                       + (ORACLE_COUNTS if args.range_oracle else ())},
               "associate_seconds": sum(r["associate_seconds"] for r in rows),
               "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
     if baseline is not None:
