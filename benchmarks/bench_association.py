@@ -25,12 +25,15 @@ the inputs whose counts changed.
 
     python benchmarks/bench_association.py [--seeds 0-8,17-21] [--pedestrians 10] [--frames 20]
                                            [--rig default|pedx] [--workers 2] [--baseline OLD.json]
-                                           [--config FILE] [--name bench_association]
-                                           [--out benchmarks/results]
+                                           [--config FILE] [--range-oracle given|all]
+                                           [--name bench_association] [--out benchmarks/results]
 
 ``--config FILE`` associates with that import config's ``association`` section (a YAML file as ``pedx-graph
 import --config`` reads it, e.g. ``configs/import_backward_births.yaml``) instead of the defaults; the results
 name the fields it changes.
+
+``--range-oracle given|all`` is a diagnostic: the association is told its people's true LiDAR ranges
+(:func:`truth_ranges`), to measure what better LiDAR evidence could buy it.
 
 ``--rig pedx`` simulates the scenes on the real PedX rig's preset (its cameras, the z-down LiDAR frame, the
 ground's tilt; :data:`bench_detections.RIGS`), nothing of which the association is told.
