@@ -107,25 +107,28 @@ def truth_ranges(scene: Path, sequence: str, records: list[dict], mode: str, cou
     wrong cluster is corrected, one of a person the LiDAR missed removed); ``all``: every detection of a person
     the LiDAR saw gets its range.  Clutter and fragments keep what the association gave them.  A diagnostic:
     what better LiDAR evidence could buy the association, not a way to run it.  ``counts`` gathers, over the
-    block, the ranges the association gave, those replaced (more than :data:`ORACLE_OFF_M` off), removed and
-    added."""
+    block, the ranges the association gave the detections of one person, those replaced (more than
+    :data:`ORACLE_OFF_M` off), removed and added."""
     original = association.detection_ranges
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     frames: dict[int, dict] = {}
+    known: dict[tuple, float | None] = {}
 
     def person_range(tid: str, frame: int, calib, side: str, ground, config) -> float | None:
+        key = (tid, frame, id(calib), side)
+        if key in known:
+            return known[key]
         if frame not in frames:
             frames[frame] = read_truth_frame(scene, frame, sequence)
         truth = frames[frame]
         person = truth["people"].get(tid)
-        if person is None:
-            return None
-        points = np.asarray(truth["scene_points"], dtype=float)[truth["scene_object_id"] == person["object_id"]]
+        points = (np.asarray(truth["scene_points"], dtype=float)[truth["scene_object_id"] == person["object_id"]]
+                  if person is not None else np.zeros((0, 3)))
         if ground.ground_offset_m is not None and len(points):
             points = points[ground.height(points) >= config.lidar_cut.ground_clearance_m]
-        if len(points) < config.lidar_identity_min_points:
-            return None
-        return float(np.median(project_cloud(calib, side, points)[1]))
+        known[key] = (float(np.median(project_cloud(calib, side, points)[1]))
+                      if len(points) >= config.lidar_identity_min_points else None)
+        return known[key]
 
     def told(items, calib, side, cloud, ground, config):
         found = original(items, calib, side, cloud, ground, config)
@@ -294,7 +297,8 @@ def markdown(result: dict) -> str:
                   "it (the median depth of the points the simulator says hit that person), "
                   + ("only where the association found a range" if result["range_oracle"] == "given" else
                      "for every detection of a person the LiDAR saw")
-                  + f".  Ranges the association found: {total['oracle_ranges_given']}; of those more than "
+                  + f".  Ranges the association found on a detection of one person: "
+                  f"{total['oracle_ranges_given']}; of those more than "
                   f"{ORACLE_OFF_M:g} m off their person's and replaced: {total['oracle_ranges_replaced']}; of a "
                   f"person the LiDAR did not see, removed: {total['oracle_ranges_removed']}; added: "
                   f"{total['oracle_ranges_added']}.", ""]
