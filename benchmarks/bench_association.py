@@ -130,8 +130,8 @@ def truth_ranges(scene: Path, sequence: str, records: list[dict], mode: str, cou
                       if len(points) >= config.lidar_identity_min_points else None)
         return known[key]
 
-    def told(items, calib, side, cloud, ground, config):
-        found = original(items, calib, side, cloud, ground, config)
+    def told(items, calib, side, cloud, ground, config, past=None):
+        found = original(items, calib, side, cloud, ground, config, past)
         out = {}
         for det, _ in items:
             key = id(det)
@@ -153,6 +153,8 @@ def truth_ranges(scene: Path, sequence: str, records: list[dict], mode: str, cou
             elif abs(found[key] - truth) > ORACLE_OFF_M:
                 counts["oracle_ranges_replaced"] += 1
             out[key] = truth
+            if past is not None:
+                past.discard(key)                   # a person's own points end at its silhouette
         return out
 
     association.detection_ranges = told

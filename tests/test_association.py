@@ -1558,6 +1558,13 @@ def _lidar_person(x: float = 22.0) -> np.ndarray:
                            for h in np.arange(0.2, 1.7, 0.3)])
 
 
+def _lidar_on(keypoints: np.ndarray) -> np.ndarray:
+    """LiDAR points on a person's body as its keypoints (K, 3) pose it: three points between each keypoint
+    and the next (a body seen side-on is as narrow as its limbs; a front-facing cylinder would not be)."""
+    steps = np.linspace(0.0, 1.0, 3, endpoint=False)[:, None, None]
+    return (keypoints[:-1] + steps * (keypoints[1:] - keypoints[:-1])).reshape(-1, 3)
+
+
 def _facade(x: float = 24.5) -> np.ndarray:
     """LiDAR points of a building's wall facing the sensor at ``x``: 8 m wide, 4 m high."""
     grid = np.stack(np.meshgrid(np.arange(-4.0, 4.0, 0.1), np.arange(0.1, 4.0, 0.3)), -1).reshape(-1, 2)
@@ -1593,13 +1600,18 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     wall = _facade()
     person = _lidar_person()
     config = AssociationConfig()
-    ranges = detection_ranges([(det, uv)], calib, "left", wall, ground, config)
+    past = set()
+    ranges = detection_ranges([(det, uv)], calib, "left", wall, ground, config, past)
     wall_range = float(calib.world_to_rect(np.array([24.5, 0.0, GROUND_Z + 0.9]))[2])
     assert abs(ranges[id(det)] - wall_range) < 0.3
+    assert past == {id(det)}                    # the wall's range places no one
     assert not ends_at_silhouette(uv, calib, "left", wall, ground, ranges[id(det)], config)
     with_person = np.concatenate([wall, person])
     person_range = float(calib.world_to_rect(np.array([21.8, 0.0, GROUND_Z + 0.9]))[2])
     assert ends_at_silhouette(uv, calib, "left", with_person, ground, person_range, config)
+    past = set()
+    ranges = detection_ranges([(det, uv)], calib, "left", person, ground, config, past)
+    assert abs(ranges[id(det)] - person_range) < 0.3 and past == set()
     # a walker seen in the left image only, over 6 frames, in front of the wall: no centre
     dets, clouds = [], {}
     for k in range(6):
@@ -1611,7 +1623,8 @@ def test_a_wall_behind_a_person_the_lidar_misses_places_no_one():
     tracks = pair_tracks(dets, calib, config, ground, clouds)
     assert len(tracks) == 1 and all(obs.world_p is None for obs in tracks[0])
     # its own points, alone in the hull (the wall too would leave two clusters, nothing telling which): placed
-    tracks = pair_tracks(dets, calib, config, ground, {k: person + [0.0, 0.13 * k, 0.0] for k in range(6)})
+    tracks = pair_tracks(dets, calib, config, ground, {k: _lidar_on(_person_points((22.0, 0.13 * k), np.pi / 2,
+                                                                                   0.6 * k)) for k in range(6)})
     assert len(tracks) == 1 and all(obs.world_p is not None for obs in tracks[0])
 
 
@@ -2278,3 +2291,24 @@ def test_a_fragment_scored_above_its_person_gives_way_to_the_whole_detection():
     headless = np.where((np.arange(17) >= 5)[:, None], front + [-10.0, 8.0], np.nan)
     assert kept(("upper", upper, 0.8), ("headless", headless, 0.7)) == ["upper"]
     assert kept(("upper", upper, 0.7), ("headless", headless, 0.8)) == ["headless"]
+
+
+def test_a_wall_seen_through_a_walker_the_lidar_misses_does_not_place_its_stereo_frames():
+    """A walker at 22 m seen in both images whose own points the LiDAR misses, in front of a building's wall
+    2.5 m behind: the wall's cluster is each detection's range (:func:`detection_ranges`, it still tells
+    people apart) but goes on past the hull, so no frame's centre is slid to the wall's range with the
+    range's sharp sigma: each keeps its stereo centre (at the walker, within its own uncertainty)."""
+    from pedx_graph.detections.association import tracks_from_ids
+
+    calibs, calib, ground, _, _ = _someone_at_22m()
+    rng = np.random.default_rng(3)
+    frames = {}
+    for k in range(6):
+        dets = _detections(calib, _person_points((22.0, 0.13 * k), np.pi / 2, 0.6 * k), k, rng, noise_px=0.5,
+                           score=0.9)
+        frames[k] = {det.camera: det for det in dets}
+    config = AssociationConfig()
+    walled = tracks_from_ids({"7": frames}, calibs, config, ground, clouds={k: _facade() for k in range(6)})
+    for k, fr in enumerate(walled[0].frames):
+        error = float(np.linalg.norm(fr.world_p[:2] - [22.0, 0.13 * k]))
+        assert error < max(3.0 * fr.depth_sigma_m, 0.5), (k, error, fr.depth_sigma_m)

@@ -91,7 +91,8 @@ Steps:
    a neighbour's tracklet carried through the one frame where the person was seen in that image; one stereo
    frame is too short to pair tracklets).  Paired frames are triangulated at their median
    disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
-   agrees; a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
+   agrees (at its detection's own range only where that range's cluster ends at the hulls, not a car or a
+   wall seen through someone the LiDAR misses: :func:`detection_ranges`' ``past``); a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
    where that cluster ends at the silhouettes (not a wall seen through someone the LiDAR misses,
    ``lidar_min_support``) and the track's nearest stereo centre in time allows that depth
    (:func:`_agrees_with_stereo`); once
@@ -288,9 +289,11 @@ class AssociationConfig:
     depth; inside the image) ..."""
     lidar_min_support: float = 0.5
     """... a detection's LiDAR cluster that, clustered again with the surroundings' scene points, is less than
-    this fraction of its component goes on past the silhouettes (:func:`ends_at_silhouette`): its range still
-    tells people apart but does not place a person seen in one image (a wall behind someone the LiDAR does
-    not see passes the feet test a few metres too far at 20 m)."""
+    this fraction of its component goes on past the silhouettes (:func:`ends_at_silhouette` for a person seen
+    in one image; its hull's points against those of every detection's surroundings in
+    :func:`detection_ranges`): its range still tells people apart but places no one (a wall behind someone
+    the LiDAR does not see passes the feet test a few metres too far at 20 m; a car in front of someone at
+    30 m a few metres too near)."""
     feet_tolerance_m: float = 0.4
     """People stand on the ground: a LiDAR cluster is a detection's person, and a left and a right detection
     are one person, only at a depth (the cluster's range; the pairing's median disparity) where the
@@ -718,7 +721,8 @@ def match_stereo(left: list[tuple[Detection, np.ndarray]], right: list[tuple[Det
 # ---------------------------------------------------------------------------------------------- LiDAR ranges
 
 def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCalibration, side: str,
-                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig) -> dict[int, float]:
+                     cloud: np.ndarray, ground: GroundFrame, config: AssociationConfig,
+                     past: set[int] | None = None) -> dict[int, float]:
     """Id of a detection -> the range of the LiDAR cluster that is its person, metres (median depth along the
     pair's rectified optical axis, the same in both images), for one image's ``(detection, rectified uv)``.
 
@@ -733,7 +737,13 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     overlap of the near one: detections and clusters are matched one to one maximising the summed support
     (Hungarian); a detection gets no range when its cluster's support is within ``lidar_support_margin`` of
     its next candidate's or of another detection's support for the same cluster (nothing tells which is its
-    person: e.g. the far person fully hidden, one cluster in two overlapping hulls)."""
+    person: e.g. the far person fully hidden, one cluster in two overlapping hulls).
+
+    ``past``, when given, gathers the ids of the detections whose cluster goes on past the hulls: clustered
+    alike with the scene points of every detection's silhouette and surroundings (:func:`_surroundings_box`),
+    the cluster is less than ``lidar_min_support`` of its component — a wall or a car seen through the
+    silhouette of someone the LiDAR misses (a person's points end at its silhouette).  Such a range still
+    tells people apart but places no one (:func:`lidar_centres`)."""
     from pedx_graph.detections.lidar_cut import hull_polygon, project_cloud
     from pedx_graph.data.segment_cut import segment_indices_from_projection
 
@@ -763,8 +773,21 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
     for i, index in enumerate(inside):
         counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
         support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
-    cluster_range = {int(c): float(np.median(depth[used[label_of == c]]))
-                     for c in np.flatnonzero(support.max(axis=0, initial=0.0) > 0)}
+    candidates = np.flatnonzero(support.max(axis=0, initial=0.0) > 0)
+    cluster_range = {int(c): float(np.median(depth[used[label_of == c]])) for c in candidates}
+    going_on = set()
+    if past is not None and len(candidates):
+        around = np.zeros(len(cloud), dtype=bool)
+        around[used] = True
+        for _, rect_uv in items:
+            box = _surroundings_box(rect_uv, config)
+            if box is not None:
+                around |= _in_surroundings(uv, depth, box, calib, config)
+        wide = np.flatnonzero(around)
+        wide_label = _ground_clusters(ground.to_level(cloud[wide])[:, :2], config.lidar_cluster_gap_m)
+        component_size = np.bincount(wide_label)[wide_label[np.searchsorted(wide, used)]]
+        going_on = {int(c) for c in candidates
+                    if cluster_size[c] < config.lidar_min_support * component_size[int(np.argmax(label_of == c))]}
     for i, (det, rect_uv) in enumerate(items):
         for c in np.flatnonzero(support[i] > 0):
             # a cluster at a range where the person would float above the ground or sink into it is not its
@@ -782,6 +805,8 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
                for x in (others, rivals)):
             continue
         out[id(items[i][0])] = cluster_range[int(c)]
+        if int(c) in going_on:
+            past.add(id(items[i][0]))
     return out
 
 
@@ -797,15 +822,47 @@ def _ground_clusters(level_xy: np.ndarray, gap_m: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
+def _surroundings_box(rect_uv: np.ndarray, config: AssociationConfig) -> tuple[float, float, float, float, float] | None:
+    """``(centre, half, reach, v_min, v_max)``, rectified pixels: a detection's silhouette is the columns
+    within ``half`` of ``centre`` (its keypoints' columns grown by the cut's hull's dilation, widened to at
+    least ``lidar_body_width_frac`` of their image height: a walker seen from the side has its keypoints on
+    one line, its body's points a chest's depth across) and the rows from ``v_min`` to ``v_max`` (its
+    keypoints' rows grown alike); its surroundings, the same rows out to ``reach`` of ``centre``
+    (``lidar_context_frac`` of that height further on both sides).  None with fewer than
+    ``lidar_cut.min_keypoints`` (and three) keypoints."""
+    from pedx_graph.detections.lidar_cut import border_margin_px
+
+    rect_uv = np.asarray(rect_uv, dtype=float)
+    present = rect_uv[np.all(np.isfinite(rect_uv), axis=1)]
+    if len(present) < max(config.lidar_cut.min_keypoints, 3):
+        return None
+    lo, hi = present.min(axis=0), present.max(axis=0)
+    height = float(hi[1] - lo[1])
+    grow = border_margin_px(rect_uv, config.lidar_cut)             # the cut's hull's dilation
+    half = max(0.5 * float(hi[0] - lo[0]) + grow, 0.5 * config.lidar_body_width_frac * height)
+    return (0.5 * float(lo[0] + hi[0]), half, half + config.lidar_context_frac * height,
+            float(lo[1]) - grow, float(hi[1]) + grow)
+
+
+def _in_surroundings(uv: np.ndarray, depth: np.ndarray, box: tuple, calib: StereoCalibration,
+                     config: AssociationConfig) -> np.ndarray:
+    """(N,) bool: which of N projected points (``uv`` (N, 2) rectified pixels, ``depth`` (N,) metres along
+    the optical axis) lie in front of the camera (``lidar_cut.min_depth_m``), inside the image, in a
+    detection's silhouette or surroundings (``box``: :func:`_surroundings_box`)."""
+    centre, _, reach, v_min, v_max = box
+    width, height = calib.image_size
+    with np.errstate(invalid="ignore"):
+        return (uv[:, 1] >= max(v_min, 0.0)) & (uv[:, 1] < min(v_max, float(height))) & \
+            (depth > config.lidar_cut.min_depth_m) & (np.abs(uv[:, 0] - centre) <= reach) & \
+            (uv[:, 0] >= 0.0) & (uv[:, 0] < width)
+
+
 def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str, cloud: np.ndarray,
                        ground: GroundFrame, range_m: float, config: AssociationConfig,
                        projection: tuple[np.ndarray, np.ndarray] | None = None) -> bool:
     """Whether the LiDAR cluster a detection's range comes from (:func:`detection_ranges`) ends at the
-    person's silhouette.  The silhouette here is the box of the keypoints' rows and of their columns widened
-    to at least ``lidar_body_width_frac`` of their image height (a walker seen from the side has its keypoints
-    on one line, its body's points a chest's depth across); its surroundings are the same rows
-    ``lidar_context_frac`` of that height further on both sides, inside the image.  The scene points above
-    the ground in the silhouette are clustered in the ground plane (``lidar_cluster_gap_m``), the cluster
+    person's silhouette (:func:`_surroundings_box`, as its surroundings).  The scene points above the ground
+    in the silhouette are clustered in the ground plane (``lidar_cluster_gap_m``), the cluster
     whose median depth is nearest ``range_m`` taken; clustered again with the surroundings' points, it must be
     at least ``lidar_min_support`` of its component.  A person's points end at its silhouette; a wall's or a
     parked car's, seen through the silhouette of someone the LiDAR misses, go on past it (as do a person's
@@ -813,25 +870,16 @@ def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str,
     be judged (too few keypoints, no points).  ``rect_uv``: (K, 2) rectified pixels in the pair's ``side``
     image; ``cloud``: (N, 3) world points; ``projection``: ``cloud`` projected into that image
     (:func:`~pedx_graph.detections.lidar_cut.project_cloud`), when already done."""
-    from pedx_graph.detections.lidar_cut import border_margin_px, project_cloud
+    from pedx_graph.detections.lidar_cut import project_cloud
 
-    rect_uv = np.asarray(rect_uv, dtype=float)
-    present = rect_uv[np.all(np.isfinite(rect_uv), axis=1)]
     cloud = np.asarray(cloud, dtype=float).reshape(-1, 3)
-    if len(present) < max(config.lidar_cut.min_keypoints, 3) or not len(cloud):
+    box = _surroundings_box(rect_uv, config)
+    if box is None or not len(cloud):
         return True
     uv, depth = projection if projection is not None else project_cloud(calib, side, cloud)
-    lo, hi = present.min(axis=0), present.max(axis=0)
-    height = float(hi[1] - lo[1])
-    grow = border_margin_px(rect_uv, config.lidar_cut)             # the cut's hull's dilation
-    half = max(0.5 * float(hi[0] - lo[0]) + grow, 0.5 * config.lidar_body_width_frac * height)
-    centre = 0.5 * float(lo[0] + hi[0])
-    pad = config.lidar_context_frac * height
-    with np.errstate(invalid="ignore"):
-        rows = (uv[:, 1] >= max(lo[1] - grow, 0.0)) & (uv[:, 1] < min(hi[1] + grow, float(calib.image_size[1]))) & \
-            (depth > config.lidar_cut.min_depth_m)
-        offset = np.abs(uv[:, 0] - centre)
-        near = np.flatnonzero(rows & (offset <= half + pad) & (uv[:, 0] >= 0.0) & (uv[:, 0] < calib.image_size[0]))
+    near = np.flatnonzero(_in_surroundings(uv, depth, box, calib, config))
+    offset = np.abs(uv[:, 0] - box[0])
+    half = box[1]
     if ground.ground_offset_m is not None and len(near):
         near = near[ground.height(cloud[near]) >= config.lidar_cut.ground_clearance_m]
     inside = near[offset[near] <= half]
@@ -1447,12 +1495,13 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             frames[frame] = join_split_parts(items, config)
     tracklets = {}
     ranges: dict[int, float] = {}
+    past: set[int] = set()                               # ranges that go on past the silhouettes
     for side, frames in per_image.items():
         deduplicated = {frame: drop_duplicates(items, config) for frame, items in sorted(frames.items())}
         if clouds is not None and config.lidar_identity:
             for frame, items in deduplicated.items():
                 if frame in clouds and items:
-                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
+                    ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config, past))
         tracklets[side] = camera_tracklets(deduplicated, config, ranges)
     candidates = []
     for person in pair_tracklets(tracklets["left"], tracklets["right"], calib, config, ranges, ground):
@@ -1473,13 +1522,14 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
         candidates.append(track)
     out = []
     projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}   # scene cloud per image, once
+    placing = _placing(ranges, past)
     for track in stitch_tracks(candidates, calib, config):
         if len(track) < config.tracker.min_track_frames:
             continue
         if float(np.mean([o.score for o in track])) < config.tracker.min_mean_score:
             continue
         if clouds is not None:
-            lidar_centres(track, calib, per_image, ranges, clouds, ground, config, projections)
+            lidar_centres(track, calib, per_image, placing, clouds, ground, config, projections)
         out.append(track)
     out = drop_other_heights(repair_swaps(split_reversals(out, calib, config), calib, config), calib, config)
     if clouds is not None and config.lidar_identity:
@@ -1499,6 +1549,12 @@ def _stereo_centre(obs: Observation, calib: StereoCalibration, ground: GroundFra
     obs.disparity_px = float(np.median(uv_l[both, 0] - uv_r[both, 0]))
 
 
+def _placing(ranges: Mapping[int, float], past: set[int]) -> dict[int, float]:
+    """The LiDAR ranges (:func:`detection_ranges`) that may place their detection's person: those whose
+    cluster ends at the silhouettes (not in ``past``)."""
+    return {key: value for key, value in ranges.items() if key not in past}
+
+
 def lidar_centres(track: list[Observation], calib: StereoCalibration, per_image: Mapping[str, Mapping[int, list]],
                   ranges: Mapping[int, float], clouds: Mapping[int, np.ndarray], ground: GroundFrame,
                   config: AssociationConfig, projections: dict | None = None) -> None:
@@ -1507,7 +1563,8 @@ def lidar_centres(track: list[Observation], calib: StereoCalibration, per_image:
     track's stereo centre nearest in time allows that depth (:func:`_agrees_with_stereo`), then every frame
     with a centre on its cut (:func:`_lidar_centre`).  ``per_image``: side -> frame -> that image's
     ``(detection, rectified uv)`` (whose ranges other detections claim, whose hulls they cover); ``ranges``:
-    :func:`detection_ranges` of those images; ``projections``: ``(frame, side)`` -> the cloud projected into
+    :func:`detection_ranges` of those images, those that may place a person (:func:`_placing`);
+    ``projections``: ``(frame, side)`` -> the cloud projected into
     that image, filled on first use (shared by the tracks of one pair)."""
     projections = {} if projections is None else projections
     stereo = [obs for obs in track if obs.world_p is not None]
@@ -3277,11 +3334,14 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
             tracks.append(track)
         if clouds is not None:
             ranges: dict[int, float] = {}                 # each image's clusters given to its detections
+            past: set[int] = set()
             if config.lidar_identity:
                 for side, frames in per_image.items():
                     for frame, items in frames.items():
                         if frame in clouds:
-                            ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config))
+                            ranges.update(detection_ranges(items, calib, side, clouds[frame], ground, config,
+                                                           past))
+            ranges = _placing(ranges, past)
             projections: dict[tuple[int, str], tuple[np.ndarray, np.ndarray]] = {}
             for track in tracks:
                 lidar_centres(track, calib, per_image, ranges, clouds, ground, config, projections)
