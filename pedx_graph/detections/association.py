@@ -92,8 +92,9 @@ Steps:
    frame is too short to pair tracklets).  Paired frames are triangulated at their median
    disparity (:func:`triangulate_centre`); with ``clouds``, a LiDAR centre replaces the stereo one where it
    agrees (at its detection's own range only where that range's cluster ends at the hulls, not a car or a
-   wall seen through someone the LiDAR misses: :func:`detection_ranges`' ``past``); a frame seen in one image gets one from its detection's own LiDAR cluster (:func:`_range_centre`)
-   where that cluster ends at the silhouettes (not a wall seen through someone the LiDAR misses,
+   wall seen through someone the LiDAR misses: :func:`detection_ranges`' ``past``); a frame seen in one
+   image gets one from its detection's own LiDAR cluster (:func:`_range_centre`) where that cluster ends at
+   the silhouettes (not a wall seen through someone the LiDAR misses,
    ``lidar_min_support``) and the track's nearest stereo centre in time allows that depth
    (:func:`_agrees_with_stereo`); once
    the pair's tracks are final (below), every centre is checked against the track's straight walk
@@ -822,7 +823,7 @@ def _ground_clusters(level_xy: np.ndarray, gap_m: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def _surroundings_box(rect_uv: np.ndarray, config: AssociationConfig) -> tuple[float, float, float, float, float] | None:
+def _surroundings_box(rect_uv: np.ndarray, config: AssociationConfig) -> tuple[float, ...] | None:
     """``(centre, half, reach, v_min, v_max)``, rectified pixels: a detection's silhouette is the columns
     within ``half`` of ``centre`` (its keypoints' columns grown by the cut's hull's dilation, widened to at
     least ``lidar_body_width_frac`` of their image height: a walker seen from the side has its keypoints on
@@ -1495,7 +1496,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
             frames[frame] = join_split_parts(items, config)
     tracklets = {}
     ranges: dict[int, float] = {}
-    past: set[int] = set()                               # ranges that go on past the silhouettes
+    past: set[int] = set()                               # ranges whose cluster goes on past the hulls
     for side, frames in per_image.items():
         deduplicated = {frame: drop_duplicates(items, config) for frame, items in sorted(frames.items())}
         if clouds is not None and config.lidar_identity:
@@ -1551,7 +1552,7 @@ def _stereo_centre(obs: Observation, calib: StereoCalibration, ground: GroundFra
 
 def _placing(ranges: Mapping[int, float], past: set[int]) -> dict[int, float]:
     """The LiDAR ranges (:func:`detection_ranges`) that may place their detection's person: those whose
-    cluster ends at the silhouettes (not in ``past``)."""
+    cluster ends at the hulls (not in ``past``)."""
     return {key: value for key, value in ranges.items() if key not in past}
 
 
@@ -1564,8 +1565,8 @@ def lidar_centres(track: list[Observation], calib: StereoCalibration, per_image:
     with a centre on its cut (:func:`_lidar_centre`).  ``per_image``: side -> frame -> that image's
     ``(detection, rectified uv)`` (whose ranges other detections claim, whose hulls they cover); ``ranges``:
     :func:`detection_ranges` of those images, those that may place a person (:func:`_placing`);
-    ``projections``: ``(frame, side)`` -> the cloud projected into
-    that image, filled on first use (shared by the tracks of one pair)."""
+    ``projections``: ``(frame, side)`` -> the cloud projected into that image, filled on first use (shared by
+    the tracks of one pair)."""
     projections = {} if projections is None else projections
     stereo = [obs for obs in track if obs.world_p is not None]
     for obs in stereo + [obs for obs in track if obs.world_p is None]:     # stereo frames first
