@@ -1342,6 +1342,75 @@ def test_a_one_coefficient_robust_fit_leaves_out_two_precise_points_off_the_rest
     assert total[0] == pytest.approx(np.sum((y[:8] - np.mean(y[:8])) ** 2) + 2 * 3.5 ** 2)
 
 
+def _robust_fit_three_times(design, y, sigma, gate):
+    """The walk's robust fit written plainly (every fit iterated three times, np.median, einsum): what
+    :func:`_robust_fit` must give bit for bit."""
+    weight = 1.0 / sigma
+    a = design * weight[None, :, None]
+    b = y * weight
+    k = design.shape[2]
+    keep = np.ones(design.shape[:2], dtype=bool)
+    if k == 1:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            start = np.median(y[None, :] / design[:, :, 0], axis=1)
+            keep = np.abs(b[None, :] - a[:, :, 0] * start[:, None]) <= gate
+        keep[keep.sum(axis=1) == 0] = True
+    for _ in range(3):
+        ak = a * keep[:, :, None]
+        if k == 1:
+            coef = (np.sum(ak[:, :, 0] * b, axis=1) / (np.sum(ak[:, :, 0] ** 2, axis=1) + 1e-12))[:, None]
+        else:
+            a0, a1 = ak[:, :, 0], ak[:, :, 1]
+            s00, s01, s11 = np.sum(a0 * a0, axis=1) + 1e-12, np.sum(a0 * a1, axis=1), np.sum(a1 * a1, axis=1) + 1e-12
+            r0, r1 = a0 @ b, a1 @ b
+            det = s00 * s11 - s01 * s01
+            coef = np.stack([(s11 * r0 - s01 * r1) / det, (s00 * r1 - s01 * r0) / det], axis=1)
+        z = b[None, :] - np.einsum("mni,mi->mn", a, coef)
+        new_keep = np.abs(z) <= gate
+        enough = new_keep.sum(axis=1) >= k
+        keep = np.where(enough[:, None], new_keep, keep)
+    return np.sum(np.minimum(z ** 2, gate ** 2), axis=1), coef
+
+
+def test_the_robust_fit_stopping_early_gives_the_three_iterations_bit_for_bit():
+    """:func:`_robust_fit` stops once the points it keeps no longer change: on walk-like designs (columns
+    over 33 depth rates, depths, sizes, with outliers and a zero design column) its sums and coefficients
+    are those of three full iterations, bit for bit."""
+    from pedx_graph.detections.association import _robust_fit
+
+    rng = np.random.default_rng(11)
+    for _ in range(400):
+        m, n = int(rng.integers(1, 34)), int(rng.integers(3, 60))
+        tau = np.arange(n) - 0.5 * (n - 1)
+        stretch = 1.0 + rng.uniform(-0.02, 0.02, m)[:, None] * tau[None, :]
+        design = (np.stack([1.0 / stretch, tau / stretch], axis=2), stretch[:, :, None],
+                  1.0 / stretch[:, :, None])[int(rng.integers(3))]
+        if rng.random() < 0.1:
+            design = design.copy()
+            design[:, rng.integers(n)] = 0.0
+        y = 100.0 * rng.normal() + 30.0 * rng.normal(size=n)
+        if rng.random() < 0.5:
+            y[rng.integers(n, size=3)] += 200.0
+        sigma = rng.uniform(0.5, 5.0, n)
+        total, coef = _robust_fit(design, y, sigma, 3.0, coefficients=True)
+        want_total, want_coef = _robust_fit_three_times(design, y, sigma, 3.0)
+        assert np.array_equal(total, want_total) and np.array_equal(coef, want_coef)
+
+
+def test_a_standing_height_is_kept_by_the_keypoints_it_was_measured_on():
+    """:func:`standing_height_px` keeps its answers by the keypoints' values: the same keypoints in
+    another array give the same height, and keypoints changed in place give a new one."""
+    from pedx_graph.detections.association import _standing_rows, standing_height_px
+
+    rng = np.random.default_rng(4)
+    uv = np.stack([rng.uniform(600, 620, 17), 300.0 + 180.0 * _standing_rows("coco17")], axis=1)
+    first = standing_height_px(uv, "coco17", 3.0, 4.0)
+    assert standing_height_px(uv.copy(), "coco17", 3.0, 4.0) == first
+    assert standing_height_px(uv[:, [0, 1]].T.copy().T, "coco17", 3.0, 4.0) == first     # not contiguous
+    uv[:, 1] = 300.0 + 2.0 * (uv[:, 1] - 300.0)
+    assert standing_height_px(uv, "coco17", 3.0, 4.0)[0] == pytest.approx(2.0 * first[0])
+
+
 def _walker_and_the_one_behind(seed: int):
     """A walker going away from the forward pair from 7 m (0.12 m a frame, frames 0-11) and a person of the
     same height standing 1.2 m behind it on nearly the same ray, each observation with a centre 0.15 m

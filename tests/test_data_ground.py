@@ -57,6 +57,21 @@ def test_calibration_up_of_a_z_down_rig():
     assert ground.yaw_of(body) == pytest.approx(0.7)
 
 
+def test_the_level_rotation_is_made_once_read_only_and_anew_for_a_new_frame():
+    """``world_R_level`` is kept with its frame object and cannot be changed in place; a frame made from it
+    with another up axis (``dataclasses.replace``) gets its own."""
+    ground = estimate_ground({"a-b": _z_down_calibration()}, sequence="seq")
+    rotation = ground.world_R_level
+    assert ground.world_R_level is rotation
+    with pytest.raises(ValueError):
+        rotation[0, 0] = 2.0
+    turned = dataclasses.replace(ground, world_up=-ground.world_up)
+    np.testing.assert_allclose(turned.world_R_level[:, 2], -ground.world_up)
+    np.testing.assert_allclose(np.linalg.det(turned.world_R_level), 1.0)
+    point = np.array([3.0, -2.0, 1.5])
+    assert turned.to_level(point)[2] == pytest.approx(-ground.to_level(point)[2])
+
+
 def test_ground_fit_finds_the_tilted_road_not_walls_or_roofs():
     rng = np.random.default_rng(0)
     points, normal, height = _street(rng)

@@ -29,6 +29,7 @@ moves with it, so the estimator's results do too (tested).
 """
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -87,11 +88,15 @@ class GroundFrame:
     details: dict = field(default_factory=dict, compare=False)
     """What the derivation measured (camera disagreement, inlier counts, tilt), JSON-serialisable."""
 
-    @property
+    @functools.cached_property
     def world_R_level(self) -> np.ndarray:
-        """(3, 3) columns ``[forward, left, up]`` of the level frame in the world frame (a rotation)."""
+        """(3, 3) columns ``[forward, left, up]`` of the level frame in the world frame (a rotation; made
+        once per frame object, read-only: the association maps points to the level frame many thousand
+        times)."""
         left = np.cross(self.world_up, self.world_forward)
-        return np.stack([self.world_forward, left, self.world_up], axis=1)
+        world_R_level = np.stack([self.world_forward, left, self.world_up], axis=1)
+        world_R_level.flags.writeable = False
+        return world_R_level
 
     def to_level(self, world_p: np.ndarray) -> np.ndarray:
         """(..., 3) world points -> level coordinates (x forward, y left, z along ``world_up``; origin at the

@@ -191,6 +191,7 @@ from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig, b
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.keypoints import lower_body_mask
+from pedx_graph.small_arrays import median
 
 _GATED = 1e9
 
@@ -460,7 +461,7 @@ def _within_duplicate_distance(uv: np.ndarray, other_uv: np.ndarray, config: Ass
     if both.sum() < config.min_shared_keypoints:
         return False
     scale = max(_height(uv), _height(other_uv), 1.0)
-    return bool(np.median(np.linalg.norm(uv[both] - other_uv[both], axis=1)) < config.duplicate_frac * scale)
+    return bool(median(np.linalg.norm(uv[both] - other_uv[both], axis=1)) < config.duplicate_frac * scale)
 
 
 def _fragment_of(uv: np.ndarray, other_uv: np.ndarray) -> bool:
@@ -497,7 +498,17 @@ def standing_height_px(uv: np.ndarray, keypoint_set: str, gate: float, floor_px:
     keypoints' vertical span it does not shrink when the ankles or the head are missed.  The standard error is
     the fit's own (``s / sqrt(sum (row - mean)^2)``, ``s`` the residuals' RMS): on the simulator's detections
     the frame-to-frame change of one person's height is about that (normalised, robust spread 0.9-1.04, all
-    formats; 2-3 % of the height per frame)."""
+    formats; 2-3 % of the height per frame).  Kept per distinct input (:func:`_standing_height`): the
+    association asks again for one detection's height each time a track holding it is judged."""
+    uv = np.ascontiguousarray(uv, dtype=float)
+    return _standing_height(uv.tobytes(), uv.shape, keypoint_set, float(gate), float(floor_px))
+
+
+@functools.lru_cache(maxsize=1 << 15)
+def _standing_height(uv_bytes: bytes, shape: tuple, keypoint_set: str, gate: float,
+                     floor_px: float) -> tuple[float, float] | None:
+    """:func:`standing_height_px` of the (K, 2) float rows ``uv_bytes`` of ``shape``."""
+    uv = np.frombuffer(uv_bytes).reshape(shape)
     rows = _standing_rows(keypoint_set)
     present = np.flatnonzero(np.all(np.isfinite(uv), axis=1))
     if len(present) < 4:
@@ -510,7 +521,7 @@ def standing_height_px(uv: np.ndarray, keypoint_set: str, gate: float, floor_px:
         design = np.stack([r, np.ones(len(r))], axis=1)
         (height, top), *_ = np.linalg.lstsq(design, uv[present[keep], 1], rcond=None)
         residual = uv[present, 1] - (top + height * rows[present])
-        spread = max(1.4826 * float(np.median(np.abs(residual[keep]))), floor_px)
+        spread = max(1.4826 * float(median(np.abs(residual[keep]))), floor_px)
         new_keep = np.abs(residual) <= gate * spread
         if iteration == 2 or new_keep.sum() < 4 or np.array_equal(new_keep, keep):
             break
@@ -536,7 +547,7 @@ def join_misfit(uv_upper: np.ndarray, uv_lower: np.ndarray, keypoint_set: str) -
     if not height > 0:
         return None
     rms = float(np.sqrt(np.mean((v - design @ np.array([height, top])) ** 2)))
-    column = abs(float(np.median(uv_upper[up, 0])) - float(np.median(uv_lower[low, 0])))
+    column = abs(float(median(uv_upper[up, 0])) - float(median(uv_lower[low, 0])))
     return rms / height, column / height
 
 
@@ -608,7 +619,7 @@ def implied_height_m(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCal
     feet = [a for a in ankles if both[a]]
     if not both[nose] or not feet or both.sum() < 3:
         return None
-    d_med = float(np.median(uv_left[both, 0] - uv_right[both, 0]))
+    d_med = float(median(uv_left[both, 0] - uv_right[both, 0]))
     if d_med <= 0:
         return None
     span = float(np.mean([uv_left[a, 1] - uv_left[nose, 1] for a in feet]))
@@ -630,9 +641,9 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
         return _GATED
     left, right = uv_left[both], uv_right[both]
     sigma = _keypoint_sigma_px(left, right, config)
-    row = float(np.median(left[:, 1] - right[:, 1])) / (1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left)))
+    row = float(median(left[:, 1] - right[:, 1])) / (1.2533 * np.sqrt(2.0) * sigma / np.sqrt(len(left)))
     disparity = left[:, 0] - right[:, 0]
-    d_med = float(np.median(disparity))
+    d_med = float(median(disparity))
     if d_med <= 0:
         return _GATED
     depth = calib.focal_px * calib.baseline_m / d_med
@@ -645,11 +656,11 @@ def stereo_cost(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoCalibrat
         slack = config.gate_sigmas * se_depth * abs(camera_height - _FOOT_HEIGHT_M) / depth
         if not _feet_on_ground(keypoint_set, uv_left, calib, "left", depth, ground, config, slack):
             return _GATED
-    spread = 1.4826 * float(np.median(np.abs(disparity - d_med))) / (np.sqrt(2.0) * sigma)
+    spread = 1.4826 * float(median(np.abs(disparity - d_med))) / (np.sqrt(2.0) * sigma)
     # the spans over the keypoints whose rows agree: one keypoint misplaced in one image (a wrist put on
     # the hip) stretches one span, not the person's size
     offset = left[:, 1] - right[:, 1]
-    agree = np.abs(offset - np.median(offset)) <= config.gate_sigmas * np.sqrt(2.0) * sigma
+    agree = np.abs(offset - median(offset)) <= config.gate_sigmas * np.sqrt(2.0) * sigma
     if agree.sum() < max(config.min_shared_keypoints, 0.5 * len(left) + 0.5):
         agree[:] = True
     span_l, span_r = np.ptp(left[agree, 1]), np.ptp(right[agree, 1])
@@ -684,7 +695,7 @@ def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoC
     keypoints that happen to agree do not make a depth precise)."""
     both = np.all(np.isfinite(uv_left), axis=1) & np.all(np.isfinite(uv_right), axis=1)
     left, right = uv_left[both], uv_right[both]
-    d_med = float(np.median(left[:, 0] - right[:, 0]))
+    d_med = float(median(left[:, 0] - right[:, 0]))
     P = calib.left_P_rect
     f_u, f_v, c_u, c_v = P[0, 0], P[1, 1], P[0, 2], P[1, 2]
     depth = calib.focal_px * calib.baseline_m / d_med
@@ -692,7 +703,7 @@ def triangulate_centre(uv_left: np.ndarray, uv_right: np.ndarray, calib: StereoC
                        np.full(len(left), depth)], axis=1)
     world_p = calib.rect_to_world(rect_p)
     disparity = left[:, 0] - right[:, 0]
-    spread = max(1.4826 * float(np.median(np.abs(disparity - d_med))),
+    spread = max(1.4826 * float(median(np.abs(disparity - d_med))),
                  np.sqrt(2.0) * _keypoint_sigma_px(left, right, config))
     sigma = depth ** 2 / (calib.focal_px * calib.baseline_m) * 1.2533 * spread / np.sqrt(max(len(left), 1))
     return ground.median_point(world_p), float(sigma)
@@ -775,7 +786,7 @@ def detection_ranges(items: list[tuple[Detection, np.ndarray]], calib: StereoCal
         counts = np.bincount(label[index], minlength=n_clusters) if len(index) else np.zeros(n_clusters)
         support[i] = np.where(counts >= config.lidar_identity_min_points, counts / np.maximum(cluster_size, 1), 0.0)
     candidates = np.flatnonzero(support.max(axis=0, initial=0.0) > 0)
-    cluster_range = {int(c): float(np.median(depth[used[label_of == c]])) for c in candidates}
+    cluster_range = {int(c): float(median(depth[used[label_of == c]])) for c in candidates}
     going_on = set()
     if past is not None and len(candidates):
         around = np.zeros(len(cloud), dtype=bool)
@@ -887,7 +898,7 @@ def ends_at_silhouette(rect_uv: np.ndarray, calib: StereoCalibration, side: str,
     if not len(inside):
         return True
     own = _ground_clusters(ground.to_level(cloud[inside])[:, :2], config.lidar_cluster_gap_m)
-    medians = [float(np.median(depth[inside[own == c]])) for c in range(int(own.max()) + 1)]
+    medians = [float(median(depth[inside[own == c]])) for c in range(int(own.max()) + 1)]
     cluster = inside[own == int(np.argmin(np.abs(np.asarray(medians) - range_m)))]
     grown = _ground_clusters(ground.to_level(cloud[near])[:, :2], config.lidar_cluster_gap_m)
     component = grown[np.searchsorted(near, cluster[0])]
@@ -1009,10 +1020,10 @@ def _smooth_disparity(frames: np.ndarray, disparity: np.ndarray, se: np.ndarray,
     if len(frames) < 2:
         return np.zeros(len(frames))
     sigma = np.hypot(se, config.disparity_smooth_px)
-    d_med = float(np.median(disparity))
+    d_med = float(median(disparity))
     max_slope = d_med ** 2 / (calib.focal_px * calib.baseline_m) * config.tracker.max_speed_mps \
         * config.tracker.frame_interval_s
-    f0 = float(np.median(frames))
+    f0 = float(median(frames))
     weight = 1.0 / sigma ** 2
     a, b = d_med, 0.0
     for _ in range(4):
@@ -1143,14 +1154,14 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
             step = (observed[int(near[1])][2] - observed[int(near[0])][2]) / float(near[1] - near[0])
             shared = np.all(np.isfinite(step), axis=1)
             if shared.sum() >= 2:
-                predicted = predicted + np.median(step[shared], axis=0) * (frame - anchor)
+                predicted = predicted + median(step[shared], axis=0) * (frame - anchor)
         gap = gaps[0] * 2                          # extrapolated: the velocity itself is uncertain
     both = np.all(np.isfinite(predicted), axis=1) & np.all(np.isfinite(uv), axis=1)
     if both.sum() < config.min_shared_keypoints:
         return None
     height = max(np.ptp(predicted[both, 1]), np.ptp(uv[both, 1]), 1.0)
     sigma = config.tracklet.keypoint_sigma_px + config.tracklet.motion_frac * height * np.sqrt(max(gap, 1))
-    distance = float(np.median(np.linalg.norm(predicted[both] - uv[both], axis=1))) / sigma
+    distance = float(median(np.linalg.norm(predicted[both] - uv[both], axis=1))) / sigma
     size = 0.0
     span_pred, span_obs = np.ptp(predicted[both, 1]), np.ptp(uv[both, 1])
     if config.tracklet.size_sigma > 0 and min(span_pred, span_obs) > 4 * config.tracklet.keypoint_sigma_px:
@@ -1174,7 +1185,7 @@ def _disparity_of(uv_left: np.ndarray, uv_right: np.ndarray, config: Association
     if both.sum() < config.min_shared_keypoints:
         return None
     sigma = _keypoint_sigma_px(uv_left[both], uv_right[both], config)
-    return (float(np.median(uv_left[both, 0] - uv_right[both, 0])),
+    return (float(median(uv_left[both, 0] - uv_right[both, 0])),
             float(1.2533 * np.sqrt(2.0) * sigma / np.sqrt(both.sum())))
 
 
@@ -1547,7 +1558,7 @@ def _stereo_centre(obs: Observation, calib: StereoCalibration, ground: GroundFra
     obs.world_p, obs.depth_sigma_m = triangulate_centre(uv_l, uv_r, calib, ground, config)
     obs.world_p_camera = calib.camera_centre("left")
     both = np.all(np.isfinite(uv_l), axis=1) & np.all(np.isfinite(uv_r), axis=1)
-    obs.disparity_px = float(np.median(uv_l[both, 0] - uv_r[both, 0]))
+    obs.disparity_px = float(median(uv_l[both, 0] - uv_r[both, 0]))
 
 
 def _placing(ranges: Mapping[int, float], past: set[int]) -> dict[int, float]:
@@ -1608,7 +1619,7 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
     disparity, else from its median image height and ``person_height_m``), None when it has no frame.
     ``memo`` keeps each observation's own numbers across calls (the observations must not change)."""
     disparities = [o.disparity_px for o in track if o.disparity_px is not None and o.disparity_px > 0]
-    disparity = float(np.median(disparities)) if disparities else None
+    disparity = float(median(disparities)) if disparities else None
     principal = {"left": float(calib.left_P_rect[0, 2]), "right": float(calib.right_P_rect[0, 2])}
     toward = 1.0 if side == "left" else -1.0             # the other image's columns + this * disparity
     frames, u, sigma, heights, depth, depth_sigma, size, size_sigma = [], [], [], [], [], [], [], []
@@ -1641,7 +1652,7 @@ def _image_track(track: list[Observation], calib: StereoCalibration, config: Ass
     if disparity is not None:
         px_per_m = disparity / calib.baseline_m
     elif heights:
-        px_per_m = float(np.median(heights)) / config.person_height_m
+        px_per_m = float(median(heights)) / config.person_height_m
     slack = config.swap_motion_m * (px_per_m or 0.0)
     return (np.array(frames, dtype=float), np.array(u), np.hypot(np.array(sigma), slack), np.array(depth),
             np.array(depth_sigma), np.array(size, dtype=float), np.array(size_sigma, dtype=float), px_per_m)
@@ -1671,27 +1682,30 @@ def _seen_column(obs: Observation, seen: str, calib: StereoCalibration, config: 
     height = float(np.ptp(present[:, 1]))
     noise = (config.keypoint_sigma_px + config.keypoint_sigma_frac * height) * 1.2533 / np.sqrt(len(present))
     if not known:
-        return float(np.median(present[:, 0])) - principal, height, noise, np.nan, np.nan, size, size_sigma
+        return float(median(present[:, 0])) - principal, height, noise, np.nan, np.nan, size, size_sigma
     depth = float(calib.world_to_rect(np.asarray(centre_p, dtype=float))[2])
-    return (float(np.median(present[:, 0])) - principal, height, noise, depth,
+    return (float(median(present[:, 0])) - principal, height, noise, depth,
             float(np.hypot(centre_sigma, config.swap_motion_m)), size, size_sigma)
 
 
-def _normal_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(m, k) least-squares coefficients of ``b`` (n,) by the columns of each of ``a`` (m, n, k), from the
-    normal equations (regularised by 1e-12): written out for one and two columns (the walk's fits), which
-    is where the association spends its time."""
-    k = a.shape[2]
-    if k == 1:
-        return (np.sum(a[:, :, 0] * b, axis=1) / (np.sum(a[:, :, 0] ** 2, axis=1) + 1e-12))[:, None]
-    if k == 2:
-        a0, a1 = a[:, :, 0], a[:, :, 1]
-        s00, s01, s11 = np.sum(a0 * a0, axis=1) + 1e-12, np.sum(a0 * a1, axis=1), np.sum(a1 * a1, axis=1) + 1e-12
+def _normal_solve(columns: list[np.ndarray], b: np.ndarray) -> list[np.ndarray]:
+    """Least-squares coefficients of ``b`` (n,) by ``columns`` (k arrays (m, n): the columns of m models),
+    from the normal equations (regularised by 1e-12): k arrays (m,).  Written out for one and two columns
+    (the walk's fits), which is where the association spends its time."""
+    if len(columns) == 1:
+        a0 = columns[0]
+        return [np.add.reduce(a0 * b, axis=1) / (np.add.reduce(a0 ** 2, axis=1) + 1e-12)]
+    if len(columns) == 2:
+        a0, a1 = columns
+        s00 = np.add.reduce(a0 * a0, axis=1) + 1e-12
+        s01 = np.add.reduce(a0 * a1, axis=1)
+        s11 = np.add.reduce(a1 * a1, axis=1) + 1e-12
         r0, r1 = a0 @ b, a1 @ b
         det = s00 * s11 - s01 * s01
-        return np.stack([(s11 * r0 - s01 * r1) / det, (s00 * r1 - s01 * r0) / det], axis=1)
-    normal = np.einsum("mni,mnj->mij", a, a) + 1e-12 * np.eye(k)
-    return np.linalg.solve(normal, np.einsum("mni,n->mi", a, b)[:, :, None])[:, :, 0]
+        return [(s11 * r0 - s01 * r1) / det, (s00 * r1 - s01 * r0) / det]
+    a = np.stack(columns, axis=2)
+    normal = np.einsum("mni,mnj->mij", a, a) + 1e-12 * np.eye(len(columns))
+    return list(np.linalg.solve(normal, np.einsum("mni,n->mi", a, b)[:, :, None])[:, :, 0].T)
 
 
 def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: float,
@@ -1702,25 +1716,34 @@ def _robust_fit(design: np.ndarray, y: np.ndarray, sigma: np.ndarray, gate: floa
     with ``coefficients``, also the fits' coefficients (m, k).  A one-coefficient fit starts from the median
     of the ratios ``y / design`` (the first fit then leaves out what lies beyond ``gate`` of it); started from
     every point, two precise points off the rest pull the first fit toward them until they lie inside the
-    gate and stay."""
+    gate and stay.  The iterations stop early where the points kept no longer change (the rest would repeat
+    the last one; the walk's fits call this tens of thousands of times)."""
     weight = 1.0 / sigma
+    k = design.shape[2]
     a = design * weight[None, :, None]
+    columns = [a[:, :, i] for i in range(k)]
     b = y * weight
     keep = np.ones(design.shape[:2], dtype=bool)
-    if design.shape[2] == 1:               # one coefficient: start from the median ratio, not from every point
+    if k == 1:                             # one coefficient: start from the median ratio, not from every point
         with np.errstate(divide="ignore", invalid="ignore"):
-            start = np.median(y[None, :] / design[:, :, 0], axis=1)
-            keep = np.abs(b[None, :] - a[:, :, 0] * start[:, None]) <= gate
+            start = median(y[None, :] / design[:, :, 0], axis=1)
+            keep = np.abs(b[None, :] - columns[0] * start[:, None]) <= gate
         keep[keep.sum(axis=1) == 0] = True     # no finite start (a zero design): from every point
     for _ in range(3):
         ak = a * keep[:, :, None]
-        coef = _normal_solve(ak, b)
-        z = b[None, :] - np.einsum("mni,mi->mn", a, coef)
+        coef = _normal_solve([ak[:, :, i] for i in range(k)], b)
+        fitted = columns[0] * coef[0][:, None]
+        for column, c in zip(columns[1:], coef[1:]):
+            fitted = fitted + column * c[:, None]
+        z = b[None, :] - fitted
         new_keep = np.abs(z) <= gate
-        enough = new_keep.sum(axis=1) >= design.shape[2]
-        keep = np.where(enough[:, None], new_keep, keep)
-    total = np.sum(np.minimum(z ** 2, gate ** 2), axis=1)
-    return (total, coef) if coefficients else total
+        enough = np.count_nonzero(new_keep, axis=1) >= k
+        new_keep = new_keep if enough.all() else np.where(enough[:, None], new_keep, keep)
+        if np.array_equal(new_keep, keep):  # the next iterations would repeat this one
+            break
+        keep = new_keep
+    total = np.add.reduce(np.minimum(z ** 2, gate ** 2), axis=1)
+    return (total, np.stack(coef, axis=1)) if coefficients else total
 
 
 def _walk_cost(frames: np.ndarray, u: np.ndarray, sigma: np.ndarray, gate: float, max_rate: float = 0.0,
@@ -1920,7 +1943,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
             return None
         heights = spans[a] + spans[b]
         near = (np.abs(fa[:, None] - fb[None, :]) <= 2) & \
-            (np.abs(ua[:, None] - ub[None, :]) <= 0.5 * max(np.median(heights), 1.0))
+            (np.abs(ua[:, None] - ub[None, :]) <= 0.5 * max(median(heights), 1.0))
         if not near.any():
             return None
         lo, hi = max(fa.min(), fb.min()), min(fa.max(), fb.max())
@@ -2510,7 +2533,7 @@ def _feet_on_ground(keypoint_set: str, rect_uv: np.ndarray, calib: StereoCalibra
     present = [k for k in feet if k < len(rect_uv) and np.all(np.isfinite(rect_uv[k]))]
     if not present:
         return True
-    foot_uv = np.median(rect_uv[present], axis=0)         # one stray toe does not lift the person
+    foot_uv = median(rect_uv[present], axis=0)         # one stray toe does not lift the person
     height = float(ground.height(pixel_at_depth(calib, side, foot_uv, depth_m)[None])[0])
     return abs(height - _FOOT_HEIGHT_M) <= config.feet_tolerance_m + slack_m
 
@@ -2544,7 +2567,7 @@ def _range_centre(obs: Observation, calib: StereoCalibration, ranges: Mapping[in
     if len(present) == 0:
         return
     obs.fallback = (obs.world_p, obs.world_p_camera, obs.depth_sigma_m)
-    obs.world_p = pixel_at_depth(calib, side, np.median(present, axis=0), range_m)
+    obs.world_p = pixel_at_depth(calib, side, median(present, axis=0), range_m)
     obs.world_p_camera = calib.camera_centre(side)
     obs.depth_sigma_m = 1.0
 
@@ -2690,7 +2713,7 @@ def _image_agreement(seen: list[Observation], centres: dict, camera_p: np.ndarra
             f_px = calib_seen.focal_px
             spread = abs(uv_c[1, 0] - uv_c[0, 0]) if len(points) == 2 else 0.0
             tol = float(np.hypot(config.merge_distance_m * f_px / depth[0], spread))
-            offset = abs(float(np.median(present[:, 0])) - uv_c[0, 0]) / tol
+            offset = abs(float(median(present[:, 0])) - uv_c[0, 0]) / tol
             size = 0.0
             if span_m is not None and np.ptp(present[:, 1]) > 4:
                 size = abs(np.log(np.ptp(present[:, 1]) * depth[0] / f_px / span_m)) / (2 * config.size_sigma)
@@ -2699,7 +2722,7 @@ def _image_agreement(seen: list[Observation], centres: dict, camera_p: np.ndarra
             scores.append(min(terms))
     if len(scores) < config.merge_min_shared_frames:
         return None
-    return float(np.median(scores))
+    return float(median(scores))
 
 
 def _span_m(track: list[Observation], calib: StereoCalibration) -> float | None:
@@ -2713,7 +2736,7 @@ def _span_m(track: list[Observation], calib: StereoCalibration) -> float | None:
             if len(v) >= 2 and np.ptp(v) > 4:
                 depth = float(calib.world_to_rect(np.asarray(obs.world_p, dtype=float))[2])
                 spans.append(np.ptp(v) * depth / calib.focal_px)
-    return float(np.median(spans)) if spans else None
+    return float(median(spans)) if spans else None
 
 
 def _ray_distances(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sigmas: list[np.ndarray],
@@ -2736,7 +2759,7 @@ def _ray_distances(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], si
 def _ray_distance(pa: np.ndarray, pb: np.ndarray, cameras: list[np.ndarray], sigmas: list[np.ndarray],
                   lateral_sigma_m: float) -> float:
     """Median of :func:`_ray_distances` over the shared frames."""
-    return float(np.median(_ray_distances(pa, pb, cameras, sigmas, lateral_sigma_m)))
+    return float(median(_ray_distances(pa, pb, cameras, sigmas, lateral_sigma_m)))
 
 
 def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: GroundFrame,
@@ -2759,7 +2782,7 @@ def merge_pair_tracks(pair_tracks: list[tuple[str, list[Observation]]], ground: 
                 pb = ground.to_level(np.array([centres[b][f][0] for f in shared]))[:, :2]
                 sigma = np.sqrt(np.array([centres[a][f][1] ** 2 + centres[b][f][1] ** 2 for f in shared])
                                 + config.merge_distance_m ** 2)
-                score = float(np.median(np.linalg.norm(pa - pb, axis=1) / sigma))
+                score = float(median(np.linalg.norm(pa - pb, axis=1) / sigma))
                 if calibrations is not None:
                     # a centre is uncertain along its viewing ray, hardly across it: gated and ordered so
                     cameras = [ground.to_level(calibrations[pair_tracks[i][0]].camera_centre("left"))[:2]
@@ -2924,7 +2947,7 @@ def smooth_centres(frames: list[DetectedTrackFrame], ground: GroundFrame, config
     t = np.array([k[0] for k in known], dtype=float)
     level = np.array([k[1] for k in known], dtype=float)
     sigma = np.hypot(np.array([k[2] for k in known]), config.smooth_motion_m)
-    height = float(np.median(level[:, 2]))
+    height = float(median(level[:, 2]))
     world_R_level = ground.world_R_level
     dt = config.tracker.frame_interval_s
     max_step = config.tracker.max_speed_mps * dt
@@ -3328,7 +3351,7 @@ def tracks_from_ids(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]],
                 if len(uv) == 2:
                     both = np.all(np.isfinite(uv["left"]), axis=1) & np.all(np.isfinite(uv["right"]), axis=1)
                     if both.sum() >= config.min_shared_keypoints and \
-                            np.median(uv["left"][both, 0] - uv["right"][both, 0]) > 0:
+                            median(uv["left"][both, 0] - uv["right"][both, 0]) > 0:
                         _stereo_centre(obs, calib, ground, config)
                 track.append(obs)
                 sources[track_id][frame].append(obs)
@@ -3421,7 +3444,7 @@ def associate(detections: list[Detection], calibrations: Mapping[str, StereoCali
             _frame_centre(entry, sources[frame])
         centres = np.array([fr.world_p for fr in frames.values() if fr.world_p is not None]).reshape(-1, 3)
         if len(centres):
-            distance = float(np.median(ground.horizontal_distance(centres)))
+            distance = float(median(ground.horizontal_distance(centres)))
             if not config.min_distance_m <= distance <= config.max_distance_m:
                 continue
         pairs = tuple(sorted({pair_of[id(obs)] for observations in sources.values() for obs in observations}))

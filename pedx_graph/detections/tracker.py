@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedx_graph.small_arrays import median
+
 #: Cost given to gated-out pairs in the assignment (never accepted).
 _GATED = 1e9
 
@@ -238,7 +240,7 @@ class Tracker:
             shared_side = True
             height = max(state.height_px, obs.height_px(side), 1.0)
             sigma = cfg.keypoint_sigma_px + cfg.motion_frac * height * np.sqrt(max(df, 1))
-            residual = float(np.median(np.linalg.norm(uv_pred[both] - uv_obs[both], axis=1))) / sigma
+            residual = float(median(np.linalg.norm(uv_pred[both] - uv_obs[both], axis=1))) / sigma
             if residual > cfg.gate_sigmas:
                 return _GATED
             if cfg.min_box_iou > 0:
@@ -339,11 +341,11 @@ class Tracker:
             if both.sum() < 2:
                 continue
             left_u, right_u = (uv_obs[both, 0], uv_pred[both, 0]) if side == "left" else (uv_pred[both, 0], uv_obs[both, 0])
-            if np.median(left_u - right_u) <= 0:
+            if median(left_u - right_u) <= 0:
                 return None
             height = max(state.height_px, obs.height_px(side), 1.0)
             sigma = cfg.keypoint_sigma_px + cfg.motion_frac * height * np.sqrt(max(df, 1))
-            return float(np.median(np.abs(uv_pred[both, 1] - uv_obs[both, 1]))) / sigma
+            return float(median(np.abs(uv_pred[both, 1] - uv_obs[both, 1]))) / sigma
         return None
 
     # ------------------------------------------------------------------------------------------ updates
@@ -358,7 +360,7 @@ class Tracker:
                 measured = (uv - state.uv) / df
                 shared = np.all(np.isfinite(measured), axis=1)
                 if shared.sum() >= 2:
-                    step = np.median(measured[shared], axis=0)
+                    step = median(measured[shared], axis=0)
                     state.velocity = alpha * step + (1 - alpha) * state.velocity
                 # keypoints missing now keep their previous position moved by the velocity
                 carried = state.uv + state.velocity * df
