@@ -2,7 +2,7 @@
 
 Layers, lowest first (a module may import its own layer and those below, never one above):
 
-    utils, environment, keypoints, config, config_ranges   <  data, motion   <  execution   <  body   <  priors
+    utils, small_arrays, environment, keypoints, config, config_ranges   <  data, motion   <  execution   <  body   <  priors
     <  factors   <  graph   <  detections   <  solvers   <  eval, baselines, export, preflight   <  sim
     <  demo, experiment_runner, config_reference, every ``*cli`` module
 
@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 RANKS = {
-    "utils": 0, "environment": 0, "keypoints": 0, "config": 0, "config_ranges": 0,
+    "utils": 0, "small_arrays": 0, "environment": 0, "keypoints": 0, "config": 0, "config_ranges": 0,
     "data": 1, "motion": 1,
     "execution": 2,
     "body": 3,
