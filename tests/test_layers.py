@@ -2,8 +2,8 @@
 
 Layers, lowest first (a module may import its own layer and those below, never one above):
 
-    utils, small_arrays, environment, keypoints, config, config_ranges   <  data, motion   <  execution   <  body   <  priors
-    <  factors   <  graph   <  detections   <  solvers   <  eval, baselines, export, preflight   <  sim
+    utils, small_arrays, environment, keypoints, config, config_ranges   <  data, motion   <  execution   <  body
+    <  priors   <  factors   <  graph   <  detections   <  solvers   <  eval, baselines, export, preflight   <  sim
     <  demo, experiment_runner, config_reference, every ``*cli`` module
 
 ``execution`` (running one task per track, writing results) knows tracks and outputs but no solver: the
