@@ -1397,6 +1397,29 @@ def test_the_robust_fit_stopping_early_gives_the_three_iterations_bit_for_bit():
         assert np.array_equal(total, want_total) and np.array_equal(coef, want_coef)
 
 
+def test_a_walk_fit_kept_by_its_series_values_is_the_one_fitted_anew():
+    """:func:`_track_walk` with a memo gives what it gives without one, fits a series once however often it
+    is asked (equal values in other arrays included), and fits a changed series anew."""
+    from pedx_graph.detections.association import _track_walk
+
+    calib = _rig()["ylw79D0-red707B"]
+    config = AssociationConfig()
+    rng = np.random.default_rng(8)
+    frames = np.arange(12.0)
+    seen = (frames, 40.0 + 3.0 * frames + rng.normal(0, 1, 12), np.full(12, 1.5), 14.0 - 0.1 * frames,
+            np.full(12, 0.3), 180.0 + rng.normal(0, 2, 12), np.full(12, 4.0), 60.0)
+    memo: dict = {}
+    fresh = _track_walk(seen, calib, config)
+    assert _track_walk(seen, calib, config, memo=memo) == fresh
+    assert _track_walk(tuple(np.array(x) if isinstance(x, np.ndarray) else x for x in seen), calib, config,
+                       memo=memo) == fresh and len(memo) == 1
+    moved = (seen[0], seen[1] + np.where(frames >= 6, 25.0, 0.0)) + seen[2:]
+    assert _track_walk(moved, calib, config, memo=memo) == _track_walk(moved, calib, config) != fresh
+    assert _track_walk(seen, calib, config, with_size=False, memo=memo) == _track_walk(seen, calib, config,
+                                                                                      with_size=False)
+    assert len(memo) == 3
+
+
 def test_a_standing_height_is_kept_by_the_keypoints_it_was_measured_on():
     """:func:`standing_height_px` keeps its answers by the keypoints' values: the same keypoints in
     another array give the same height, and keypoints changed in place give a new one."""

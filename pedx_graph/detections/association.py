@@ -175,6 +175,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
@@ -1867,15 +1868,26 @@ def _depth_rate(px_per_m: float | None, calib: StereoCalibration, config: Associ
 
 
 def _track_walk(seen: tuple, calib: StereoCalibration, config: AssociationConfig,
-                with_size: bool = True) -> tuple[float, float]:
+                with_size: bool = True, memo: dict | None = None) -> tuple[float, float]:
     """:func:`_walk_fit` (misfit, rate) of a track as :func:`_image_track` gives it, at ``gate_sigmas``, its
     depth rate bounded by a walker's top speed at the track's scale (:func:`_depth_rate`); without
-    ``with_size``, on columns and depths only."""
+    ``with_size``, on columns and depths only.  ``memo`` keeps the fits by the series' values (a dict held
+    while ``calib`` and ``config`` stay the same: the swap repair judges one track against many)."""
+    if memo is not None:
+        values = hashlib.blake2b(digest_size=16)         # a digest: long tracks' series stay out of memory
+        for series in seen[:7]:
+            values.update(np.ascontiguousarray(series, dtype=float).tobytes())
+        key = (with_size, seen[7], len(seen[0]), values.digest())
+        if key in memo:
+            return memo[key]
     frames, u, sigma, depth, depth_sigma, size, size_sigma, px_per_m = seen
     if not with_size:
         size = size_sigma = None
-    return _walk_fit(frames, u, sigma, config.gate_sigmas, _depth_rate(px_per_m, calib, config), depth, depth_sigma,
+    walk = _walk_fit(frames, u, sigma, config.gate_sigmas, _depth_rate(px_per_m, calib, config), depth, depth_sigma,
                      size, size_sigma)
+    if memo is not None:
+        memo[key] = walk
+    return walk
 
 
 def _overlapping_frames(track_a: list[Observation], track_b: list[Observation], cover: float = 0.5) -> frozenset:
@@ -1928,6 +1940,7 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
     gate = config.gate_sigmas
     tracks = [list(t) for t in tracks]
     memo: dict = {}
+    walks_memo: dict = {}                               # the walk fits by their series' values
     series: dict[str, dict[int, tuple]] = {"left": {}, "right": {}}
     spans: dict[int, list[float]] = {}                  # track -> its detections' keypoint spans, px
     offers: dict[tuple[int, int], tuple | None] = {}    # (a, b) -> the pair's best exchange, while both are unchanged
@@ -1952,16 +1965,17 @@ def repair_swaps(tracks: list[list[Observation]], calib: StereoCalibration,
         def consider(new_a, new_b):
             nonlocal found
             bar = gate ** 2 if found is None else max(gate ** 2, found[0])
-            cost_a = _track_walk(_image_track(new_a, calib, config, side, hidden, memo), calib, config)[0]
+            cost_a = _track_walk(_image_track(new_a, calib, config, side, hidden, memo), calib, config,
+                                 memo=walks_memo)[0]
             if now - cost_a <= bar:           # a misfit is never negative: new_b's cannot make up for it
                 return
             gain = now - (cost_a + _track_walk(_image_track(new_b, calib, config, side, hidden, memo), calib,
-                                               config)[0])
+                                               config, memo=walks_memo)[0])
             if gain > bar:
                 found = (gain, new_a, new_b)
 
         seen = {k: _image_track(tracks[k], calib, config, side, hidden, memo) for k in (a, b)}
-        walks = {k: _track_walk(seen[k], calib, config) for k in (a, b)}
+        walks = {k: _track_walk(seen[k], calib, config, memo=walks_memo) for k in (a, b)}
         now = walks[a][0] + walks[b][0]
         found = None
         taus = sorted({o.frame for o in tracks[a] + tracks[b] if lo <= o.frame <= hi} | {hi + 1})
