@@ -17,7 +17,9 @@ people's detections on their own person's track and on another's (or a false one
 frames' centres (:func:`pedx_graph.detections.evaluate.placement_counts`: frames with a centre, those farther
 than ``PLACE_OFF_M`` from the true centre of the person most of their detections belong to, and of those the
 ones claiming to be placed more than ``PLACE_SIGMAS`` times better than they are — what the LiDAR cut's depth
-gate and the fit's start rely on, and what a switch count does not see); and the import's identity
+gate and the fit's start rely on, and what a switch count does not see); the identity switches by where
+their two people stood at the switch (:func:`pedx_graph.detections.evaluate.switch_geometry`: one behind the
+other as seen from the rig, paths crossing, beside each other); and the import's identity
 review (:mod:`pedx_graph.detections.review`): its stretches, the share of track frames they flag and how many
 of the identity switches lie inside them.  With
 ``--baseline OLD.json`` (an earlier run of this script with the same seeds and sizes) the markdown also lists
@@ -67,8 +69,9 @@ from pedx_graph.config import ConfigError, load_config, to_dict  # noqa: E402
 import pedx_graph.detections.association as association  # noqa: E402
 from pedx_graph.detections.association import AssociationConfig, associate  # noqa: E402
 from pedx_graph.detections.importer import ImportConfig  # noqa: E402
-from pedx_graph.detections.evaluate import (PLACE_OFF_M, PLACE_SIGMAS, detection_records,  # noqa: E402
-                                            placement_counts, read_detection_truth, score_tracks)
+from pedx_graph.detections.evaluate import (IN_LINE_LATERAL_M, PATHS_CROSS_DEG, PLACE_OFF_M,  # noqa: E402
+                                            PLACE_SIGMAS, SWITCH_KINDS, detection_records, placement_counts,
+                                            read_detection_truth, score_tracks, switch_geometry)
 from pedx_graph.detections.lidar_cut import project_cloud  # noqa: E402
 from pedx_graph.detections.review import review_summary, untracked_detections  # noqa: E402
 from pedx_graph.keypoints import load_keypoint_set  # noqa: E402
@@ -86,6 +89,9 @@ PLACEMENT_COUNTS = ("placed_frames", "misplaced_centres", "overconfident_centres
 REVIEW_COUNTS = ("review_stretches", "review_flagged_frames", "track_frames", "switches_in_review",
                  "switches_first_quarter", "switches_first_half", "switches_first_quarter_shortest",
                  "switches_first_half_shortest")
+#: The identity switches by where their two people stood (:func:`~pedx_graph.detections.evaluate.switch_geometry`),
+#: summed like :data:`COUNTS`, not compared to a baseline.
+GEOMETRY_COUNTS = SWITCH_KINDS
 
 
 #: ``--range-oracle`` modes (:func:`truth_ranges`).
@@ -197,6 +203,7 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
                              "associate_seconds": seconds, **{k: score[k] for k in COUNTS},
                              **(oracle if range_oracle else {}),
                              **placement_counts(tracks, records, centres, ground),
+                             **switch_geometry(score["switches"], centres, ground, 1.0 / cfg.scene.fps),
                              **review_counts(tracks, ground, score["switches"],
                                                 untracked_detections(detections, tracks))})
     return rows
@@ -304,6 +311,15 @@ def markdown(result: dict) -> str:
                   f"{ORACLE_OFF_M:g} m off their person's and replaced: {total['oracle_ranges_replaced']}; of a "
                   f"person the LiDAR did not see, removed: {total['oracle_ranges_removed']}; added: "
                   f"{total['oracle_ranges_added']}.", ""]
+    if "switches_in_line" in total:
+        lines += ["## Where the switches happen", "",
+                  f"Identity switches by where their two people stood at the switch frame (true centres, seen "
+                  f"from the rig; `pedx_graph.detections.evaluate.switch_geometry`): one behind the other (the "
+                  f"farther within {IN_LINE_LATERAL_M:g} m of the nearer one's viewing ray) "
+                  f"{total['switches_in_line']}, paths crossing (walking directions more than "
+                  f"{PATHS_CROSS_DEG:g} degrees apart) {total['switches_paths_crossing']}, beside each other "
+                  f"{total['switches_beside']}, a person without a true centre there "
+                  f"{total['switches_unplaced']}; of {total['id_switches']}.", ""]
     if "switches_in_review" in total:
         lines += ["## Identity review", "",
                   f"The import lists where two tracks came close (`import_summary.json`, "
@@ -388,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
               "range_oracle": args.range_oracle,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS
-                                       + (ORACLE_COUNTS if args.range_oracle else ())},
+                                       + GEOMETRY_COUNTS + (ORACLE_COUNTS if args.range_oracle else ())},
               "associate_seconds": sum(r["associate_seconds"] for r in rows),
               "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
     if baseline is not None:

@@ -293,6 +293,43 @@ def test_scoring_counts_switches_fragments_and_false_tracks():
     assert score["own_detections"] == 2 and score["others_detections"] == 1
 
 
+def test_switch_geometry_sorts_switches_by_where_the_two_people_stood():
+    """:func:`switch_geometry`: a switch between walkers one behind the other as seen from the rig (the
+    farther within 0.4 m of the nearer one's ray) is in line, between walkers whose directions differ by more
+    than 60 degrees paths crossing, else beside; a standing person has no direction; a person without a true
+    centre at the frame is unplaced.  Measured on the ground plane of a z-down world (the real PedX LiDAR
+    frame), heights ignored."""
+    from pedx_graph.data.ground import GroundFrame
+    from pedx_graph.detections.evaluate import switch_geometry
+
+    ground = GroundFrame(world_up=np.array([0.0, 0.0, -1.0]), world_forward=np.array([0.0, 1.0, 0.0]),
+                         world_p_sensor=np.zeros(3))
+
+    def walk(start, step_per_frame, height=-0.9):
+        """Level (x forward, y left) start and step -> world centres over frames 0-4 (world x = level y,
+        world y = level x, z down)."""
+        return {f: np.array([start[1] + f * step_per_frame[1], start[0] + f * step_per_frame[0], height])
+                for f in range(5)}
+
+    people = {"near": walk((10.0, 0.0), (0.12, 0.0)),
+              "behind": walk((11.0, 0.25), (0.12, 0.0), height=-1.5),     # 0.25 m off the near one's ray
+              "beside": walk((10.0, 0.6), (0.12, 0.0)),
+              "across": walk((10.5, -0.5), (0.0, 0.13)),
+              "standing": walk((12.0, -0.1), (0.0, 0.01)),
+              "far_off": walk((20.0, 0.5), (0.12, 0.0))}                 # 0.5 m off the near one's ray
+    centres = {(tid, f): p for tid, path in people.items() for f, p in path.items()}
+    switches = [("t1", 2, "near", "behind"), ("t1", 4, "behind", "near"),     # in line (at the track's end too)
+                ("t2", 2, "near", "across"),                                   # paths crossing
+                ("t3", 2, "beside", "near"),                                   # beside
+                ("t4", 2, "near", "standing"),                                 # standing: in line, no direction
+                ("t5", 2, "far_off", "near"),                                  # beyond 0.4 m of the ray: beside
+                ("t6", 2, "near", "nobody")]                                   # unplaced
+    assert switch_geometry(switches, centres, ground, frame_interval_s=0.1) == {
+        "switches_in_line": 3, "switches_paths_crossing": 1, "switches_beside": 2, "switches_unplaced": 1}
+    # slower frames: the same steps are a standing person's, so no direction crosses
+    assert switch_geometry(switches[2:3], centres, ground, frame_interval_s=1.0)["switches_paths_crossing"] == 0
+
+
 def test_placement_counts_judge_each_frame_s_centre_against_its_own_person():
     """:func:`placement_counts`: a frame's centre is judged against the true centre of the person its
     detections belong to (a neighbour's frame inside a track against the neighbour), on the ground plane

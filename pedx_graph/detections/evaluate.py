@@ -29,7 +29,9 @@ or clutter.  :func:`detection_truth` finds the record of a read detection from i
   pairs whose tracks were not merged).
 
 :func:`placement_counts` judges the tracks' 3D centres against the people's true ones: how many frames lie
-off their person, and how many of those claim a depth uncertainty that hides it.
+off their person, and how many of those claim a depth uncertainty that hides it.  :func:`switch_geometry`
+sorts the identity switches by where the two people stood at the switch, seen from the rig: one behind the
+other, paths crossing, or beside each other.
 """
 from __future__ import annotations
 
@@ -201,3 +203,58 @@ def placement_counts(tracks, records: list[dict], centres: dict, ground) -> dict
                 sigma = float(fr.depth_sigma_m) if fr.depth_sigma_m is not None else np.inf
                 overconfident += int(error > PLACE_SIGMAS * sigma)
     return {"placed_frames": placed, "misplaced_centres": misplaced, "overconfident_centres": overconfident}
+
+
+#: Two people whose true centres lie within this of one viewing ray from the rig (across it, on the ground
+#: plane) stand one behind the other: the nearer hides most of the farther from every camera of the rig (an
+#: adult's shoulders are about 0.4 m wide), metres.
+IN_LINE_LATERAL_M = 0.4
+#: Two people walking in directions this far apart have crossing paths, degrees.
+PATHS_CROSS_DEG = 60.0
+#: A person moving less than this is standing (no walking direction), metres per second.
+STANDING_MPS = 0.3
+#: The kinds of :func:`switch_geometry`, in its order.
+SWITCH_KINDS = ("switches_in_line", "switches_paths_crossing", "switches_beside", "switches_unplaced")
+
+
+def switch_geometry(switches: list[tuple], centres: dict, ground, frame_interval_s: float = 0.1) -> dict:
+    """Identity switches sorted by where their two people stood at the switch frame, seen from the rig.
+
+    ``switches``: ``(track id, frame, from person, to person)`` (:func:`score_tracks`' ``switches``);
+    ``centres``: ``(tracking id, frame) -> (3,)`` true centres (world frame); ``ground``: the sequence's
+    :class:`~pedx_graph.data.ground.GroundFrame` (its level frame's origin, the sensor, is the rig's
+    viewpoint; distances on its ground plane).  Each person's walking velocity at the frame is the central
+    difference of its centres at the frames beside it (one-sided at its ends), over ``frame_interval_s``.
+    Returns counts of ``switches_paths_crossing`` (both walk, at least ``STANDING_MPS``, in directions more than
+    ``PATHS_CROSS_DEG`` apart), else ``switches_in_line`` (the farther one's centre within
+    ``IN_LINE_LATERAL_M`` of the nearer one's viewing ray: one behind the other), else ``switches_beside``,
+    and ``switches_unplaced`` (a person without a true centre at that frame)."""
+    counts = dict.fromkeys(SWITCH_KINDS, 0)
+
+    def velocity(person, frame: int, here: np.ndarray) -> np.ndarray | None:
+        after, before = centres.get((person, frame + 1)), centres.get((person, frame - 1))
+        if after is not None and before is not None:
+            step = (ground.to_level(after) - ground.to_level(before)) / 2.0
+        elif after is not None or before is not None:
+            step = ground.to_level(after) - here if after is not None else here - ground.to_level(before)
+        else:
+            return None
+        return step[:2] / frame_interval_s
+
+    for _, frame, one, other in switches:
+        a, b = centres.get((one, frame)), centres.get((other, frame))
+        if a is None or b is None:
+            counts["switches_unplaced"] += 1
+            continue
+        level_a, level_b = ground.to_level(np.asarray(a, dtype=float)), ground.to_level(np.asarray(b, dtype=float))
+        va, vb = velocity(one, frame, level_a), velocity(other, frame, level_b)
+        if va is not None and vb is not None and min(np.linalg.norm(va), np.linalg.norm(vb)) >= STANDING_MPS:
+            cos = float(va @ vb / (np.linalg.norm(va) * np.linalg.norm(vb)))
+            if cos < np.cos(np.radians(PATHS_CROSS_DEG)):
+                counts["switches_paths_crossing"] += 1
+                continue
+        near, far = sorted((level_a[:2], level_b[:2]), key=np.linalg.norm)
+        ray = near / max(float(np.linalg.norm(near)), 1e-9)
+        lateral = abs(float(far[0] * ray[1] - far[1] * ray[0]))
+        counts["switches_in_line" if lateral <= IN_LINE_LATERAL_M else "switches_beside"] += 1
+    return counts
