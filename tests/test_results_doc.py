@@ -143,3 +143,18 @@ def test_true_ids_ratio_is_shown_and_pooled_apart_from_the_associations():
     older = detections_section([run(0, 1, 60.0, None), run(1, 3, 30.0, 30.0)])
     assert [line.split(" | ")[5] for line in older.splitlines() if line.startswith("| 0 | coco |")] == ["-"]
     assert "With the simulator's ids" not in older
+
+
+def test_association_switch_geometry_figures_match_the_json():
+    """The switch kinds docs/detections.md quotes for the association benchmark (default rig, the real rig's
+    preset and the long scenes) are the totals of the committed JSON, and the kinds add up to the switches."""
+    import json
+
+    text = " ".join((ROOT / "docs" / "detections.md").read_text().split())
+    for name in ("bench_association", "bench_association_pedx_rig", "bench_association_long"):
+        total = json.loads((ROOT / "benchmarks" / "results" / f"{name}.json").read_text())["totals"]
+        kinds = ("switches_in_line", "switches_paths_crossing", "switches_beside", "switches_unplaced")
+        assert sum(total[k] for k in kinds) == total["id_switches"], name
+        quoted = (f"{total['switches_in_line']} of {total['id_switches']} switches one behind the other, "
+                  f"{total['switches_paths_crossing']} on crossing paths, {total['switches_beside']} beside")
+        assert quoted in text, f"{name}: {quoted!r} not in docs/detections.md"
