@@ -158,3 +158,15 @@ def test_association_switch_geometry_figures_match_the_json():
         quoted = (f"{total['switches_in_line']} of {total['id_switches']} switches one behind the other, "
                   f"{total['switches_paths_crossing']} on crossing paths, {total['switches_beside']} beside")
         assert quoted in text, f"{name}: {quoted!r} not in docs/detections.md"
+
+
+def test_readme_crowd_figures_match_the_json():
+    """The crowded scenes' figures the README quotes (switches of walkers one behind the other; switches the
+    first quarter of the identity review's flagged frames holds) are the committed long run's totals."""
+    import json
+
+    text = " ".join((ROOT / "README.md").read_text().split())
+    total = json.loads((ROOT / "benchmarks" / "results" / "bench_association_long.json").read_text())["totals"]
+    assert f"{total['switches_in_line']} of {total['id_switches']} on the benchmark's crowded scenes" in text
+    assert (f"holds {total['switches_first_quarter']} of the {total['switches_in_review']} switches they hold"
+            in text)
