@@ -143,6 +143,24 @@ def test_import_draws_each_review_stretch_and_refuses_a_missing_images_folder(tm
         # an image is missed only where no file of that camera and frame held a detection to name it
         assert not {tuple(cell) for cell in entry["without_image"]} & named
         assert cv2.imread(str(out / record["review_sheets"]["folder"] / entry["sheet"])) is not None
+    # a stretch a reviewer marked checked (identity fixes file) gets no sheet; the others keep the order to check
+    seq = next(iter(summary["sequences"]))
+    first = stretches[record["identity_review"]["check_order"][0]]
+    fixes = tmp_path / "fixes.yaml"
+    fixes.write_text(f"{seq}:\n  - checked: {json.dumps(first['tracks'])}\n"
+                     f"    frames: [{first['first_frame']}, {first['last_frame']}]\n")
+    assert main(["import", "openpose", str(files), "--keypoint-set", "body25", "--calib", str(root),
+                 "--out", str(tmp_path / "checked"), "--review-images", str(raw), "--identity-fixes", str(fixes)]) == 0
+    again = json.loads((tmp_path / "checked" / "import_summary.json").read_text())["sequences"][seq]
+    review = again["identity_review"]
+    assert review["checked_stretches"] >= 1 and [s["first_frame"] for s in review["stretches"]] == \
+        [s["first_frame"] for s in stretches]
+    open_stretches = [s for s in review["stretches"] if not s.get("checked")]
+    assert len(again["review_sheets"]["sheets"]) == len(open_stretches) == len(stretches) - review["checked_stretches"]
+    by_name = sorted(again["review_sheets"]["sheets"], key=lambda entry: entry["sheet"])
+    assert [entry["check"] for entry in by_name] == list(range(1, len(open_stretches) + 1))
+    assert [(e["tracks"], e["first_frame"]) for e in by_name] == \
+        [(review["stretches"][i]["tracks"], review["stretches"][i]["first_frame"]) for i in review["check_order"]]
     capsys.readouterr()
     assert main(["import", "openpose", str(files), "--calib", str(root), "--out", str(tmp_path / "again"),
                  "--review-images", str(tmp_path / "nowhere")]) != 0

@@ -46,6 +46,10 @@ def register(subparsers) -> None:
                         "write_images: false in --config to skip), and each stretch where two tracks came "
                         "close (or a track and a detection no track holds) drawn on them, one JPEG per stretch "
                         "in OUT/review/<sequence>/")
+    p.add_argument("--identity-fixes", default=None, metavar="FILE",
+                   help="a YAML file of identity fixes (exchange, move, split, merge, remove: per sequence, "
+                        "naming the tracks as this import writes them) applied before the labels are written; "
+                        "see docs/detections.md, 'Fixing who is who'")
     p.add_argument("--workers", type=positive_int, default=1,
                    help="local processes for the association, one stereo pair each (default 1: this process; "
                         "the same tracks with any number)")
@@ -80,17 +84,24 @@ def _run_import(args: argparse.Namespace) -> int:
         detections = read_coco(args.input[0], args.images, args.name_pattern, cameras)
     config.use_file_ids = config.use_file_ids or args.use_file_ids
     summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence,
-                                workers=args.workers, raw_images=args.raw_images)
+                                workers=args.workers, raw_images=args.raw_images,
+                                identity_fixes=args.identity_fixes)
     tracks = sum(s["tracks"] for s in summary["sequences"].values())
     labels = sum(s["labels_written"] for s in summary["sequences"].values())
     print(f"imported {summary['detections']} detections as {tracks} tracks ({labels} label files) into {args.out}")
     from pedx_graph.data.types import UNTRACKED
 
     for seq, record in sorted(summary["sequences"].items()):
+        fixed = record.get("identity_fixes")
+        if fixed:
+            print(f"  {seq}: {fixed['operations']} identity fixes applied ({fixed['detections_moved']} detections "
+                  f"moved, {fixed['detections_removed']} removed; tracks {', '.join(fixed['tracks_changed'])})")
         review = record.get("identity_review")
-        if review and review["stretches"]:
-            print(f"  {seq}: {len(review['stretches'])} stretches where two tracks came close, or a track and "
-                  f"a detection no track holds "
+        checked = review.get("checked_stretches", 0) if review else 0
+        if review and len(review["stretches"]) > checked:
+            print(f"  {seq}: {len(review['stretches']) - checked} stretches where two tracks came close, or a "
+                  f"track and a detection no track holds"
+                  + (f" ({checked} more marked checked)" if checked else "") + " "
                   f"({review['flagged_track_frames']} of {review['track_frames']} track frames): check who is "
                   f"who there (import_summary.json, sequences.{seq}.identity_review)")
             for i in review.get("check_order", [])[:3]:

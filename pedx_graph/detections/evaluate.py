@@ -258,3 +258,82 @@ def switch_geometry(switches: list[tuple], centres: dict, ground, frame_interval
         lateral = abs(float(far[0] * ray[1] - far[1] * ray[0]))
         counts["switches_in_line" if lateral <= IN_LINE_LATERAL_M else "switches_beside"] += 1
     return counts
+
+
+def truth_fixes(tracks, records: list[dict], cameras, stretches: list[dict] | None = None) -> list:
+    """The identity fixes (:mod:`pedx_graph.detections.fixes`) a reviewer who sees who is who would write: each
+    person's detection on a track another person owns (the owner as in :func:`score_tracks`: most of the
+    track's detections) is moved to the track its person owns (the nearest in time when several), exchanged
+    with the detection that track holds in that camera and frame, or removed when its person owns no track.
+    With ``stretches`` (the identity review's, :func:`pedx_graph.detections.review.review_stretches`) only
+    detections inside a stretch naming their track are looked at: what a reviewer checking the flagged
+    stretches alone would fix.  Operations of consecutive frames alike are written as one (``frames: [first,
+    last]``), as a reviewer writes a stretch.  Clutter and fragments are left where they are."""
+    from pedx_graph.detections.fixes import IdentityFix, apply_fixes
+
+    index = {(r["camera"], r["frame"], r["index"]): r for r in records}
+    groups = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
+
+    def who(det) -> str | None:
+        return _who(detection_records(det, records, index)[0])
+
+    owners = {}
+    for tid, frames in groups.items():
+        votes = Counter(who(det) for cams in frames.values() for det in cams.values())
+        owner, count = max(votes.items(), key=lambda kv: (kv[1], kv[0] is not None, str(kv[0])))
+        owners[tid] = owner if owner is not None and count / max(sum(votes.values()), 1) >= 0.5 else None
+
+    def reviewed(tid: str, frame: int) -> bool:
+        return stretches is None or any(tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"]
+                                        for s in stretches)
+
+    fixes: list = []
+    for _ in range(4):                                   # an exchange can bring in a detection to fix next round
+        before = len(fixes)
+        for tid in sorted(groups):
+            owner = owners.get(tid)
+            if owner is None:
+                continue
+            for frame in sorted(groups.get(tid, {})):
+                for cam in sorted(groups.get(tid, {}).get(frame, {})):
+                    det = groups[tid][frame].get(cam)
+                    person = who(det) if det is not None else None
+                    if person is None or person == owner or not reviewed(tid, frame):
+                        continue
+                    targets = [t for t, o in sorted(owners.items()) if o == person and t in groups and t != tid]
+                    if not targets:
+                        fix = IdentityFix("remove", (tid,), frame, frame, (cam,))
+                    else:
+                        target = min(targets, key=lambda t: (min(abs(f - frame) for f in groups[t]), t))
+                        kind = "exchange" if cam in groups[target].get(frame, {}) else "move"
+                        fix = IdentityFix(kind, (tid, target), frame, frame, (cam,))
+                    groups, _ = apply_fixes(groups, [fix], "<truth>", cameras)
+                    fixes.append(fix)
+        if len(fixes) == before:
+            break
+    return _coalesced(fixes)
+
+
+def _coalesced(fixes: list) -> list:
+    """``fixes`` with operations of one kind on the same tracks written together: at one frame over several
+    cameras, then over consecutive frames with the same cameras."""
+    import dataclasses
+
+    out: list = []
+    for fix in fixes:
+        last = out[-1] if out else None
+        if last is not None and last.kind == fix.kind and last.tracks == fix.tracks:
+            if (last.first_frame, last.last_frame) == (fix.first_frame, fix.last_frame) \
+                    and not set(fix.cameras) & set(last.cameras):
+                out[-1] = dataclasses.replace(last, cameras=tuple(sorted(set(last.cameras) | set(fix.cameras))))
+                continue
+        out.append(fix)
+    runs: list = []
+    for fix in out:
+        last = runs[-1] if runs else None
+        if last is not None and last.kind == fix.kind and last.tracks == fix.tracks \
+                and last.cameras == fix.cameras and fix.first_frame == last.last_frame + 1:
+            runs[-1] = dataclasses.replace(last, last_frame=fix.last_frame)
+            continue
+        runs.append(fix)
+    return runs

@@ -6,6 +6,7 @@ COCO ``track_id``; every detection must have one), else :func:`pedx_graph.detect
 (stereo, over frames, across pairs; with file ids each frame is placed as the association places its
 people — triangulated, centred on the LiDAR — without its identity steps,
 :func:`~pedx_graph.detections.association.tracks_from_ids`)
+-> with a reviewer's identity fixes file, the tracks fixed (:mod:`pedx_graph.detections.fixes`)
 -> per person, frame and camera, undistort + rectify the keypoints
 (:func:`pedx_graph.detections.undistort.rectified`), drop those below the confidence threshold and turn the
 confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoiseConfig`) -> write
@@ -42,7 +43,7 @@ from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_p
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
-from pedx_graph.utils import atomic_write_json
+from pedx_graph.utils import atomic_write_bytes, atomic_write_json
 
 log = logging.getLogger(__name__)
 
@@ -207,42 +208,55 @@ def _copy_support(source_root: Path | None, calib_dir: Path, out: Path) -> dict:
 
 def import_detections(detections: list[Detection], calib: str | os.PathLike, out: str | os.PathLike,
                       config: ImportConfig | None = None, sequence: str | None = None, workers: int = 1,
-                      raw_images: str | os.PathLike | None = None) -> dict:
+                      raw_images: str | os.PathLike | None = None,
+                      identity_fixes: str | os.PathLike | None = None) -> dict:
     """Write ``detections`` as a dataset under ``out`` (module docstring); returns the summary (also written).
     ``workers``: local processes for the association's per-pair steps (the same tracks with any number) and
     for rectifying images.  ``raw_images``: the folder of the images the detections were made on; each
     stretch of the identity review is then drawn on them, one JPEG per stretch under ``out/review/<seq>/``
     (:mod:`pedx_graph.detections.review_sheets`), and with ``config.write_images`` they are written
-    rectified into ``out/images/`` (:mod:`pedx_graph.detections.rectified_images`)."""
+    rectified into ``out/images/`` (:mod:`pedx_graph.detections.rectified_images`).  ``identity_fixes``: a
+    reviewer's fixes file (:mod:`pedx_graph.detections.fixes`), applied to each sequence's tracks before
+    anything is written from them, and copied to ``out/identity_fixes.yaml``."""
+    from pedx_graph.detections.fixes import read_fixes
     from pedx_graph.detections.review_sheets import index_images
 
     config = config or ImportConfig()
+    fixes = read_fixes(identity_fixes) if identity_fixes is not None else {}
     images = index_images(raw_images) if raw_images is not None else None
     calib = Path(calib)
     calib_dir = calibration_dir(calib)
     calibrations = read_calibrations(calib_dir)
     source_root = calib if calib_dir != calib else None
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    support = _copy_support(source_root, calib_dir, out)
     by_sequence: dict[str, list[Detection]] = defaultdict(list)
     for det in detections:
         by_sequence[det.sequence or sequence or DEFAULT_SEQUENCE].append(det)
+    unknown = sorted(set(fixes) - set(by_sequence))
+    if unknown:
+        raise DataFormatError(identity_fixes, unknown[0], f"no such sequence among the detections "
+                                                          f"({', '.join(sorted(by_sequence))})")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    support = _copy_support(source_root, calib_dir, out)
     summary = {"detections": len(detections), "sequences": {}, "support": support,
                "keypoint_sets": sorted({d.keypoint_set for d in detections})}
+    if identity_fixes is not None:
+        atomic_write_bytes(out / "identity_fixes.yaml", Path(identity_fixes).read_bytes())
     for seq in sorted(by_sequence):
         if "_" in seq:
             raise ValueError(f"sequence name {seq!r} must not contain '_' (release file names); pass --sequence")
         summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config,
-                                                      workers, images)
+                                                      workers, images, fixes.get(seq), identity_fixes)
     save_config(config, out / "import_config.yaml")          # the resolved config beside what it made
     atomic_write_json(out / "import_summary.json", summary)
     return summary
 
 
 def _import_sequence(seq: str, detections: list[Detection], calibrations, out: Path, source_root: Path | None,
-                     config: ImportConfig, workers: int = 1, images: dict | None = None) -> dict:
+                     config: ImportConfig, workers: int = 1, images: dict | None = None,
+                     fixes: list | None = None, fixes_path: str | os.PathLike | None = None) -> dict:
     from pedx_graph.detections.association import associate, tracks_from_ids
+    from pedx_graph.detections.fixes import fix_tracks, mark_checked
 
     known = [d for d in detections if _calibrated(d.camera, calibrations)]
     uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
@@ -263,6 +277,12 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     else:
         tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground,
                            workers=workers)
+    fixed = None
+    if fixes:
+        tracks, fixed = fix_tracks(tracks, fixes, fixes_path, calibrations, config.association, ground,
+                                   clouds=clouds or None)
+        log.info("%s: %d identity fixes applied (%d detections moved, %d removed)", seq, fixed["operations"],
+                 fixed["detections_moved"], fixed["detections_removed"])
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
                                     config.association.keypoint_sigma_frac,
                                     config.association.tracker.frame_interval_s)
@@ -270,13 +290,18 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
     untracked = untracked_detections(known, tracks)
     review = review_summary(tracks, ground, config.review, untracked)
+    if fixes:
+        mark_checked(review, fixes)
     sheets = written_images = None
     if images is not None:
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
         stems = image_stems(known)
+        open_stretches = [i for i, s in enumerate(review["stretches"]) if not s.get("checked")]
+        place = {i: k for k, i in enumerate(open_stretches)}
         sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
-                  "sheets": write_review_sheets(tracks, review["stretches"], images, out / "review" / seq,
-                                                stems, review["check_order"], untracked=untracked)}
+                  "sheets": write_review_sheets(tracks, [review["stretches"][i] for i in open_stretches], images,
+                                                out / "review" / seq, stems,
+                                                [place[i] for i in review["check_order"]], untracked=untracked)}
         if config.write_images:
             from pedx_graph.detections.rectified_images import write_rectified_images
             written_images = write_rectified_images(out, seq, stems, images, calibrations, workers)
@@ -305,7 +330,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
               "left_right_swapped_back": flipped,
               "uncalibrated_cameras": uncalibrated,
               "stereo_noise_check": check.record() if check is not None else None,
-              "identity_review": review, "review_sheets": sheets, "images": written_images}
+              "identity_fixes": fixed, "identity_review": review, "review_sheets": sheets,
+              "images": written_images}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,

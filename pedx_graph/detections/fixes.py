@@ -1,0 +1,319 @@
+"""A reviewer's identity fixes: read from a YAML file and applied to the import's tracks before they are written.
+
+The association decides who is who without ids and can take one person for another (walkers on nearly one
+ray, crossings); the identity review (:mod:`pedx_graph.detections.review`) lists where.  A team building a
+dataset looks there and writes down what is wrong, once, in a file the import applies
+(``pedx-graph import ... --identity-fixes FILE``), so the import stays one reproducible command: the
+association is deterministic, so the same inputs and config give the same track ids the fixes name.
+
+The file maps each sequence to a list of operations, applied in order; each names the tracks (ids as the
+import wrote them, ``det000006``, or the files' ids with ``--use-file-ids``) and optionally which frames
+(``frames: [first, last]``, inclusive, or one frame) and which cameras (``cameras: [...]``; omitted: all)::
+
+    20171130T2000:
+      - exchange: [det000006, det000007]   # the two tracks' detections exchanged there
+        frames: [14, 18]
+        cameras: [red707B]
+      - move: [det000011, det000006]       # det000011's detections there given to det000006
+        frames: 16
+      - split: det000011                   # frames from `at` on become a track of their own
+        at: 14
+        new_id: det000031                  # optional; default: the next free detNNNNNN
+      - merge: [det000002, det000009]      # one person: all into the first
+      - remove: det000004                  # a false track, or its detections there (then untracked)
+        frames: [3, 5]
+      - checked: [det000002, det000005]    # looked at, right as it is: the review's stretches of these
+        frames: [0, 19]                    # tracks within these frames are marked checked
+
+The review is made again on the fixed tracks (:func:`mark_checked`): stretches a ``checked`` operation covers
+are marked ``"checked": true`` and left out of the order to check in and of the review sheets, so a second
+run of the import lists only what is still to look at.
+
+An operation that selects no detection, names a track or camera the import does not have, or would put two
+detections of one camera into one track at a frame is an error naming the file and the operation
+(``<sequence>[i].<kind>``): a fix that silently does nothing would leave the switch it was written for.
+After the fixes (:func:`fix_tracks`) the tracks they changed are placed again from their detections as with
+the files' ids (:func:`pedx_graph.detections.association.tracks_from_ids`, every track's detections taking
+part, so each image's LiDAR clusters are shared out among all its people): the fixed ids are given, not
+guessed.  The tracks no fix changed keep the association's frames and centres as they were.
+"""
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from pedx_graph.data.types import DataFormatError
+from pedx_graph.detections.types import Detection
+
+#: Operations of a fixes file, and the fewest and most tracks each names (None: no limit).
+FIX_KINDS = {"exchange": (2, 2), "move": (2, 2), "split": (1, 1), "merge": (2, None), "remove": (1, 1),
+             "checked": (1, 2)}
+#: Keys an operation may hold beside its kind.
+_OPTIONS = {"exchange": {"frames", "cameras"}, "move": {"frames", "cameras"}, "split": {"at", "new_id"},
+            "merge": set(), "remove": {"frames", "cameras"}, "checked": {"frames"}}
+#: A track's frames: frame -> camera -> detection.
+Groups = dict[str, dict[int, dict[str, Detection]]]
+
+
+@dataclass(frozen=True)
+class IdentityFix:
+    """One operation of a fixes file (module docstring)."""
+
+    kind: str
+    """One of :data:`FIX_KINDS`."""
+    tracks: tuple[str, ...]
+    """The track ids it names, in the file's order (``move``: from, to; ``merge``: into the first)."""
+    first_frame: int | None = None
+    """First frame it acts on (inclusive); None: from the tracks' first (``split``: the first frame of the new
+    track)."""
+    last_frame: int | None = None
+    """Last frame it acts on (inclusive); None: to the tracks' last."""
+    cameras: tuple[str, ...] | None = None
+    """Cameras it acts on; None: every camera."""
+    new_id: str | None = None
+    """``split``: the new track's id; None: the next free ``detNNNNNN``."""
+    where: str = ""
+    """Where in the file: ``<sequence>[i].<kind>``, for error messages."""
+
+    def selects(self, frame: int, camera: str) -> bool:
+        """Whether the operation acts on ``camera``'s detection at ``frame``."""
+        return ((self.first_frame is None or frame >= self.first_frame)
+                and (self.last_frame is None or frame <= self.last_frame)
+                and (self.cameras is None or camera in self.cameras))
+
+
+def read_fixes(path: str | Path) -> dict[str, list[IdentityFix]]:
+    """The operations of a fixes file per sequence (module docstring); a malformed file or operation raises
+    :class:`~pedx_graph.data.types.DataFormatError` naming the file and the field."""
+    import yaml
+
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        raise DataFormatError(path, None, f"not YAML{where}: {getattr(exc, 'problem', exc)}") from None
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise DataFormatError(path, None, "expected a mapping of sequence names to lists of operations")
+    out: dict[str, list[IdentityFix]] = {}
+    for seq, items in doc.items():
+        if not isinstance(items, list):
+            raise DataFormatError(path, str(seq), "expected a list of operations")
+        out[str(seq)] = [_parse_fix(path, f"{seq}[{i}]", item) for i, item in enumerate(items)]
+    return out
+
+
+def _parse_fix(path: Path, where: str, item) -> IdentityFix:
+    if not isinstance(item, dict):
+        raise DataFormatError(path, where, f"expected a mapping with one of {', '.join(FIX_KINDS)}")
+    kinds = [k for k in item if k in FIX_KINDS]
+    if len(kinds) != 1:
+        raise DataFormatError(path, where, f"expected exactly one of {', '.join(FIX_KINDS)}, got "
+                                           f"{', '.join(map(str, item)) or 'nothing'}")
+    kind = kinds[0]
+    field = f"{where}.{kind}"
+    unknown = set(item) - {kind} - _OPTIONS[kind]
+    if unknown:
+        raise DataFormatError(path, f"{where}.{sorted(map(str, unknown))[0]}",
+                              f"not an option of {kind} (options: {', '.join(sorted(_OPTIONS[kind])) or 'none'})")
+    value = item[kind]
+    tracks = (value,) if isinstance(value, str) else tuple(value) if isinstance(value, list) else None
+    if tracks is None or not all(isinstance(t, str) and t for t in tracks):
+        raise DataFormatError(path, field, f"expected track ids, got {value!r}")
+    fewest, most = FIX_KINDS[kind]
+    if len(tracks) < fewest or (most is not None and len(tracks) > most):
+        takes = f"{fewest}" if fewest == most else f"{fewest} or more" if most is None else f"{fewest} to {most}"
+        raise DataFormatError(path, field, f"names {len(tracks)} tracks, {kind} takes {takes}")
+    if len(set(tracks)) != len(tracks):
+        raise DataFormatError(path, field, f"names a track twice: {list(tracks)}")
+    first = last = None
+    if "frames" in item:
+        first, last = _frames(path, f"{where}.frames", item["frames"])
+    if kind == "split":
+        if "at" not in item:
+            raise DataFormatError(path, f"{where}.at", "split needs the frame the new track begins at")
+        if not _is_int(item["at"]):
+            raise DataFormatError(path, f"{where}.at", f"expected a frame number, got {item['at']!r}")
+        first = int(item["at"])
+    cameras = None
+    if "cameras" in item:
+        cams = item["cameras"]
+        cams = [cams] if isinstance(cams, str) else cams
+        if not isinstance(cams, list) or not cams or not all(isinstance(c, str) and c for c in cams):
+            raise DataFormatError(path, f"{where}.cameras", f"expected camera names, got {item['cameras']!r}")
+        cameras = tuple(cams)
+    new_id = item.get("new_id")
+    if new_id is not None and not (isinstance(new_id, str) and new_id):
+        raise DataFormatError(path, f"{where}.new_id", f"expected a track id, got {new_id!r}")
+    return IdentityFix(kind=kind, tracks=tracks, first_frame=first, last_frame=last, cameras=cameras,
+                       new_id=new_id, where=field)
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _frames(path: Path, field: str, value) -> tuple[int, int]:
+    if _is_int(value):
+        return int(value), int(value)
+    if isinstance(value, list) and len(value) == 2 and all(_is_int(v) for v in value) and value[0] <= value[1]:
+        return int(value[0]), int(value[1])
+    raise DataFormatError(path, field, f"expected a frame or [first, last] with first <= last, got {value!r}")
+
+
+def apply_fixes(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]], fixes: Iterable[IdentityFix],
+                path: str | Path, cameras: Iterable[str]) -> tuple[Groups, dict]:
+    """``groups`` (track id -> frame -> camera -> detection) after ``fixes`` in order (module docstring), with
+    each detection's ``track_id`` set to its track's; tracks left without a detection are gone.  ``cameras``:
+    the import's calibrated cameras (a fix naming another is an error).  ``checked`` operations change nothing
+    here (their tracks must exist; :func:`mark_checked` uses them).  Returns the new groups and a record for
+    the import summary: operations, detections moved and removed, the tracks changed."""
+    out: Groups = {tid: {frame: dict(cams) for frame, cams in frames.items()} for tid, frames in groups.items()}
+    known = set(cameras)
+    path = Path(path)
+    moved = removed = 0
+    changed: set[str] = set()
+    fixes = list(fixes)
+    for fix in fixes:
+        missing = [t for t in fix.tracks if t not in out]
+        if missing:
+            raise DataFormatError(path, fix.where, f"no track {missing[0]} here ({_id_range(out)})")
+        unknown = [c for c in fix.cameras or () if c not in known]
+        if unknown:
+            raise DataFormatError(path, fix.where, f"no camera {unknown[0]} in the calibration "
+                                                   f"({', '.join(sorted(known))})")
+        if fix.kind == "checked":
+            continue
+        if fix.kind == "exchange":
+            a, b = fix.tracks
+            taken = [_take(out[a], fix), _take(out[b], fix)]
+            if not taken[0] and not taken[1]:
+                raise DataFormatError(path, fix.where, f"selects no detection of {a} or {b}")
+            _put(out[b], taken[0]), _put(out[a], taken[1])
+            moved += len(taken[0]) + len(taken[1])
+            changed.update(fix.tracks)
+        elif fix.kind == "move":
+            a, b = fix.tracks
+            taken = _take(out[a], fix)
+            if not taken:
+                raise DataFormatError(path, fix.where, f"selects no detection of {a}")
+            clash = [(f, c) for f, c, _ in taken if c in out[b].get(f, {})]
+            if clash:
+                raise DataFormatError(path, fix.where, f"{b} already holds camera {clash[0][1]} at frame "
+                                                       f"{clash[0][0]} (exchange them instead)")
+            _put(out[b], taken)
+            moved += len(taken)
+            changed.update(fix.tracks)
+        elif fix.kind == "split":
+            (a,) = fix.tracks
+            new_id = fix.new_id or _next_id(out)
+            if new_id in out:
+                raise DataFormatError(path, fix.where, f"new_id {new_id} is a track already")
+            later = {f: cams for f, cams in out[a].items() if f >= fix.first_frame}
+            if not later or len(later) == len(out[a]):
+                raise DataFormatError(path, fix.where, f"frame {fix.first_frame} does not split {a} "
+                                                       f"(frames {min(out[a])}-{max(out[a])})")
+            out[new_id] = later
+            out[a] = {f: cams for f, cams in out[a].items() if f < fix.first_frame}
+            changed.update((a, new_id))
+        elif fix.kind == "merge":
+            into = out[fix.tracks[0]]
+            for other in fix.tracks[1:]:
+                for frame, cams in out[other].items():
+                    clash = [c for c in cams if c in into.get(frame, {})]
+                    if clash:
+                        raise DataFormatError(path, fix.where, f"{fix.tracks[0]} and {other} both hold camera "
+                                                               f"{clash[0]} at frame {frame}")
+                    into.setdefault(frame, {}).update(cams)
+                    moved += len(cams)
+                del out[other]
+            changed.update(fix.tracks)
+        else:                                             # remove
+            (a,) = fix.tracks
+            taken = _take(out[a], fix)
+            if not taken:
+                raise DataFormatError(path, fix.where, f"selects no detection of {a}")
+            removed += len(taken)
+            changed.add(a)
+        for tid in list(out):
+            if not out[tid]:
+                del out[tid]
+    out = {tid: {frame: {cam: dataclasses.replace(det, track_id=tid) for cam, det in sorted(cams.items())}
+                 for frame, cams in sorted(frames.items())} for tid, frames in sorted(out.items())}
+    return out, {"operations": len(fixes), "detections_moved": moved, "detections_removed": removed,
+                 "tracks_changed": sorted(changed)}
+
+
+def fix_tracks(tracks: list, fixes: list[IdentityFix], path: str | Path, calibrations: Mapping, config=None,
+               ground=None, clouds: Mapping | None = None) -> tuple[list, dict]:
+    """``tracks`` (:class:`~pedx_graph.detections.association.DetectedTrack`) after ``fixes``
+    (:func:`apply_fixes`), the changed ones placed again (module docstring), sorted by id; and the record of
+    :func:`apply_fixes`.  ``config``: the association's (:class:`AssociationConfig`), ``ground`` and
+    ``clouds`` as :func:`~pedx_graph.detections.association.tracks_from_ids` takes them."""
+    from pedx_graph.detections.association import tracks_from_ids
+
+    groups = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
+    cameras = {cam for name in calibrations for cam in str(name).split("-")}
+    groups, record = apply_fixes(groups, fixes, path, cameras)
+    if not record["tracks_changed"]:
+        return sorted(tracks, key=lambda t: t.track_id), record
+    placed = {t.track_id: t for t in tracks_from_ids(groups, calibrations, config, ground, clouds=clouds)}
+    kept = {t.track_id: t for t in tracks}
+    changed = set(record["tracks_changed"])
+    return [placed[tid] if tid in changed else kept[tid] for tid in sorted(groups)], record
+
+
+def mark_checked(review: dict, fixes: Iterable[IdentityFix]) -> int:
+    """Marks the stretches of ``review`` (:func:`pedx_graph.detections.review.review_summary`'s record) a
+    ``checked`` operation of ``fixes`` covers — every track the stretch names among the operation's, its
+    frames within the operation's — with ``"checked": true`` and drops them from ``check_order``; returns how
+    many.  The record gains ``checked_stretches``."""
+    checks = [fix for fix in fixes if fix.kind == "checked"]
+    marked = 0
+    for stretch in review["stretches"]:
+        if any(set(stretch["tracks"]) <= set(fix.tracks)
+               and (fix.first_frame is None or stretch["first_frame"] >= fix.first_frame)
+               and (fix.last_frame is None or stretch["last_frame"] <= fix.last_frame) for fix in checks):
+            stretch["checked"] = True
+            marked += 1
+    review["check_order"] = [i for i in review["check_order"] if not review["stretches"][i].get("checked")]
+    review["checked_stretches"] = marked
+    return marked
+
+
+def _take(frames: dict[int, dict[str, Detection]], fix: IdentityFix) -> list[tuple[int, str, Detection]]:
+    """Removes and returns the detections of one track ``fix`` selects."""
+    taken = [(frame, cam, det) for frame, cams in sorted(frames.items()) for cam, det in sorted(cams.items())
+             if fix.selects(frame, cam)]
+    for frame, cam, _ in taken:
+        del frames[frame][cam]
+        if not frames[frame]:
+            del frames[frame]
+    return taken
+
+
+def _put(frames: dict[int, dict[str, Detection]], taken: list[tuple[int, str, Detection]]) -> None:
+    for frame, cam, det in taken:
+        frames.setdefault(frame, {})[cam] = det
+
+
+_ID = re.compile(r"^det(\d+)$")
+
+
+def _next_id(groups: Mapping[str, object]) -> str:
+    """The next free ``detNNNNNN`` after every id of that form."""
+    numbers = [int(m.group(1)) for tid in groups if (m := _ID.match(tid))]
+    return f"det{max(numbers, default=0) + 1:06d}"
+
+
+def _id_range(groups: Mapping[str, object]) -> str:
+    ids = sorted(groups)
+    if not ids:
+        return "the import has no tracks"
+    return f"this import's tracks: {ids[0]}" + (f" ... {ids[-1]}, {len(ids)} in all" if len(ids) > 1 else "")
