@@ -53,8 +53,9 @@ seqA:
 seqB: []
 """)
     fixes = read_fixes(path)
-    assert list(fixes) == ["seqA", "seqB"] and fixes["seqB"] == []
-    ex, mv, sp, mg, rm = fixes["seqA"]
+    assert list(fixes) == ["seqA", "seqB"] and fixes["seqB"].operations == ()
+    assert fixes["seqA"].made_for is None
+    ex, mv, sp, mg, rm = fixes["seqA"].operations
     assert (ex.kind, ex.tracks, ex.first_frame, ex.last_frame, ex.cameras) == \
         ("exchange", ("det000006", "det000007"), 14, 18, ("red707B",))
     assert (mv.first_frame, mv.last_frame, mv.cameras) == (16, 16, ("ylw79D0",))
@@ -71,7 +72,8 @@ seqB: []
 @pytest.mark.parametrize("text, field", [
     ("seq: [exchange: [a, b]\n", None),                                     # not YAML
     ("- exchange: [a, b]\n", None),                                         # not a mapping of sequences
-    ("seq: {exchange: [a, b]}\n", "seq"),                                   # not a list
+    ("seq: {exchange: [a, b]}\n", "seq.exchange"),                          # not a list of operations
+    ("seq: remove a\n", "seq"),
     ("seq:\n  - [a, b]\n", "seq[0]"),
     ("seq:\n  - exchange: [a, b]\n    move: [a, b]\n", "seq[0]"),           # two kinds
     ("seq:\n  - swap: [a, b]\n", "seq[0]"),                                 # no kind
@@ -87,6 +89,11 @@ seqB: []
     ("seq:\n  - split: a\n", "seq[0].at"),
     ("seq:\n  - split: a\n    at: x\n", "seq[0].at"),
     ("seq:\n  - split: a\n    at: 3\n    new_id: 4\n", "seq[0].new_id"),
+    ("seq:\n  - checked: [a, b, c]\n", "seq[0].checked"),
+    ("seq:\n  made_for: 12\n  operations: []\n", "seq.made_for"),
+    ("seq:\n  made_on: abc\n", "seq.made_on"),
+    ("seq:\n  made_for: abc\n  operations: {remove: a}\n", "seq.operations"),
+    ("seq:\n  operations:\n    - remove: a\n      at: 3\n", "seq.operations[0].at"),
 ])
 def test_a_malformed_fixes_file_names_the_file_and_the_field(tmp_path, text, field):
     path = tmp_path / "fixes.yaml"
@@ -212,8 +219,10 @@ def test_import_applies_the_fixes_file_and_names_a_bad_one_in_one_line(tmp_path,
     seq = plain["0"].sequence
     frames = sorted({fr.frame for fr in plain["0"].frames} & {fr.frame for fr in plain["1"].frames})
     at = frames[len(frames) // 2]
+    digest = json.loads((tmp_path / "plain" / "import_summary.json").read_text())["sequences"][seq]["tracks_digest"]
     fixes = tmp_path / "fixes.yaml"
-    fixes.write_text(f"{seq}:\n  - exchange: ['0', '1']\n    frames: [{at}, {max(frames)}]\n")
+    fixes.write_text(f"{seq}:\n  made_for: '{digest}'\n  operations:\n"
+                     f"    - exchange: ['0', '1']\n      frames: [{at}, {max(frames)}]\n")
     out = tmp_path / "fixed"
     assert main(args + ["--out", str(out), "--identity-fixes", str(fixes)]) == 0
     assert "1 identity fixes applied" in capsys.readouterr().out
@@ -230,6 +239,12 @@ def test_import_applies_the_fixes_file_and_names_a_bad_one_in_one_line(tmp_path,
                 assert np.abs(view.keypoints - want).max() < 1e-3
                 checked += fr.frame >= at
     assert checked > 0
+    assert json.loads((out / "import_summary.json").read_text())["sequences"][seq]["tracks_digest"] == digest
+    # fixes made for other tracks (another version, config or detections) are refused, not applied
+    fixes.write_text(f"{seq}:\n  made_for: 0123456789abcdef\n  operations:\n    - remove: '0'\n")
+    assert main(args + ["--out", str(tmp_path / "other"), "--identity-fixes", str(fixes)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and str(fixes) in err and f"{seq}.made_for" in err and digest in err
     # a fix naming a track the import does not have: one line naming the file and the operation, exit 1
     fixes.write_text(f"{seq}:\n  - remove: '7'\n")
     assert main(args + ["--out", str(tmp_path / "bad"), "--identity-fixes", str(fixes)]) == 1
@@ -247,7 +262,7 @@ def test_checked_stretches_leave_the_order_to_check_and_the_tracks_review(tmp_pa
 
     path = tmp_path / "fixes.yaml"
     path.write_text("s:\n  - checked: [a, b]\n    frames: [0, 10]\n  - checked: c\n")
-    fixes = read_fixes(path)["s"]
+    fixes = read_fixes(path)["s"].operations
     assert [(f.kind, f.tracks) for f in fixes] == [("checked", ("a", "b")), ("checked", ("c",))]
     groups = _groups({"a": {0: ("L",)}, "b": {1: ("L",)}, "c": {2: ("R",)}})
     fixed, record = apply_fixes(groups, fixes, path, CAMERAS)               # nothing moves

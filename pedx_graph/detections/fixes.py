@@ -25,6 +25,18 @@ import wrote them, ``det000006``, or the files' ids with ``--use-file-ids``) and
       - checked: [det000002, det000005]    # looked at, right as it is: the review's stretches of these
         frames: [0, 19]                    # tracks within these frames are marked checked
 
+Track ids are only stable while the association's output is: another version of pedx-graph, another config or
+other detection files can number the tracks differently, and an old fix would then exchange the wrong
+people.  The import writes each sequence's ``tracks_digest`` (:func:`tracks_digest`: a digest of which
+detections each track holds, before any fix) into ``import_summary.json``; a sequence's entry may be written
+as a mapping that names it, and the import then refuses fixes made for other tracks::
+
+    20171130T2000:
+      made_for: 3f9c0a1b2d4e5f60        # sequences.<seq>.tracks_digest of the import the fixes were made on
+      operations:
+        - exchange: [det000006, det000007]
+          frames: [14, 18]
+
 The review is made again on the fixed tracks (:func:`mark_checked`): stretches a ``checked`` operation covers
 are marked ``"checked": true`` and left out of the order to check in and of the review sheets, so a second
 run of the import lists only what is still to look at.
@@ -85,8 +97,29 @@ class IdentityFix:
                 and (self.cameras is None or camera in self.cameras))
 
 
-def read_fixes(path: str | Path) -> dict[str, list[IdentityFix]]:
-    """The operations of a fixes file per sequence (module docstring); a malformed file or operation raises
+@dataclass(frozen=True)
+class SequenceFixes:
+    """The fixes of one sequence."""
+
+    operations: tuple[IdentityFix, ...]
+    """Applied in order."""
+    made_for: str | None = None
+    """The :func:`tracks_digest` of the tracks the fixes were written for; None: not checked."""
+
+
+def tracks_digest(tracks) -> str:
+    """16 hex digits that change whenever a track's id or the detections it holds change (camera, frame and
+    source of each, over :class:`~pedx_graph.detections.association.DetectedTrack` s): what fixes naming
+    track ids depend on."""
+    import hashlib
+
+    items = sorted((track.track_id, fr.frame, camera, str(det.source))
+                   for track in tracks for fr in track.frames for camera, det in fr.detections.items())
+    return hashlib.sha256(repr(items).encode()).hexdigest()[:16]
+
+
+def read_fixes(path: str | Path) -> dict[str, SequenceFixes]:
+    """The fixes of a fixes file per sequence (module docstring); a malformed file or operation raises
     :class:`~pedx_graph.data.types.DataFormatError` naming the file and the field."""
     import yaml
 
@@ -101,11 +134,23 @@ def read_fixes(path: str | Path) -> dict[str, list[IdentityFix]]:
         return {}
     if not isinstance(doc, dict):
         raise DataFormatError(path, None, "expected a mapping of sequence names to lists of operations")
-    out: dict[str, list[IdentityFix]] = {}
-    for seq, items in doc.items():
+    out: dict[str, SequenceFixes] = {}
+    for seq, entry in doc.items():
+        made_for = None
+        items, where = entry, str(seq)
+        if isinstance(entry, dict):
+            unknown = set(entry) - {"made_for", "operations"}
+            if unknown:
+                raise DataFormatError(path, f"{seq}.{sorted(map(str, unknown))[0]}",
+                                      "not a key of a sequence's fixes (made_for, operations)")
+            made_for = entry.get("made_for")
+            if made_for is not None and not (isinstance(made_for, str) and made_for):
+                raise DataFormatError(path, f"{seq}.made_for", f"expected a tracks digest, got {made_for!r}")
+            items, where = entry.get("operations", []), f"{seq}.operations"
         if not isinstance(items, list):
-            raise DataFormatError(path, str(seq), "expected a list of operations")
-        out[str(seq)] = [_parse_fix(path, f"{seq}[{i}]", item) for i, item in enumerate(items)]
+            raise DataFormatError(path, where, "expected a list of operations")
+        out[str(seq)] = SequenceFixes(tuple(_parse_fix(path, f"{where}[{i}]", item) for i, item in enumerate(items)),
+                                      made_for)
     return out
 
 
@@ -251,13 +296,20 @@ def apply_fixes(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]], fix
 
 
 def fix_tracks(tracks: list, fixes: list[IdentityFix], path: str | Path, calibrations: Mapping, config=None,
-               ground=None, clouds: Mapping | None = None) -> tuple[list, dict]:
+               ground=None, clouds: Mapping | None = None, made_for: str | None = None,
+               where: str = "") -> tuple[list, dict]:
     """``tracks`` (:class:`~pedx_graph.detections.association.DetectedTrack`) after ``fixes``
     (:func:`apply_fixes`), the changed ones placed again (module docstring), sorted by id; and the record of
     :func:`apply_fixes`.  ``config``: the association's (:class:`AssociationConfig`), ``ground`` and
-    ``clouds`` as :func:`~pedx_graph.detections.association.tracks_from_ids` takes them."""
+    ``clouds`` as :func:`~pedx_graph.detections.association.tracks_from_ids` takes them.  ``made_for``: the
+    :func:`tracks_digest` the fixes were written for (``where``: its field in the file), an error when
+    ``tracks`` have another."""
     from pedx_graph.detections.association import tracks_from_ids
 
+    if made_for is not None and made_for != tracks_digest(tracks):
+        raise DataFormatError(path, where or "made_for", f"the fixes were made for tracks {made_for}, this "
+                                                         f"import's are {tracks_digest(tracks)} (another version, "
+                                                         "config or detections: check the ids again)")
     groups = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     cameras = {cam for name in calibrations for cam in str(name).split("-")}
     groups, record = apply_fixes(groups, fixes, path, cameras)

@@ -254,9 +254,9 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
 
 def _import_sequence(seq: str, detections: list[Detection], calibrations, out: Path, source_root: Path | None,
                      config: ImportConfig, workers: int = 1, images: dict | None = None,
-                     fixes: list | None = None, fixes_path: str | os.PathLike | None = None) -> dict:
+                     fixes=None, fixes_path: str | os.PathLike | None = None) -> dict:
     from pedx_graph.detections.association import associate, tracks_from_ids
-    from pedx_graph.detections.fixes import fix_tracks, mark_checked
+    from pedx_graph.detections.fixes import fix_tracks, mark_checked, tracks_digest
 
     known = [d for d in detections if _calibrated(d.camera, calibrations)]
     uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
@@ -277,10 +277,11 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     else:
         tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground,
                            workers=workers)
-    fixed = None
-    if fixes:
-        tracks, fixed = fix_tracks(tracks, fixes, fixes_path, calibrations, config.association, ground,
-                                   clouds=clouds or None)
+    digest, fixed = tracks_digest(tracks), None
+    if fixes is not None:
+        tracks, fixed = fix_tracks(tracks, list(fixes.operations), fixes_path, calibrations, config.association,
+                                   ground, clouds=clouds or None, made_for=fixes.made_for,
+                                   where=f"{seq}.made_for")
         log.info("%s: %d identity fixes applied (%d detections moved, %d removed)", seq, fixed["operations"],
                  fixed["detections_moved"], fixed["detections_removed"])
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
@@ -290,8 +291,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
     untracked = untracked_detections(known, tracks)
     review = review_summary(tracks, ground, config.review, untracked)
-    if fixes:
-        mark_checked(review, fixes)
+    if fixes is not None:
+        mark_checked(review, fixes.operations)
     sheets = written_images = None
     if images is not None:
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
@@ -330,8 +331,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
               "left_right_swapped_back": flipped,
               "uncalibrated_cameras": uncalibrated,
               "stereo_noise_check": check.record() if check is not None else None,
-              "identity_fixes": fixed, "identity_review": review, "review_sheets": sheets,
-              "images": written_images}
+              "tracks_digest": digest, "identity_fixes": fixed, "identity_review": review,
+              "review_sheets": sheets, "images": written_images}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,
