@@ -10,6 +10,13 @@ it.  The command-line way is the same:
     pedx-graph import openpose SCENE/detections/openpose_body25 --calib SCENE --out IMPORTED
     pedx-graph fit IMPORTED --out RESULTS
 
+The import lists where two tracks came close (``IMPORTED/import_summary.json``, ``identity_review``); what a
+look there finds wrong goes into a fixes file that the same import applies (docs/detections.md, "Fixing who
+is who"):
+
+    pedx-graph import openpose SCENE/detections/openpose_body25 --calib SCENE --out IMPORTED \
+        --identity-fixes fixes.yaml
+
     python examples/import_detections.py --out example_out/detections --pedestrians 4 --frames 10
 
 Each fitted track is matched to the labelled simulated person nearest to it and its keypoint error printed

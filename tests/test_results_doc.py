@@ -52,6 +52,35 @@ def test_pedx_rig_detections_table_matches_the_json():
     assert all(run.get("rig", "default") == "default" for run in detection_runs(ROOT / "benchmarks" / "results"))
 
 
+def test_identity_fixes_table_matches_the_json():
+    """docs/detections.md's table of bench_identity_fixes is what the committed JSON renders, every set there,
+    and the prose's claims hold: on the default rig's 84 inputs and held-out seeds the review's fixes leave no
+    switch, fixes everywhere none anywhere, and they leave fewer centres off their person on four sets."""
+    import json
+
+    from pedx_graph.eval.benchmark_tables import (IDENTITY_FIXES_BEGIN, IDENTITY_FIXES_END, IDENTITY_FIXES_RUNS,
+                                                  identity_fixes_block)
+
+    results = ROOT / "benchmarks" / "results"
+    text = (ROOT / "docs" / "detections.md").read_text()
+    block = text[text.index(IDENTITY_FIXES_BEGIN):text.index(IDENTITY_FIXES_END) + len(IDENTITY_FIXES_END)] + "\n"
+    assert block == identity_fixes_block(results)
+    assert block.count("\n| ") == 1 + len(IDENTITY_FIXES_RUNS)          # the header and every set
+    fewer_off = 0
+    for name, _ in IDENTITY_FIXES_RUNS:
+        t = json.loads((results / f"{name}.json").read_text())["totals"]
+        assert t["all_fixed_id_switches"] == 0 and t["all_fixed_others_detections"] == 0, name
+        assert t["review_fixed_id_switches"] <= t["associated_id_switches"], name
+        if name in ("bench_identity_fixes", "bench_identity_fixes_heldout"):
+            assert t["review_fixed_id_switches"] == 0, name
+        fewer_off += t["all_fixed_misplaced_centres"] < t["associated_misplaced_centres"]
+    assert "fall on four of the five sets" in " ".join(text.split()) and fewer_off == 4
+    t = json.loads((results / "bench_identity_fixes.json").read_text())["totals"]
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert (f"fixing what the flagged stretches show takes {t['review_operations']} operations and leaves no "
+            f"identity switch" in readme) and t["review_fixed_id_switches"] == 0
+
+
 def test_joint_table_pools_the_seeds_by_frames():
     """The per-joint table and the pooled ratio weight each seed's means by its frames; the table lists every
     input that reports per-joint errors; runs without them add no table."""

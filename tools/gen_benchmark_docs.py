@@ -11,8 +11,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pedx_graph.eval.benchmark_tables import (DETECTIONS_BEGIN, DETECTIONS_END, DETECTIONS_PEDX_BEGIN,  # noqa: E402
-                                              DETECTIONS_PEDX_END, DETECTIONS_PEDX_FOLDER, benchmark_block,
-                                              detections_block, replace_block)
+                                              DETECTIONS_PEDX_END, DETECTIONS_PEDX_FOLDER, IDENTITY_FIXES_BEGIN,
+                                              IDENTITY_FIXES_END, benchmark_block, detections_block,
+                                              identity_fixes_block, replace_block)
 from pedx_graph.utils import atomic_write_text  # noqa: E402
 
 
@@ -30,6 +31,9 @@ def main() -> int:
     text = replace_block(text, detections_block(ROOT / DETECTIONS_PEDX_FOLDER, DETECTIONS_PEDX_FOLDER,
                                                 DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END),
                          DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END)
+    if IDENTITY_FIXES_BEGIN not in text:
+        raise SystemExit(f"{path}: no {IDENTITY_FIXES_BEGIN} marker")
+    text = replace_block(text, identity_fixes_block(results), IDENTITY_FIXES_BEGIN, IDENTITY_FIXES_END)
     atomic_write_text(path, text)
     return 0
 

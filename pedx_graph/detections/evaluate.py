@@ -31,7 +31,9 @@ or clutter.  :func:`detection_truth` finds the record of a read detection from i
 :func:`placement_counts` judges the tracks' 3D centres against the people's true ones: how many frames lie
 off their person, and how many of those claim a depth uncertainty that hides it.  :func:`switch_geometry`
 sorts the identity switches by where the two people stood at the switch, seen from the rig: one behind the
-other, paths crossing, or beside each other.
+other, paths crossing, or beside each other.  :func:`truth_fixes` writes the identity fixes
+(:mod:`pedx_graph.detections.fixes`) a reviewer who sees who is who would write: what reviewing the import's
+flagged stretches costs and leaves (``benchmarks/bench_identity_fixes.py``).
 """
 from __future__ import annotations
 

@@ -7,8 +7,9 @@ of the real-rig scenes, overall and per distance bin (bins without frames left o
 joins them between the markers ``<!-- benchmarks -->`` / ``<!-- /benchmarks -->``; a test checks that the
 committed docs/results.md holds exactly this block for the committed JSON.  :func:`detections_block` renders,
 the same way, docs/detections.md's table of ``bench_detections.json`` (seed 0) and ``seed*/bench_detections.json``
-between ``<!-- detections -->`` / ``<!-- /detections -->``.  ``python tools/gen_benchmark_docs.py`` rewrites
-both blocks.
+between ``<!-- detections -->`` / ``<!-- /detections -->``, and :func:`identity_fixes_block` its table of the
+``bench_identity_fixes*.json`` runs between ``<!-- identity-fixes -->`` / ``<!-- /identity-fixes -->``.
+``python tools/gen_benchmark_docs.py`` rewrites every block.
 """
 from __future__ import annotations
 
@@ -22,6 +23,17 @@ DETECTIONS_BEGIN, DETECTIONS_END = "<!-- detections -->", "<!-- /detections -->"
 DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END = "<!-- detections_pedx_rig -->", "<!-- /detections_pedx_rig -->"
 #: Where ``bench_detections.py --rig pedx`` runs are committed (seed 0 there, other seeds in ``seed*/``).
 DETECTIONS_PEDX_FOLDER = "benchmarks/results/detections_pedx_rig"
+
+
+#: Markers of docs/detections.md's table of ``benchmarks/bench_identity_fixes.py``'s runs.
+IDENTITY_FIXES_BEGIN, IDENTITY_FIXES_END = "<!-- identity-fixes -->", "<!-- /identity-fixes -->"
+#: The identity-fixes runs in the table's order: result name (``benchmarks/results/<name>.json``), how the
+#: table names the set.
+IDENTITY_FIXES_RUNS = (("bench_identity_fixes", "84 inputs (seeds 0-8, 17-21)"),
+                       ("bench_identity_fixes_pedx_rig", "real rig's preset, seeds 0-8"),
+                       ("bench_identity_fixes_long", "long (20 people x 80 frames, seeds 10-15)"),
+                       ("bench_identity_fixes_heldout", "held out, seeds 30-38"),
+                       ("bench_identity_fixes_pedx_rig_heldout", "held out, real rig's preset, seeds 30-38"))
 
 
 #: Suffix of a bench_detections input of a format's detections grouped by the simulator's ids.
@@ -251,6 +263,36 @@ def detections_block(results_dir: str | os.PathLike, folder: str = "benchmarks/r
     """The generated bench_detections block of docs/detections.md (markers included): the runs in
     ``results_dir``, committed as ``folder`` (the project-relative path the text names)."""
     return "\n".join([begin, detections_section(detection_runs(results_dir), folder), end]) + "\n"
+
+
+def identity_fixes_block(results_dir: str | os.PathLike) -> str:
+    """docs/detections.md's table of the committed ``bench_identity_fixes*.json`` runs (markers included; a run
+    not in ``results_dir`` is left out): per set the track frames the review flags, the fix operations a
+    reviewer writes looking inside the review's stretches / everywhere, and switches (crossing), people's
+    detections on another's track and centres off by more than 0.5 m as associated -> after the review's
+    fixes -> after fixes everywhere; then each run's command."""
+    results_dir = Path(results_dir)
+    lines = [IDENTITY_FIXES_BEGIN,
+             "| set | flagged / track frames | fix operations, review / everywhere | id switches (crossing) | "
+             "others' detections | centres off > 0.5 m |",
+             "|---|---:|---:|---|---|---|"]
+    commands = []
+    for name, label in IDENTITY_FIXES_RUNS:
+        path = results_dir / f"{name}.json"
+        if not path.is_file():
+            continue
+        run = json.loads(path.read_text())
+        t = run["totals"]
+        stages = ("associated", "review_fixed", "all_fixed")
+        switches = " -> ".join(f"{t[s + '_id_switches']} ({t[s + '_crossing_id_switches']})" for s in stages)
+        lines.append(f"| {label} | {t['review_flagged_frames']} / {t['track_frames']} "
+                     f"({100 * t['review_flagged_frames'] / max(t['track_frames'], 1):.0f} %) | "
+                     f"{t['review_operations']} / {t['all_operations']} | {switches} | "
+                     + " -> ".join(str(t[s + "_others_detections"]) for s in stages) + " | "
+                     + " -> ".join(str(t[s + "_misplaced_centres"]) for s in stages) + " |")
+        commands.append(f"`{run['command']}`")
+    lines += ["", "Commands: " + "; ".join(commands) + ".", IDENTITY_FIXES_END]
+    return "\n".join(lines) + "\n"
 
 
 def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
