@@ -52,3 +52,27 @@ def parse_seeds(text: str) -> list[int]:
     if not seeds:
         raise ValueError(f"--seeds: no seed in {text!r}")
     return seeds
+
+
+def rows_per_seed(run_seed, seeds: list[int], workers: int, *args) -> list[dict]:
+    """``run_seed(seed, *args)`` for every seed in ``workers`` processes (one seed each), its rows joined in
+    seed order."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+        per_seed = list(pool.map(run_seed, seeds, *[[a] * len(seeds) for a in args]))
+    return [row for rows in per_seed for row in rows]
+
+
+def write_outputs(out_dir, name: str, result: dict, markdown_text: str) -> None:
+    """``<name>.json`` and ``<name>.md`` into ``out_dir`` (created; each written atomically), and the markdown up
+    to its per-input tables printed."""
+    from pathlib import Path
+
+    from pedx_graph.utils import atomic_write_json, atomic_write_text
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / f"{name}.json", result)
+    atomic_write_text(out / f"{name}.md", markdown_text)
+    print(markdown_text.split("## Per input")[0])

@@ -50,7 +50,7 @@ import json
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +59,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import hardware, parse_seeds, public_args  # noqa: E402
+from _common import hardware, parse_seeds, public_args, rows_per_seed, write_outputs  # noqa: E402
 from bench_detections import (FORMATS, RIGS, SHARED_CMU, _truth_frames, crossing_people,  # noqa: E402
                               labelled_instances, read_format, scene_clouds, scene_configs)
 from pedx_graph.data.calib import read_calibrations  # noqa: E402
@@ -75,8 +75,8 @@ from pedx_graph.detections.evaluate import (IN_LINE_LATERAL_M, PATHS_CROSS_DEG, 
 from pedx_graph.detections.lidar_cut import project_cloud  # noqa: E402
 from pedx_graph.detections.review import review_summary, untracked_detections  # noqa: E402
 from pedx_graph.keypoints import load_keypoint_set  # noqa: E402
+from pedx_graph.sim.config import SimConfig  # noqa: E402
 from pedx_graph.sim.simulate import read_truth_frame, simulate  # noqa: E402
-from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 #: Counts summed over the inputs, in the tables' order.
 COUNTS = ("tracks", "false_tracks", "bystander_tracks", "recovered", "labelled_people", "id_switches",
@@ -170,6 +170,47 @@ def truth_ranges(scene: Path, sequence: str, records: list[dict], mode: str, cou
         association.detection_ranges = original
 
 
+@dataclass
+class SimulatedScene:
+    """One simulated scene of a seed and what scoring its inputs needs (:func:`simulated_scenes`)."""
+
+    name: str
+    """``crossing`` or ``mixed``."""
+    root: Path
+    """The scene's folder (temporary)."""
+    sequence: str
+    """Its sequence name."""
+    config: SimConfig
+    """Its simulator config."""
+    labelled: dict
+    """Tracking id -> {frame: horizontal distance} of the labelled people (:func:`labelled_instances`)."""
+    crossing: set
+    """The people crossing at 5-25 m (:func:`bench_detections.crossing_people`)."""
+    calibs: dict
+    """Stereo pairs by name."""
+    clouds: dict
+    """Frame -> the scene's LiDAR cloud."""
+    ground: object
+    """The sequence's ground frame."""
+    centres: dict
+    """``(tracking id, frame) -> (3,)`` true centres (:func:`true_centres`)."""
+
+
+def simulated_scenes(seed: int, pedestrians: int, frames: int, rig: str, folder: str | Path):
+    """The seed's two scenes (module docstring), simulated into ``folder`` one after the other, as
+    :class:`SimulatedScene` s."""
+    for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
+        scene = Path(folder) / name
+        simulate(scene, cfg, seed=seed + s, workers=1)
+        seq = cfg.scene.sequence
+        labelled = labelled_instances(scene, seq)
+        crossing, _ = crossing_people(read_dataset(scene), labelled)
+        calibs = read_calibrations(scene / "calib")
+        yield SimulatedScene(name, scene, seq, cfg, labelled, crossing, calibs, scene_clouds(scene, seq),
+                             ground_from_calibrations(calibs, seq),
+                             true_centres(scene, [cfg.scene.first_frame + k for k in range(cfg.scene.n_frames)]))
+
+
 def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
              config: AssociationConfig | None = None, range_oracle: str | None = None) -> list[dict]:
     """The scored inputs of one seed: one row per scene and format (module docstring); ``config``: the
@@ -177,16 +218,10 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
     association's own LiDAR ranges)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
-        for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
-            scene = Path(tmp) / name
-            simulate(scene, cfg, seed=seed + s, workers=1)
-            seq = cfg.scene.sequence
-            labelled = labelled_instances(scene, seq)
-            crossing, _ = crossing_people(read_dataset(scene), labelled)
-            calibs = read_calibrations(scene / "calib")
-            clouds = scene_clouds(scene, seq)
-            ground = ground_from_calibrations(calibs, seq)
-            centres = true_centres(scene, [cfg.scene.first_frame + k for k in range(cfg.scene.n_frames)])
+        for sc in simulated_scenes(seed, pedestrians, frames, rig, tmp):
+            name, scene, seq, cfg = sc.name, sc.root, sc.sequence, sc.config
+            labelled, crossing, calibs, clouds, ground, centres = (sc.labelled, sc.crossing, sc.calibs, sc.clouds,
+                                                                   sc.ground, sc.centres)
             for fmt in FORMATS:
                 detections = read_format(scene, fmt, seq)
                 records = read_detection_truth(scene, seq, fmt)
@@ -352,26 +387,37 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parsed_seeds(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[argparse.Namespace, list[int]]:
+    """``parser``'s arguments of ``argv`` and the seeds they name (a usage error when they name none)."""
+    args = parser.parse_args(argv)
+    try:
+        return args, parse_seeds(args.seeds)
+    except ValueError as exc:
+        parser.error(str(exc))
+
+
+def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options naming this benchmark's scenes (seeds, sizes, rig) and its worker count, which
+    ``bench_identity_fixes.py`` shares (:func:`parsed_seeds` reads them)."""
     parser.add_argument("--seeds", default="0-8,17-21", help="seeds and inclusive ranges, comma-separated")
     parser.add_argument("--pedestrians", type=int, default=10)
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--rig", default="default", choices=RIGS,
                         help="the simulated rig (pedx: the real PedX rig's preset)")
     parser.add_argument("--workers", type=int, default=2, help="processes, one seed each")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_scene_arguments(parser)
     parser.add_argument("--baseline", help="an earlier run's JSON to list the changed inputs against")
     parser.add_argument("--config", help="an import config YAML whose association section is used")
     parser.add_argument("--range-oracle", choices=RANGE_ORACLES,
                         help="tell the association its people's true LiDAR ranges (a diagnostic: truth_ranges)")
     parser.add_argument("--name", default="bench_association", help="file name of the outputs, without suffix")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
-    args = parser.parse_args(argv)
-    try:
-        seeds = parse_seeds(args.seeds)
-    except ValueError as exc:
-        parser.error(str(exc))
+    args, seeds = parsed_seeds(parser, argv)
     baseline = None
     if args.baseline:
         try:
@@ -389,11 +435,8 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         parser.error(str(exc))
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds),
-                                 [args.rig] * len(seeds), [config] * len(seeds),
-                                 [args.range_oracle] * len(seeds)))
-    rows = [row for seed_rows in per_seed for row in seed_rows]
+    rows = rows_per_seed(run_seed, seeds, args.workers, args.pedestrians, args.frames, args.rig, config,
+                         args.range_oracle)
     shown = public_args(argv)                 # the baseline by its file name: no machine paths in the results
     shown = [Path(a).name if k and shown[k - 1] == "--baseline" else
              f"--baseline={Path(a.split('=', 1)[1]).name}" if a.startswith("--baseline=") else a
@@ -410,11 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     if baseline is not None:
         result["baseline_command"] = baseline.get("command", args.baseline)
         result["changed"] = changed_inputs(rows, baseline.get("rows", []))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / f"{args.name}.json", result)
-    atomic_write_text(out / f"{args.name}.md", markdown(result))
-    print(markdown(result).split("## Per input")[0])
+    write_outputs(args.out, args.name, result, markdown(result))
     return 0
 
 

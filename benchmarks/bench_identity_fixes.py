@@ -31,27 +31,20 @@ import argparse
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import hardware, parse_seeds, public_args  # noqa: E402
-from bench_association import true_centres  # noqa: E402
-from bench_detections import (FORMATS, RIGS, SHARED_CMU, crossing_people, labelled_instances,  # noqa: E402
-                              read_format, scene_clouds, scene_configs)
-from pedx_graph.data.calib import read_calibrations  # noqa: E402
-from pedx_graph.data.ground import ground_from_calibrations  # noqa: E402
-from pedx_graph.data.reader import read_dataset  # noqa: E402
+from _common import hardware, public_args, rows_per_seed, write_outputs  # noqa: E402
+from bench_association import add_scene_arguments, parsed_seeds, simulated_scenes  # noqa: E402
+from bench_detections import FORMATS, SHARED_CMU, read_format  # noqa: E402
 from pedx_graph.detections.association import associate  # noqa: E402
 from pedx_graph.detections.evaluate import (placement_counts, read_detection_truth, score_tracks,  # noqa: E402
                                             truth_fixes)
 from pedx_graph.detections.fixes import fix_tracks  # noqa: E402
 from pedx_graph.detections.review import review_summary, untracked_detections  # noqa: E402
-from pedx_graph.sim.simulate import simulate  # noqa: E402
-from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
 
 #: The stages each input is scored at: as associated, after the review's fixes, after fixes everywhere.
 STAGES = ("associated", "review_fixed", "all_fixed")
@@ -74,17 +67,11 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default") -> 
     """One row per scene and format of ``seed`` (module docstring)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_identity_fixes_") as tmp:
-        for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
-            scene = Path(tmp) / name
-            simulate(scene, cfg, seed=seed + s, workers=1)
-            seq = cfg.scene.sequence
-            labelled = labelled_instances(scene, seq)
-            crossing, _ = crossing_people(read_dataset(scene), labelled)
-            calibs = read_calibrations(scene / "calib")
+        for sc in simulated_scenes(seed, pedestrians, frames, rig, tmp):
+            name, scene, seq = sc.name, sc.root, sc.sequence
+            labelled, crossing, calibs, clouds, ground, centres = (sc.labelled, sc.crossing, sc.calibs, sc.clouds,
+                                                                   sc.ground, sc.centres)
             cameras = {cam for pair in calibs for cam in pair.split("-")}
-            clouds = scene_clouds(scene, seq)
-            ground = ground_from_calibrations(calibs, seq)
-            centres = true_centres(scene, [cfg.scene.first_frame + k for k in range(cfg.scene.n_frames)])
             for fmt in FORMATS:
                 detections = read_format(scene, fmt, seq)
                 records = read_detection_truth(scene, seq, fmt)
@@ -156,35 +143,19 @@ def markdown(result: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="0-8,17-21", help="seeds and inclusive ranges, comma-separated")
-    parser.add_argument("--pedestrians", type=int, default=10)
-    parser.add_argument("--frames", type=int, default=20)
-    parser.add_argument("--rig", default="default", choices=RIGS,
-                        help="the simulated rig (pedx: the real PedX rig's preset)")
-    parser.add_argument("--workers", type=int, default=2, help="processes, one seed each")
+    add_scene_arguments(parser)
     parser.add_argument("--name", default="bench_identity_fixes", help="file name of the outputs, without suffix")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results"))
-    args = parser.parse_args(argv)
-    try:
-        seeds = parse_seeds(args.seeds)
-    except ValueError as exc:
-        parser.error(str(exc))
+    args, seeds = parsed_seeds(parser, argv)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
-        per_seed = list(pool.map(run_seed, seeds, [args.pedestrians] * len(seeds), [args.frames] * len(seeds),
-                                 [args.rig] * len(seeds)))
-    rows = [row for seed_rows in per_seed for row in seed_rows]
+    rows = rows_per_seed(run_seed, seeds, args.workers, args.pedestrians, args.frames, args.rig)
     result = {"command": " ".join(["python benchmarks/bench_identity_fixes.py"] + public_args(argv)),
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
               "rig": args.rig, "workers": args.workers,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS},
               "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / f"{args.name}.json", result)
-    atomic_write_text(out / f"{args.name}.md", markdown(result))
-    print(markdown(result).split("## Per input")[0])
+    write_outputs(args.out, args.name, result, markdown(result))
     return 0
 
 
