@@ -143,12 +143,26 @@ def test_import_draws_each_review_stretch_and_refuses_a_missing_images_folder(tm
         # an image is missed only where no file of that camera and frame held a detection to name it
         assert not {tuple(cell) for cell in entry["without_image"]} & named
         assert cv2.imread(str(out / record["review_sheets"]["folder"] / entry["sheet"])) is not None
-    # a stretch a reviewer marked checked (identity fixes file) gets no sheet; the others keep the order to check
+    # the import's fixes template: valid as it is (every operation commented out), the stretches in the order to
+    # check them, each naming its sheet; uncommenting the first marks that stretch checked
+    from pedx_graph.detections.fixes import read_fixes
+
     seq = next(iter(summary["sequences"]))
     first = stretches[record["identity_review"]["check_order"][0]]
+    template = (out / "identity_fixes_template.yaml").read_text()
+    (blank,) = read_fixes(out / "identity_fixes_template.yaml").values()
+    assert blank.operations == () and blank.made_for == record["tracks_digest"]
+    first_sheet = min(entry["sheet"] for entry in sheets)
+    assert template.count("# - checked:") == len(stretches) and first_sheet in template.split("# - checked:")[0]
+    lines = template.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("    # - checked:"))
+    lines[k:k + 2] = [line.replace("# ", "", 1) for line in lines[k:k + 2]]
     fixes = tmp_path / "fixes.yaml"
-    fixes.write_text(f"{seq}:\n  - checked: {json.dumps(first['tracks'])}\n"
-                     f"    frames: [{first['first_frame']}, {first['last_frame']}]\n")
+    fixes.write_text("\n".join(lines) + "\n")
+    (op,) = read_fixes(fixes)[seq].operations
+    assert (op.kind, list(op.tracks), op.first_frame, op.last_frame) == \
+        ("checked", first["tracks"], first["first_frame"], first["last_frame"])
+    # a stretch a reviewer marked checked (identity fixes file) gets no sheet; the others keep the order to check
     assert main(["import", "openpose", str(files), "--keypoint-set", "body25", "--calib", str(root),
                  "--out", str(tmp_path / "checked"), "--review-images", str(raw), "--identity-fixes", str(fixes)]) == 0
     again = json.loads((tmp_path / "checked" / "import_summary.json").read_text())["sequences"][seq]

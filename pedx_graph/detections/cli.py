@@ -104,6 +104,8 @@ def _run_import(args: argparse.Namespace) -> int:
                   + (f" ({checked} more marked checked)" if checked else "") + " "
                   f"({review['flagged_track_frames']} of {review['track_frames']} track frames): check who is "
                   f"who there (import_summary.json, sequences.{seq}.identity_review)")
+            print(f"    what is wrong there goes into a fixes file for --identity-fixes (one entry per stretch "
+                  f"to edit: {args.out}/identity_fixes_template.yaml)")
             for i in review.get("check_order", [])[:3]:
                 stretch = review["stretches"][i]
                 names = stretch["tracks"] if len(stretch["tracks"]) > 1 else stretch["tracks"] + [UNTRACKED]

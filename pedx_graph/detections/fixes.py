@@ -37,6 +37,11 @@ as a mapping that names it, and the import then refuses fixes made for other tra
         - exchange: [det000006, det000007]
           frames: [14, 18]
 
+Every import also writes ``identity_fixes_template.yaml`` beside its output (:func:`fixes_template`): per
+sequence its ``made_for`` digest and, commented out, one ``checked`` operation per stretch still to look at,
+in the order to check them, naming the stretch's review sheet: what the reviewer edits into the fix it needs
+(or uncomments as it is) and adds to the fixes file.
+
 The review is made again on the fixed tracks (:func:`mark_checked`): stretches a ``checked`` operation covers
 are marked ``"checked": true`` and left out of the order to check in and of the review sheets, so a second
 run of the import lists only what is still to look at.
@@ -146,7 +151,7 @@ def read_fixes(path: str | Path) -> dict[str, SequenceFixes]:
             made_for = entry.get("made_for")
             if made_for is not None and not (isinstance(made_for, str) and made_for):
                 raise DataFormatError(path, f"{seq}.made_for", f"expected a tracks digest, got {made_for!r}")
-            items, where = entry.get("operations", []), f"{seq}.operations"
+            items, where = entry.get("operations") or [], f"{seq}.operations"
         if not isinstance(items, list):
             raise DataFormatError(path, where, "expected a list of operations")
         out[str(seq)] = SequenceFixes(tuple(_parse_fix(path, f"{where}[{i}]", item) for i, item in enumerate(items)),
@@ -337,6 +342,37 @@ def mark_checked(review: dict, fixes: Iterable[IdentityFix]) -> int:
     review["check_order"] = [i for i in review["check_order"] if not review["stretches"][i].get("checked")]
     review["checked_stretches"] = marked
     return marked
+
+
+def fixes_template(sequences: Mapping[str, dict]) -> str:
+    """The text of ``identity_fixes_template.yaml`` (module docstring): ``sequences`` maps each sequence to its
+    import summary record (``tracks_digest``, ``identity_review`` and ``review_sheets``, as
+    :func:`pedx_graph.detections.importer.import_detections` records them).  Valid YAML as it is (every
+    operation commented out) and a valid fixes file once operations are uncommented."""
+    lines = ["# Identity fixes for `pedx-graph import ... --identity-fixes FILE` (docs/detections.md, \"Fixing who",
+             "# is who\").  Per sequence, the stretches still to check, in the order to check them, each as a",
+             "# commented `checked` operation: uncomment it where the tracks are right there, or write the fix it",
+             "# needs (exchange, move, split, merge, remove) under `operations:`.  Ids are those of this import's",
+             "# output: if it applied a fixes file already, add these after that file's operations (they apply in",
+             "# order).  `made_for` is the digest of the association's tracks before any fix: a later import",
+             "# refuses the fixes if its tracks differ."]
+    for seq, record in sorted(sequences.items()):
+        review = record.get("identity_review") or {"stretches": [], "check_order": []}
+        sheets = {(tuple(s["tracks"]), s["first_frame"], s["last_frame"]): s["sheet"]
+                  for s in (record.get("review_sheets") or {}).get("sheets", []) if s.get("sheet")}
+        folder = (record.get("review_sheets") or {}).get("folder")
+        lines += [f"'{seq}':", f"  made_for: '{record['tracks_digest']}'", "  operations:"]
+        for n, i in enumerate(review["check_order"], start=1):
+            stretch = review["stretches"][i]
+            names = list(stretch["tracks"])
+            held, missed = stretch["frames_held"], stretch["frames_missed"]
+            sheet = sheets.get((tuple(names), stretch["first_frame"], stretch["last_frame"]))
+            lines += [f"    # {n}. {' and '.join(names) if len(names) > 1 else names[0] + ' beside untracked detections'}"
+                      f", frames {stretch['first_frame']}-{stretch['last_frame']} ({missed} of {held + missed} of "
+                      f"their frames missed)" + (f"; sheet {folder}/{sheet}" if sheet else ""),
+                      f"    # - checked: [{', '.join(names)}]",
+                      f"    #   frames: [{stretch['first_frame']}, {stretch['last_frame']}]"]
+    return "\n".join(lines) + "\n"
 
 
 def _take(frames: dict[int, dict[str, Detection]], fix: IdentityFix) -> list[tuple[int, str, Detection]]:

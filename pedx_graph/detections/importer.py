@@ -43,7 +43,7 @@ from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_p
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
-from pedx_graph.utils import atomic_write_bytes, atomic_write_json
+from pedx_graph.utils import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 log = logging.getLogger(__name__)
 
@@ -217,8 +217,9 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
     (:mod:`pedx_graph.detections.review_sheets`), and with ``config.write_images`` they are written
     rectified into ``out/images/`` (:mod:`pedx_graph.detections.rectified_images`).  ``identity_fixes``: a
     reviewer's fixes file (:mod:`pedx_graph.detections.fixes`), applied to each sequence's tracks before
-    anything is written from them, and copied to ``out/identity_fixes.yaml``."""
-    from pedx_graph.detections.fixes import read_fixes
+    anything is written from them, and copied to ``out/identity_fixes.yaml``.  ``out/identity_fixes_template.yaml``
+    lists the stretches still to check as commented fixes (:func:`~pedx_graph.detections.fixes.fixes_template`)."""
+    from pedx_graph.detections.fixes import fixes_template, read_fixes
     from pedx_graph.detections.review_sheets import index_images
 
     config = config or ImportConfig()
@@ -247,6 +248,7 @@ def import_detections(detections: list[Detection], calib: str | os.PathLike, out
             raise ValueError(f"sequence name {seq!r} must not contain '_' (release file names); pass --sequence")
         summary["sequences"][seq] = _import_sequence(seq, by_sequence[seq], calibrations, out, source_root, config,
                                                       workers, images, fixes.get(seq), identity_fixes)
+    atomic_write_text(out / "identity_fixes_template.yaml", fixes_template(summary["sequences"]))
     save_config(config, out / "import_config.yaml")          # the resolved config beside what it made
     atomic_write_json(out / "import_summary.json", summary)
     return summary
