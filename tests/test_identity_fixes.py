@@ -65,6 +65,9 @@ seqB: []
     assert ex.where == "seqA[0].exchange" and rm.where == "seqA[4].remove"
     assert ex.selects(14, "red707B") and ex.selects(18, "red707B")
     assert not ex.selects(13, "red707B") and not ex.selects(19, "red707B") and not ex.selects(15, "ylw79D0")
+    (tmp_path / "ids.yaml").write_text("seqA:\n  - exchange: [3, '4']\n    cameras: 0\n  - split: 5\n    at: 2\n    new_id: 9\n")
+    ex, sp = read_fixes(tmp_path / "ids.yaml")["seqA"].operations      # numeric file ids, unquoted
+    assert ex.tracks == ("3", "4") and ex.cameras == ("0",) and (sp.tracks, sp.new_id) == (("5",), "9")
     (tmp_path / "empty.yaml").write_text("")
     assert read_fixes(tmp_path / "empty.yaml") == {}
 
@@ -81,14 +84,15 @@ seqB: []
     ("seq:\n  - exchange: [a]\n", "seq[0].exchange"),                       # one track
     ("seq:\n  - merge: [a]\n", "seq[0].merge"),
     ("seq:\n  - move: [a, a]\n", "seq[0].move"),
-    ("seq:\n  - remove: 7\n", "seq[0].remove"),
+    ("seq:\n  - remove: 7.5\n", "seq[0].remove"),
+    ("seq:\n  - remove: [true]\n", "seq[0].remove"),
     ("seq:\n  - remove: a\n    frames: [5, 3]\n", "seq[0].frames"),
     ("seq:\n  - remove: a\n    frames: [1, 2, 3]\n", "seq[0].frames"),
     ("seq:\n  - remove: a\n    frames: true\n", "seq[0].frames"),
     ("seq:\n  - remove: a\n    cameras: []\n", "seq[0].cameras"),
     ("seq:\n  - split: a\n", "seq[0].at"),
     ("seq:\n  - split: a\n    at: x\n", "seq[0].at"),
-    ("seq:\n  - split: a\n    at: 3\n    new_id: 4\n", "seq[0].new_id"),
+    ("seq:\n  - split: a\n    at: 3\n    new_id: [4]\n", "seq[0].new_id"),
     ("seq:\n  - checked: [a, b, c]\n", "seq[0].checked"),
     ("seq:\n  made_for: 12\n  operations: []\n", "seq.made_for"),
     ("seq:\n  made_on: abc\n", "seq.made_on"),

@@ -173,9 +173,10 @@ def _parse_fix(path: Path, where: str, item) -> IdentityFix:
         raise DataFormatError(path, f"{where}.{sorted(map(str, unknown))[0]}",
                               f"not an option of {kind} (options: {', '.join(sorted(_OPTIONS[kind])) or 'none'})")
     value = item[kind]
-    tracks = (value,) if isinstance(value, str) else tuple(value) if isinstance(value, list) else None
-    if tracks is None or not all(isinstance(t, str) and t for t in tracks):
+    tracks = (value,) if isinstance(value, (str, int)) else tuple(value) if isinstance(value, list) else None
+    if tracks is None or not all(_is_name(t) for t in tracks):
         raise DataFormatError(path, field, f"expected track ids, got {value!r}")
+    tracks = tuple(str(t) for t in tracks)              # numeric file ids (OpenPose person_id) unquoted
     fewest, most = FIX_KINDS[kind]
     if len(tracks) < fewest or (most is not None and len(tracks) > most):
         takes = f"{fewest}" if fewest == most else f"{fewest} or more" if most is None else f"{fewest} to {most}"
@@ -194,15 +195,21 @@ def _parse_fix(path: Path, where: str, item) -> IdentityFix:
     cameras = None
     if "cameras" in item:
         cams = item["cameras"]
-        cams = [cams] if isinstance(cams, str) else cams
-        if not isinstance(cams, list) or not cams or not all(isinstance(c, str) and c for c in cams):
+        cams = [cams] if isinstance(cams, (str, int)) else cams
+        if not isinstance(cams, list) or not cams or not all(_is_name(c) for c in cams):
             raise DataFormatError(path, f"{where}.cameras", f"expected camera names, got {item['cameras']!r}")
-        cameras = tuple(cams)
+        cameras = tuple(str(c) for c in cams)
     new_id = item.get("new_id")
-    if new_id is not None and not (isinstance(new_id, str) and new_id):
+    if new_id is not None and not _is_name(new_id):
         raise DataFormatError(path, f"{where}.new_id", f"expected a track id, got {new_id!r}")
+    new_id = None if new_id is None else str(new_id)
     return IdentityFix(kind=kind, tracks=tracks, first_frame=first, last_frame=last, cameras=cameras,
                        new_id=new_id, where=field)
+
+
+def _is_name(value) -> bool:
+    """A track id or camera name as YAML gives it: a non-empty string or an integer (not a boolean)."""
+    return (isinstance(value, str) and bool(value)) or _is_int(value)
 
 
 def _is_int(value) -> bool:
