@@ -65,7 +65,8 @@ seqB: []
     assert ex.where == "seqA[0].exchange" and rm.where == "seqA[4].remove"
     assert ex.selects(14, "red707B") and ex.selects(18, "red707B")
     assert not ex.selects(13, "red707B") and not ex.selects(19, "red707B") and not ex.selects(15, "ylw79D0")
-    (tmp_path / "ids.yaml").write_text("seqA:\n  - exchange: [3, '4']\n    cameras: 0\n  - split: 5\n    at: 2\n    new_id: 9\n")
+    (tmp_path / "ids.yaml").write_text("seqA:\n  - exchange: [3, '4']\n    cameras: 0\n"
+                                       "  - split: 5\n    at: 2\n    new_id: 9\n")
     ex, sp = read_fixes(tmp_path / "ids.yaml")["seqA"].operations      # numeric file ids, unquoted
     assert ex.tracks == ("3", "4") and ex.cameras == ("0",) and (sp.tracks, sp.new_id) == (("5",), "9")
     (tmp_path / "empty.yaml").write_text("")

@@ -374,9 +374,9 @@ def fixes_template(sequences: Mapping[str, dict]) -> str:
             names = list(stretch["tracks"])
             held, missed = stretch["frames_held"], stretch["frames_missed"]
             sheet = sheets.get((tuple(names), stretch["first_frame"], stretch["last_frame"]))
-            lines += [f"    # {n}. {' and '.join(names) if len(names) > 1 else names[0] + ' beside untracked detections'}"
-                      f", frames {stretch['first_frame']}-{stretch['last_frame']} ({missed} of {held + missed} of "
-                      f"their frames missed)" + (f"; sheet {folder}/{sheet}" if sheet else ""),
+            who = " and ".join(names) if len(names) > 1 else f"{names[0]} beside untracked detections"
+            lines += [f"    # {n}. {who}, frames {stretch['first_frame']}-{stretch['last_frame']} ({missed} of "
+                      f"{held + missed} of their frames missed)" + (f"; sheet {folder}/{sheet}" if sheet else ""),
                       f"    # - checked: [{', '.join(names)}]",
                       f"    #   frames: [{stretch['first_frame']}, {stretch['last_frame']}]"]
     return "\n".join(lines) + "\n"
