@@ -230,7 +230,7 @@ def test_import_applies_the_fixes_file_and_names_a_bad_one_in_one_line(tmp_path,
                      f"    - exchange: ['0', '1']\n      frames: [{at}, {max(frames)}]\n")
     out = tmp_path / "fixed"
     assert main(args + ["--out", str(out), "--identity-fixes", str(fixes)]) == 0
-    assert "1 identity fixes applied" in capsys.readouterr().out
+    assert "1 identity fix operation applied" in capsys.readouterr().out
     assert (out / "identity_fixes.yaml").read_text() == fixes.read_text()       # kept beside what it made
     record = json.loads((out / "import_summary.json").read_text())["sequences"][seq]["identity_fixes"]
     assert record["operations"] == 1 and record["tracks_changed"] == ["0", "1"] and record["detections_moved"] > 0

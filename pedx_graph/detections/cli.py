@@ -94,8 +94,10 @@ def _run_import(args: argparse.Namespace) -> int:
     for seq, record in sorted(summary["sequences"].items()):
         fixed = record.get("identity_fixes")
         if fixed:
-            print(f"  {seq}: {fixed['operations']} identity fixes applied ({fixed['detections_moved']} detections "
-                  f"moved, {fixed['detections_removed']} removed; tracks {', '.join(fixed['tracks_changed'])})")
+            n = fixed["operations"]
+            print(f"  {seq}: {n} identity fix operation{'' if n == 1 else 's'} applied ({fixed['detections_moved']} "
+                  f"detections moved, {fixed['detections_removed']} removed; tracks changed: "
+                  f"{', '.join(fixed['tracks_changed']) or 'none'})")
         review = record.get("identity_review")
         checked = review.get("checked_stretches", 0) if review else 0
         if review and len(review["stretches"]) > checked:

@@ -284,8 +284,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         tracks, fixed = fix_tracks(tracks, list(fixes.operations), fixes_path, calibrations, config.association,
                                    ground, clouds=clouds or None, made_for=fixes.made_for,
                                    where=f"{seq}.made_for")
-        log.info("%s: %d identity fixes applied (%d detections moved, %d removed)", seq, fixed["operations"],
-                 fixed["detections_moved"], fixed["detections_removed"])
+        log.debug("%s: %d identity fix operations applied (%d detections moved, %d removed)", seq,
+                  fixed["operations"], fixed["detections_moved"], fixed["detections_removed"])
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
                                     config.association.keypoint_sigma_frac,
                                     config.association.tracker.frame_interval_s)
