@@ -4,6 +4,7 @@ person; `pedx-graph import --identity-fixes` writes the fixed tracks."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -95,6 +96,11 @@ seqB: []
     ("seq:\n  - split: a\n    at: x\n", "seq[0].at"),
     ("seq:\n  - split: a\n    at: 3\n    new_id: [4]\n", "seq[0].new_id"),
     ("seq:\n  - checked: [a, b, c]\n", "seq[0].checked"),
+    ("seq:\n  - add: a\n    cameras: L\n", "seq[0].frames"),
+    ("seq:\n  - add: a\n    frames: 3\n", "seq[0].cameras"),
+    ("seq:\n  - add: a\n    frames: 3\n    cameras: L\n    detection: -1\n", "seq[0].detection"),
+    ("seq:\n  - add: a\n    frames: [3, 4]\n    cameras: L\n    detection: 2\n", "seq[0].detection"),
+    ("seq:\n  - remove: a\n    detection: 2\n", "seq[0].detection"),
     ("seq:\n  made_for: 12\n  operations: []\n", "seq.made_for"),
     ("seq:\n  made_on: abc\n", "seq.made_on"),
     ("seq:\n  made_for: abc\n  operations: {remove: a}\n", "seq.operations"),
@@ -126,13 +132,35 @@ def test_fixes_exchange_move_split_merge_and_remove_detections():
         "det000008": {3: {"L": "a/3/L", "R": "a/3/R"}},        # the next free detNNNNNN
     }
     assert all(d.track_id == tid for tid, frames in fixed.items() for cams in frames.values() for d in cams.values())
-    assert record == {"operations": 5, "detections_moved": 4 + 1 + 1, "detections_removed": 2,
+    assert record == {"operations": 5, "detections_moved": 4 + 1 + 1, "detections_added": 0, "detections_removed": 2,
                       "tracks_changed": ["a", "b", "det000007", "det000008"]}
     assert _names(groups)["a"][1] == {"L": "a/1/L", "R": "a/1/R"}          # the input is left as it was
     # a whole track removed is gone; a split names its new track when asked to
     fixed, _ = apply_fixes(groups, [IdentityFix("remove", ("b",)), IdentityFix("split", ("a",), 2, new_id="c")],
                            "f.yaml", CAMERAS)
     assert sorted(fixed) == ["a", "c", "det000007"] and sorted(fixed["c"]) == [2, 3]
+
+
+def test_add_gives_a_detection_no_track_holds_and_remove_makes_one():
+    groups = _groups({"a": {0: ("L",), 2: ("L",)}, "b": {0: ("R",)}})
+    loose = [_det("R", 1, "f1.json#people[0]"), _det("R", 2, "f2.json#people[0]"), _det("R", 2, "f2.json#people[4]"),
+             _det("L", 1, "r.json#[17]"), _det("L", 2, "g.json#people[1]")]
+    fixes = [IdentityFix("add", ("a",), 1, 1, ("L", "R"), where="s[0].add"),         # the one there in each
+             IdentityFix("add", ("a",), 2, 2, ("R",), detection=4, where="s[1].add"),  # named by its index
+             IdentityFix("remove", ("b",), 0, 0, ("R",), where="s[2].remove"),         # becomes untracked ...
+             IdentityFix("add", ("a",), 0, 0, ("R",), where="s[3].add")]               # ... and is given to a
+    fixed, record = apply_fixes(groups, fixes, "f.yaml", CAMERAS, loose)
+    assert _names(fixed) == {"a": {0: {"L": "a/0/L", "R": "b/0/R"}, 1: {"L": "r.json#[17]", "R": "f1.json#people[0]"},
+                                   2: {"L": "a/2/L", "R": "f2.json#people[4]"}}}
+    assert (record["detections_added"], record["detections_removed"]) == (4, 1)
+    for fix, words in [(IdentityFix("add", ("a",), 2, 2, ("R",), where="s[0].add"),
+                        "2 untracked detections of camera R at frame 2 (name one with `detection`)"),
+                       (IdentityFix("add", ("a",), 1, 1, ("R",), detection=3, where="s[0].add"),
+                        "0 untracked detections with index 3 of camera R at frame 1"),
+                       (IdentityFix("add", ("a",), 3, 3, ("R",), where="s[0].add"), "0 untracked detections"),
+                       (IdentityFix("add", ("a",), 2, 2, ("L",), where="s[0].add"), "a already holds camera L at frame 2")]:
+        with pytest.raises(DataFormatError, match=re.escape(words)):
+            apply_fixes(groups, [fix], "f.yaml", CAMERAS, loose)
 
 
 @pytest.mark.parametrize("fix, words", [
@@ -181,13 +209,16 @@ def _scored_tracks():
                + [(f, cam, "person", "a") for f in (2, 3) for cam in "LR"])
     t3 = track("t3", [(f, "L", "person", "d") for f in range(3)] + [(3, "L", "person", "c")])
     t4 = track("t4", [(f, "L", "clutter", None) for f in range(3)])
-    return [t1, t2, t3, t4], records
+    # no track holds: a's R at frames 5 and 6 (t1 has L alone there), d's R at frame 1, c's and clutter
+    untracked = [det(5, "R", "person", "a"), det(6, "R", "person", "a"), det(1, "R", "person", "d"),
+                 det(1, "R", "person", "c"), det(2, "R", "clutter")]
+    return [t1, t2, t3, t4], records, untracked
 
 
 def test_the_truths_fixes_give_every_detection_back_to_its_person():
     from pedx_graph.detections.evaluate import score_tracks, truth_fixes
 
-    tracks, records = _scored_tracks()
+    tracks, records, untracked = _scored_tracks()
     labelled = {p: {f: 10.0 for f in range(8)} for p in "abcd"}
     before = score_tracks(tracks, records, labelled)
     assert before["id_switches"] >= 4 and before["others_detections"] == 4 + 1 + 4 + 1
@@ -210,6 +241,17 @@ def test_the_truths_fixes_give_every_detection_back_to_its_person():
     assert [(f.kind, f.first_frame, f.last_frame) for f in truth_fixes(tracks, records, {"L", "R"}, stretch)] == \
         [("exchange", 2, 3)]
     assert truth_fixes(tracks, records, {"L", "R"}, []) == []
+    # the detections no track holds: each person's given to its track (two in frame 1's R image: named by index)
+    adds = truth_fixes(tracks, records, {"L", "R"}, untracked=untracked)[3:]
+    assert [(f.kind, f.tracks, f.first_frame, f.last_frame, f.cameras, f.detection) for f in adds] == [
+        ("add", ("t1",), 5, 6, ("R",), None), ("add", ("t3",), 1, 1, ("R",), int(untracked[2].source.rsplit("[", 1)[1].rstrip("]")))]
+    fixed, record = apply_fixes(groups, fixes + adds, "<truth>", {"L", "R"}, untracked)
+    assert record["detections_added"] == 3 and fixed["t3"][1]["R"].source == untracked[2].source
+    # inside stretches only those a one-track stretch lists
+    stretch = [{"tracks": ["t3"], "first_frame": 0, "last_frame": 2,
+                "untracked": [{"camera": "R", "frame": 1, "source": untracked[2].source}]}]
+    assert [(f.kind, f.tracks) for f in truth_fixes(tracks, records, {"L", "R"}, stretch, untracked)] == \
+        [("add", ("t3",))]
 
 
 def test_import_applies_the_fixes_file_and_names_a_bad_one_in_one_line(tmp_path, capsys):
@@ -288,3 +330,51 @@ def test_checked_stretches_leave_the_order_to_check_and_the_tracks_review(tmp_pa
         "a": [{"other": "b", "first_frame": 8, "last_frame": 12}],
         "b": [{"other": "a", "first_frame": 8, "last_frame": 12}, {"other": "c", "first_frame": 0, "last_frame": 3}],
         "c": [{"other": "b", "first_frame": 0, "last_frame": 3}]}
+
+
+def test_import_adds_a_detection_no_track_holds(tmp_path):
+    """A person's second, shifted detection in one image is dropped by the association (a duplicate) and held
+    by no track; `remove` then `add` with its index in the file puts it in the track's place there."""
+    root = small_scene(tmp_path / "scene", pedestrians=2, frames=8, seed=1)
+    raw_calibs = distorted_rig(root)
+    files = tmp_path / "openpose"
+    write_openpose_truth(root, raw_calibs, files)
+    path = sorted(files.rglob("*_keypoints.json"))[len(list(files.rglob("*_keypoints.json"))) // 2]
+    doc = json.loads(path.read_text())
+    copy = np.array(doc["people"][0]["pose_keypoints_2d"]).reshape(-1, 3)
+    copy[:, :2] += 3.0                                   # 3 px off: a duplicate of the same person
+    copy[:, 2] = 0.5                                     # scored lower: the one the association drops
+    doc["people"].append({"person_id": [-1], "pose_keypoints_2d": copy.ravel().tolist()})
+    path.write_text(json.dumps(doc))
+    index = len(doc["people"]) - 1
+    args = ["import", "openpose", str(files), "--calib", str(root)]
+    assert main(args + ["--out", str(tmp_path / "plain")]) == 0
+    summary = json.loads((tmp_path / "plain" / "import_summary.json").read_text())
+    (seq,) = summary["sequences"]
+    stem = path.name.replace("_keypoints.json", "")
+    camera, frame = stem.split("_")[1], int(stem.split("_")[2])
+    holder = [t for t in read_dataset(tmp_path / "plain") for fr in t.frames if fr.frame == frame
+              and any(camera in (name.split("-")[0] if side == "left" else name.split("-")[1])
+                      for name, side, _ in fr.labelled_views())]
+    assert holder, "the person's own detection is on a track"
+    tid = holder[0].tracking_id
+    fixes = tmp_path / "fixes.yaml"
+    fixes.write_text(f"{seq}:\n  - remove: {tid}\n    frames: {frame}\n    cameras: {camera}\n"
+                     f"  - add: {tid}\n    frames: {frame}\n    cameras: {camera}\n    detection: {index}\n")
+    out = tmp_path / "fixed"
+    assert main(args + ["--out", str(out), "--identity-fixes", str(fixes)]) == 0
+    record = json.loads((out / "import_summary.json").read_text())["sequences"][seq]["identity_fixes"]
+    assert (record["detections_added"], record["detections_removed"]) == (1, 1)
+
+    def label_uv(dataset):
+        for t in read_dataset(dataset):
+            if t.tracking_id != tid:
+                continue
+            for fr in t.frames:
+                for name, side, view in fr.labelled_views():
+                    if fr.frame == frame and name.split("-")[0 if side == "left" else 1] == camera:
+                        return view.keypoints
+        raise AssertionError("no label")
+
+    shift = label_uv(out) - label_uv(tmp_path / "plain")
+    assert np.all(np.abs(np.nanmedian(shift, axis=0)) > 1.0)         # the shifted copy's keypoints, rectified

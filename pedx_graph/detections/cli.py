@@ -47,7 +47,8 @@ def register(subparsers) -> None:
                         "close (or a track and a detection no track holds) drawn on them, one JPEG per stretch "
                         "in OUT/review/<sequence>/")
     p.add_argument("--identity-fixes", default=None, metavar="FILE",
-                   help="a YAML file of identity fixes (exchange, move, split, merge, remove: per sequence, "
+                   help="a YAML file of identity fixes (exchange, move, split, merge, remove, add, checked: per "
+                        "sequence, "
                         "naming the tracks as this import writes them) applied before the labels are written; "
                         "see docs/detections.md, 'Fixing who is who'")
     p.add_argument("--workers", type=positive_int, default=1,
@@ -96,7 +97,8 @@ def _run_import(args: argparse.Namespace) -> int:
         if fixed:
             n = fixed["operations"]
             print(f"  {seq}: {n} identity fix operation{'' if n == 1 else 's'} applied ({fixed['detections_moved']} "
-                  f"detections moved, {fixed['detections_removed']} removed; tracks changed: "
+                  f"detections moved, {fixed['detections_added']} added, {fixed['detections_removed']} removed; "
+                  f"tracks changed: "
                   f"{', '.join(fixed['tracks_changed']) or 'none'})")
         review = record.get("identity_review")
         checked = review.get("checked_stretches", 0) if review else 0

@@ -262,16 +262,20 @@ def switch_geometry(switches: list[tuple], centres: dict, ground, frame_interval
     return counts
 
 
-def truth_fixes(tracks, records: list[dict], cameras, stretches: list[dict] | None = None) -> list:
+def truth_fixes(tracks, records: list[dict], cameras, stretches: list[dict] | None = None,
+                untracked: list | None = None) -> list:
     """The identity fixes (:mod:`pedx_graph.detections.fixes`) a reviewer who sees who is who would write: each
     person's detection on a track another person owns (the owner as in :func:`score_tracks`: most of the
     track's detections) is moved to the track its person owns (the nearest in time when several), exchanged
-    with the detection that track holds in that camera and frame, or removed when its person owns no track.
-    With ``stretches`` (the identity review's, :func:`pedx_graph.detections.review.review_stretches`) only
-    detections inside a stretch naming their track are looked at: what a reviewer checking the flagged
-    stretches alone would fix.  Operations of consecutive frames alike are written as one (``frames: [first,
-    last]``), as a reviewer writes a stretch.  Clutter and fragments are left where they are."""
-    from pedx_graph.detections.fixes import IdentityFix, apply_fixes
+    with the detection that track holds in that camera and frame, or removed when its person owns no track;
+    then, with ``untracked`` (the detections no track holds), each of them whose person owns a track without
+    a detection in that camera and frame is added to it.  With ``stretches`` (the identity review's,
+    :func:`pedx_graph.detections.review.review_stretches`) only detections inside a stretch naming their track
+    are looked at, and only the untracked ones a one-track stretch lists (drawn on its sheet): what a reviewer
+    checking the flagged stretches alone would fix.  Operations of consecutive frames alike are written as
+    one (``frames: [first, last]``), as a reviewer writes a stretch.  Clutter and fragments are left where
+    they are."""
+    from pedx_graph.detections.fixes import IdentityFix, apply_fixes, source_index
 
     index = {(r["camera"], r["frame"], r["index"]): r for r in records}
     groups = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
@@ -313,6 +317,28 @@ def truth_fixes(tracks, records: list[dict], cameras, stretches: list[dict] | No
                     fixes.append(fix)
         if len(fixes) == before:
             break
+    if untracked:
+        listed = None if stretches is None else {
+            (s["tracks"][0], u["camera"], u["frame"], u["source"]) for s in stretches if len(s["tracks"]) == 1
+            for u in s.get("untracked", [])}
+        remaining = list(untracked)
+        for det in untracked:
+            person = who(det)
+            targets = sorted(t for t, o in owners.items() if o == person and t in groups) if person else []
+            if not targets:
+                continue
+            target = min(targets, key=lambda t: (min(abs(f - det.frame) for f in groups[t]), t))
+            if det.camera in groups[target].get(det.frame, {}) or (
+                    listed is not None and (target, det.camera, det.frame, det.source) not in listed):
+                continue
+            alike = [d for d in remaining if (d.camera, d.frame) == (det.camera, det.frame)]
+            named = source_index(det) if len(alike) > 1 else None
+            if len(alike) > 1 and named is None:
+                continue                                 # a joined detection among others: no index names it
+            fix = IdentityFix("add", (target,), det.frame, det.frame, (det.camera,), detection=named)
+            groups, _ = apply_fixes(groups, [fix], "<truth>", cameras, remaining)
+            remaining = [d for d in remaining if d is not det]
+            fixes.append(fix)
     return _coalesced(fixes)
 
 
@@ -324,7 +350,8 @@ def _coalesced(fixes: list) -> list:
     out: list = []
     for fix in fixes:
         last = out[-1] if out else None
-        if last is not None and last.kind == fix.kind and last.tracks == fix.tracks:
+        if last is not None and last.kind == fix.kind and last.tracks == fix.tracks \
+                and last.detection is None and fix.detection is None:
             if (last.first_frame, last.last_frame) == (fix.first_frame, fix.last_frame) \
                     and not set(fix.cameras) & set(last.cameras):
                 out[-1] = dataclasses.replace(last, cameras=tuple(sorted(set(last.cameras) | set(fix.cameras))))
@@ -334,7 +361,8 @@ def _coalesced(fixes: list) -> list:
     for fix in out:
         last = runs[-1] if runs else None
         if last is not None and last.kind == fix.kind and last.tracks == fix.tracks \
-                and last.cameras == fix.cameras and fix.first_frame == last.last_frame + 1:
+                and last.cameras == fix.cameras and fix.first_frame == last.last_frame + 1 \
+                and last.detection is None and fix.detection is None:
             runs[-1] = dataclasses.replace(last, last_frame=fix.last_frame)
             continue
         runs.append(fix)

@@ -22,6 +22,10 @@ import wrote them, ``det000006``, or the files' ids with ``--use-file-ids``) and
       - merge: [det000002, det000009]      # one person: all into the first
       - remove: det000004                  # a false track, or its detections there (then untracked)
         frames: [3, 5]
+      - add: det000007                     # a detection no track holds (the review lists them) given to it:
+        frames: 12                         # in each selected camera and frame the one there, or the one
+        cameras: red707B                   # whose index in its file is `detection` (OpenPose people[i],
+        detection: 3                       # a COCO results file's [n])
       - checked: [det000002, det000005]    # looked at, right as it is: the review's stretches of these
         frames: [0, 19]                    # tracks within these frames are marked checked
 
@@ -67,10 +71,13 @@ from pedx_graph.detections.types import Detection
 
 #: Operations of a fixes file, and the fewest and most tracks each names (None: no limit).
 FIX_KINDS = {"exchange": (2, 2), "move": (2, 2), "split": (1, 1), "merge": (2, None), "remove": (1, 1),
-             "checked": (1, 2)}
+             "add": (1, 1), "checked": (1, 2)}
 #: Keys an operation may hold beside its kind.
 _OPTIONS = {"exchange": {"frames", "cameras"}, "move": {"frames", "cameras"}, "split": {"at", "new_id"},
-            "merge": set(), "remove": {"frames", "cameras"}, "checked": {"frames"}}
+            "merge": set(), "remove": {"frames", "cameras"}, "add": {"frames", "cameras", "detection"},
+            "checked": {"frames"}}
+#: The index of a detection in its file, at the end of its ``source``: OpenPose ``#people[i]``, COCO ``#[n]``.
+_SOURCE_INDEX = re.compile(r"#(?:people)?\[(\d+)\]$")
 #: A track's frames: frame -> camera -> detection.
 Groups = dict[str, dict[int, dict[str, Detection]]]
 
@@ -92,6 +99,9 @@ class IdentityFix:
     """Cameras it acts on; None: every camera."""
     new_id: str | None = None
     """``split``: the new track's id; None: the next free ``detNNNNNN``."""
+    detection: int | None = None
+    """``add``: the index of the detection in its file (OpenPose ``people[i]``, COCO results ``[n]``); None:
+    the one detection no track holds in each selected camera and frame."""
     where: str = ""
     """Where in the file: ``<sequence>[i].<kind>``, for error messages."""
 
@@ -203,8 +213,17 @@ def _parse_fix(path: Path, where: str, item) -> IdentityFix:
     if new_id is not None and not _is_name(new_id):
         raise DataFormatError(path, f"{where}.new_id", f"expected a track id, got {new_id!r}")
     new_id = None if new_id is None else str(new_id)
+    detection = item.get("detection")
+    if kind == "add":
+        if first is None or cameras is None:
+            raise DataFormatError(path, f"{where}.{'frames' if first is None else 'cameras'}",
+                                  "add needs the frames and cameras of the detections it gives")
+        if detection is not None and not (_is_int(detection) and detection >= 0):
+            raise DataFormatError(path, f"{where}.detection", f"expected an index in the file, got {detection!r}")
+        if detection is not None and (first != last or len(cameras) != 1):
+            raise DataFormatError(path, f"{where}.detection", "names one detection: give one frame and one camera")
     return IdentityFix(kind=kind, tracks=tracks, first_frame=first, last_frame=last, cameras=cameras,
-                       new_id=new_id, where=field)
+                       new_id=new_id, detection=detection, where=field)
 
 
 def _is_name(value) -> bool:
@@ -225,16 +244,22 @@ def _frames(path: Path, field: str, value) -> tuple[int, int]:
 
 
 def apply_fixes(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]], fixes: Iterable[IdentityFix],
-                path: str | Path, cameras: Iterable[str]) -> tuple[Groups, dict]:
+                path: str | Path, cameras: Iterable[str], untracked: Iterable[Detection] = ()
+                ) -> tuple[Groups, dict]:
     """``groups`` (track id -> frame -> camera -> detection) after ``fixes`` in order (module docstring), with
     each detection's ``track_id`` set to its track's; tracks left without a detection are gone.  ``cameras``:
-    the import's calibrated cameras (a fix naming another is an error).  ``checked`` operations change nothing
-    here (their tracks must exist; :func:`mark_checked` uses them).  Returns the new groups and a record for
-    the import summary: operations, detections moved and removed, the tracks changed."""
+    the import's calibrated cameras (a fix naming another is an error); ``untracked``: the detections no track
+    holds (:func:`pedx_graph.detections.review.untracked_detections`), which ``add`` gives to a track (a
+    detection ``remove`` takes out joins them).  ``checked`` operations change nothing here (their tracks must
+    exist; :func:`mark_checked` uses them).  Returns the new groups and a record for the import summary:
+    operations, detections moved, added and removed, the tracks changed."""
     out: Groups = {tid: {frame: dict(cams) for frame, cams in frames.items()} for tid, frames in groups.items()}
+    loose: dict[tuple[str, int], list[Detection]] = {}
+    for det in untracked:
+        loose.setdefault((det.camera, det.frame), []).append(det)
     known = set(cameras)
     path = Path(path)
-    moved = removed = 0
+    moved = removed = added = 0
     changed: set[str] = set()
     fixes = list(fixes)
     for fix in fixes:
@@ -291,11 +316,35 @@ def apply_fixes(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]], fix
                     moved += len(cams)
                 del out[other]
             changed.update(fix.tracks)
+        elif fix.kind == "add":
+            (a,) = fix.tracks
+            given = []
+            for frame in range(fix.first_frame, fix.last_frame + 1):
+                for cam in fix.cameras:
+                    there = loose.get((cam, frame), [])
+                    if fix.detection is not None:
+                        there = [d for d in there if source_index(d) == fix.detection]
+                    if len(there) != 1:
+                        named = f" with index {fix.detection}" if fix.detection is not None else ""
+                        hint = " (name one with `detection`)" if there else ""
+                        raise DataFormatError(path, fix.where, f"{len(there)} untracked detections{named} of camera "
+                                                               f"{cam} at frame {frame}{hint}")
+                    if cam in out[a].get(frame, {}):
+                        raise DataFormatError(path, fix.where, f"{a} already holds camera {cam} at frame {frame} "
+                                                               "(remove or exchange it first)")
+                    given.append((frame, cam, there[0]))
+            for frame, cam, det in given:
+                loose[(cam, frame)] = [d for d in loose[(cam, frame)] if d is not det]
+            _put(out[a], given)
+            added += len(given)
+            changed.add(a)
         else:                                             # remove
             (a,) = fix.tracks
             taken = _take(out[a], fix)
             if not taken:
                 raise DataFormatError(path, fix.where, f"selects no detection of {a}")
+            for frame, cam, det in taken:
+                loose.setdefault((cam, frame), []).append(det)
             removed += len(taken)
             changed.add(a)
         for tid in list(out):
@@ -303,19 +352,19 @@ def apply_fixes(groups: Mapping[str, Mapping[int, Mapping[str, Detection]]], fix
                 del out[tid]
     out = {tid: {frame: {cam: dataclasses.replace(det, track_id=tid) for cam, det in sorted(cams.items())}
                  for frame, cams in sorted(frames.items())} for tid, frames in sorted(out.items())}
-    return out, {"operations": len(fixes), "detections_moved": moved, "detections_removed": removed,
-                 "tracks_changed": sorted(changed)}
+    return out, {"operations": len(fixes), "detections_moved": moved, "detections_added": added,
+                 "detections_removed": removed, "tracks_changed": sorted(changed)}
 
 
 def fix_tracks(tracks: list, fixes: list[IdentityFix], path: str | Path, calibrations: Mapping, config=None,
                ground=None, clouds: Mapping | None = None, made_for: str | None = None,
-               where: str = "") -> tuple[list, dict]:
+               where: str = "", untracked: Iterable[Detection] = ()) -> tuple[list, dict]:
     """``tracks`` (:class:`~pedx_graph.detections.association.DetectedTrack`) after ``fixes``
     (:func:`apply_fixes`), the changed ones placed again (module docstring), sorted by id; and the record of
     :func:`apply_fixes`.  ``config``: the association's (:class:`AssociationConfig`), ``ground`` and
     ``clouds`` as :func:`~pedx_graph.detections.association.tracks_from_ids` takes them.  ``made_for``: the
     :func:`tracks_digest` the fixes were written for (``where``: its field in the file), an error when
-    ``tracks`` have another."""
+    ``tracks`` have another; ``untracked``: the detections no track holds (``add``)."""
     from pedx_graph.detections.association import tracks_from_ids
 
     if made_for is not None and made_for != tracks_digest(tracks):
@@ -324,7 +373,7 @@ def fix_tracks(tracks: list, fixes: list[IdentityFix], path: str | Path, calibra
                                                          "config or detections: check the ids again)")
     groups = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     cameras = {cam for name in calibrations for cam in str(name).split("-")}
-    groups, record = apply_fixes(groups, fixes, path, cameras)
+    groups, record = apply_fixes(groups, fixes, path, cameras, untracked)
     if not record["tracks_changed"]:
         return sorted(tracks, key=lambda t: t.track_id), record
     placed = {t.track_id: t for t in tracks_from_ids(groups, calibrations, config, ground, clouds=clouds)}
@@ -354,8 +403,9 @@ def mark_checked(review: dict, fixes: Iterable[IdentityFix]) -> int:
 def fixes_template(sequences: Mapping[str, dict]) -> str:
     """The text of ``identity_fixes_template.yaml`` (module docstring): ``sequences`` maps each sequence to its
     import summary record (``tracks_digest``, ``identity_review`` and ``review_sheets``, as
-    :func:`pedx_graph.detections.importer.import_detections` records them).  Valid YAML as it is (every
-    operation commented out) and a valid fixes file once operations are uncommented."""
+    :func:`pedx_graph.detections.importer.import_detections` records them); a stretch beside detections no
+    track holds lists them as an ``add`` names them (camera, frame, index in the file).  Valid YAML as it is
+    (every operation commented out) and a valid fixes file once operations are uncommented."""
     lines = ["# Identity fixes for `pedx-graph import ... --identity-fixes FILE` (docs/detections.md, \"Fixing who",
              "# is who\").  Per sequence, the stretches still to check, in the order to check them, each as a",
              "# commented `checked` operation: uncomment it where the tracks are right there, or write the fix it",
@@ -376,10 +426,21 @@ def fixes_template(sequences: Mapping[str, dict]) -> str:
             sheet = sheets.get((tuple(names), stretch["first_frame"], stretch["last_frame"]))
             who = " and ".join(names) if len(names) > 1 else f"{names[0]} beside untracked detections"
             lines += [f"    # {n}. {who}, frames {stretch['first_frame']}-{stretch['last_frame']} ({missed} of "
-                      f"{held + missed} of their frames missed)" + (f"; sheet {folder}/{sheet}" if sheet else ""),
-                      f"    # - checked: [{', '.join(names)}]",
+                      f"{held + missed} of their frames missed)" + (f"; sheet {folder}/{sheet}" if sheet else "")]
+            loose = [(u["camera"], u["frame"], _SOURCE_INDEX.search(str(u["source"])))
+                     for u in stretch.get("untracked", [])]
+            if loose:                                  # what an `add` names: camera, frame, index in the file
+                lines.append("    #    untracked: " + ", ".join(
+                    f"{cam} frame {frame}" + (f" detection {m.group(1)}" if m else "") for cam, frame, m in loose))
+            lines += [f"    # - checked: [{', '.join(names)}]",
                       f"    #   frames: [{stretch['first_frame']}, {stretch['last_frame']}]"]
     return "\n".join(lines) + "\n"
+
+
+def source_index(det: Detection) -> int | None:
+    """The index of ``det`` in its file (OpenPose ``#people[i]``, COCO ``#[n]``), or None (a joined detection)."""
+    match = _SOURCE_INDEX.search(str(det.source))
+    return int(match.group(1)) if match else None
 
 
 def _take(frames: dict[int, dict[str, Detection]], fix: IdentityFix) -> list[tuple[int, str, Detection]]:

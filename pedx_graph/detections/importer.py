@@ -283,9 +283,10 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     if fixes is not None:
         tracks, fixed = fix_tracks(tracks, list(fixes.operations), fixes_path, calibrations, config.association,
                                    ground, clouds=clouds or None, made_for=fixes.made_for,
-                                   where=f"{seq}.made_for")
-        log.debug("%s: %d identity fix operations applied (%d detections moved, %d removed)", seq,
-                  fixed["operations"], fixed["detections_moved"], fixed["detections_removed"])
+                                   where=f"{seq}.made_for", untracked=untracked_detections(known, tracks))
+        log.debug("%s: %d identity fix operations applied (%d detections moved, %d added, %d removed)", seq,
+                  fixed["operations"], fixed["detections_moved"], fixed["detections_added"],
+                  fixed["detections_removed"])
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
                                     config.association.keypoint_sigma_frac,
                                     config.association.tracker.frame_interval_s)
