@@ -303,6 +303,21 @@ def test_import_applies_the_fixes_file_and_names_a_bad_one_in_one_line(tmp_path,
     assert "\n" not in err and str(fixes) in err and "'other'" in err and not (tmp_path / "bad2").exists()
 
 
+def test_the_tracks_digest_follows_who_holds_what_not_where_the_files_lie():
+    from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+    from pedx_graph.detections.fixes import tracks_digest
+
+    def tracks(folder, swap=False):
+        a = _det("L", 0, f"{folder}/s_L_0000000_keypoints.json#people[0]")
+        b = _det("L", 0, f"{folder}/s_L_0000000_keypoints.json#people[1]")
+        a, b = (b, a) if swap else (a, b)
+        return [DetectedTrack("det000001", [DetectedTrackFrame(0, {"L": a})], ("L-R",)),
+                DetectedTrack("det000002", [DetectedTrackFrame(0, {"L": b})], ("L-R",))]
+
+    assert tracks_digest(tracks("/data/run1/openpose")) == tracks_digest(tracks("openpose"))
+    assert tracks_digest(tracks("openpose")) != tracks_digest(tracks("openpose", swap=True))
+
+
 def test_checked_stretches_leave_the_order_to_check_and_the_tracks_review(tmp_path):
     from pedx_graph.data.reader import identity_review
     from pedx_graph.detections.fixes import mark_checked

@@ -124,11 +124,16 @@ class SequenceFixes:
 
 def tracks_digest(tracks) -> str:
     """16 hex digits that change whenever a track's id or the detections it holds change (camera, frame and
-    source of each, over :class:`~pedx_graph.detections.association.DetectedTrack` s): what fixes naming
-    track ids depend on."""
+    source of each, the source by its file's name and place in the file, so the same files read from
+    another folder or by a relative path give the same digest; over
+    :class:`~pedx_graph.detections.association.DetectedTrack` s): what fixes naming track ids depend on."""
     import hashlib
 
-    items = sorted((track.track_id, fr.frame, camera, str(det.source))
+    def where(source: str) -> str:
+        return " + ".join(f"{Path(file).name}#{place}" for file, _, place in
+                          (part.partition("#") for part in str(source).split(" + ")))
+
+    items = sorted((track.track_id, fr.frame, camera, where(det.source))
                    for track in tracks for fr in track.frames for camera, det in fr.detections.items())
     return hashlib.sha256(repr(items).encode()).hexdigest()[:16]
 
