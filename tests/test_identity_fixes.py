@@ -336,8 +336,13 @@ def test_checked_stretches_leave_the_order_to_check_and_the_tracks_review(tmp_pa
                  {"tracks": ["c"], "first_frame": 0, "last_frame": 3},           # c beside untracked ones
                  {"tracks": ["b", "c"], "first_frame": 0, "last_frame": 3}]      # b and c: no operation names both
     review = {"stretches": stretches, "check_order": [3, 2, 1, 0]}
-    assert mark_checked(review, fixes) == 2
+    from pedx_graph.detections.association import DetectedTrack, DetectedTrackFrame
+    held = [DetectedTrack(tid, [DetectedTrackFrame(f, {}) for f in range(0, 13, 2)], ("L-R",)) for tid in "abc"]
+    assert mark_checked(review, fixes, held) == 2
     assert review["check_order"] == [3, 1] and review["checked_stretches"] == 2
+    # the track frames still flagged: a's 8, 10, 12; b's 0, 2, 8, 10, 12; c's 0, 2 (the checked stretch of a
+    # and b over 2-8 and c's own over 0-3 no longer count)
+    assert review["unchecked_flagged_track_frames"] == 10
     assert [bool(s.get("checked")) for s in stretches] == [True, False, True, False]
     # a fit of the imported dataset repeats only the stretches still to check
     (tmp_path / "import_summary.json").write_text(json.dumps({"sequences": {"s": {"identity_review": review}}}))

@@ -169,6 +169,7 @@ def test_import_draws_each_review_stretch_and_refuses_a_missing_images_folder(tm
     review = again["identity_review"]
     assert review["checked_stretches"] >= 1 and [s["first_frame"] for s in review["stretches"]] == \
         [s["first_frame"] for s in stretches]
+    assert review["unchecked_flagged_track_frames"] < review["flagged_track_frames"]
     open_stretches = [s for s in review["stretches"] if not s.get("checked")]
     assert len(again["review_sheets"]["sheets"]) == len(open_stretches) == len(stretches) - review["checked_stretches"]
     by_name = sorted(again["review_sheets"]["sheets"], key=lambda entry: entry["sheet"])

@@ -106,7 +106,8 @@ def _run_import(args: argparse.Namespace) -> int:
             print(f"  {seq}: {len(review['stretches']) - checked} stretches where two tracks came close, or a "
                   f"track and a detection no track holds"
                   + (f" ({checked} more marked checked)" if checked else "") + " "
-                  f"({review['flagged_track_frames']} of {review['track_frames']} track frames): check who is "
+                  f"({review.get('unchecked_flagged_track_frames', review['flagged_track_frames'])} of "
+                  f"{review['track_frames']} track frames): check who is "
                   f"who there (import_summary.json, sequences.{seq}.identity_review)")
             print(f"    what is wrong there goes into a fixes file for --identity-fixes (one entry per stretch "
                   f"to edit: {args.out}/identity_fixes_template.yaml)")

@@ -387,11 +387,14 @@ def fix_tracks(tracks: list, fixes: list[IdentityFix], path: str | Path, calibra
     return [placed[tid] if tid in changed else kept[tid] for tid in sorted(groups)], record
 
 
-def mark_checked(review: dict, fixes: Iterable[IdentityFix]) -> int:
+def mark_checked(review: dict, fixes: Iterable[IdentityFix], tracks: list | None = None) -> int:
     """Marks the stretches of ``review`` (:func:`pedx_graph.detections.review.review_summary`'s record) a
     ``checked`` operation of ``fixes`` covers — every track the stretch names among the operation's, its
     frames within the operation's — with ``"checked": true`` and drops them from ``check_order``; returns how
-    many.  The record gains ``checked_stretches``."""
+    many.  The record gains ``checked_stretches`` and, given the ``tracks`` it was made on,
+    ``unchecked_flagged_track_frames`` (the track frames the stretches still to check flag)."""
+    from pedx_graph.detections.review import flagged_frames
+
     checks = [fix for fix in fixes if fix.kind == "checked"]
     marked = 0
     for stretch in review["stretches"]:
@@ -402,6 +405,9 @@ def mark_checked(review: dict, fixes: Iterable[IdentityFix]) -> int:
             marked += 1
     review["check_order"] = [i for i in review["check_order"] if not review["stretches"][i].get("checked")]
     review["checked_stretches"] = marked
+    if tracks is not None:
+        still = [stretch for stretch in review["stretches"] if not stretch.get("checked")]
+        review["unchecked_flagged_track_frames"] = sum(len(v) for v in flagged_frames(tracks, still).values())
     return marked
 
 

@@ -295,7 +295,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     untracked = untracked_detections(known, tracks)
     review = review_summary(tracks, ground, config.review, untracked)
     if fixes is not None:
-        mark_checked(review, fixes.operations)
+        mark_checked(review, fixes.operations, tracks)
     sheets = written_images = None
     if images is not None:
         from pedx_graph.detections.review_sheets import image_stems, write_review_sheets
