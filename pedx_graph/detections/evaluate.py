@@ -283,11 +283,7 @@ def truth_fixes(tracks, records: list[dict], cameras, stretches: list[dict] | No
     def who(det) -> str | None:
         return _who(detection_records(det, records, index)[0])
 
-    owners = {}
-    for tid, frames in groups.items():
-        votes = Counter(who(det) for cams in frames.values() for det in cams.values())
-        owner, count = max(votes.items(), key=lambda kv: (kv[1], kv[0] is not None, str(kv[0])))
-        owners[tid] = owner if owner is not None and count / max(sum(votes.values()), 1) >= 0.5 else None
+    owners = score_tracks(tracks, records, {})["owners"]
 
     def reviewed(tid: str, frame: int) -> bool:
         return stretches is None or any(tid in s["tracks"] and s["first_frame"] <= frame <= s["last_frame"]
