@@ -382,6 +382,15 @@ class DetectorOutputConfig:
     """The raw focal lengths differ from the rectified one by up to this fraction (per camera and axis)."""
     raw_principal_jitter_px: float = 12.0
     """The raw principal point differs from the rectified one by up to this many pixels per axis."""
+    right_rect_rotation_deg: float = 0.0
+    """The raw right camera is turned against the raw left one by a rotation of this angle, degrees, about
+    an axis drawn per pair (``R_rect_01 = R_rect_00 @ R``; written to the calibration), as a real pair's
+    two cameras are never quite parallel before rectification; 0 = parallel (``R_rect_01 = R_rect_00``)."""
+    detected_on: str = "raw"
+    """The images the detector ran on: ``raw`` (the distorted camera images: keypoints distorted with the
+    raw model ``K_0x`` / ``D_0x``) or ``rectified`` (the rectified images, as a user running a detector on a
+    release that ships only rectified images, PedX's among them; the calibration still carries the raw
+    keys, as PedX's does).  Either way the calibration files get the raw keys."""
 
     def __post_init__(self) -> None:
         for name in ("formats", "distortion_k1", "distortion_k2"):
@@ -476,6 +485,8 @@ class SimConfig:
             ("detections.distortion_tangential", 0 <= det.distortion_tangential <= 0.01),
             ("detections.raw_focal_jitter", 0 <= det.raw_focal_jitter <= 0.2),
             ("detections.raw_principal_jitter_px", 0 <= det.raw_principal_jitter_px <= 500),
+            ("detections.right_rect_rotation_deg", 0 <= det.right_rect_rotation_deg <= 10),
+            ("detections.detected_on", det.detected_on in ("raw", "rectified")),
         ]
         for slot, pair in (("forward", self.cameras.forward), ("left", self.cameras.left)):
             checks.append((f"cameras.{slot}.focal_px", pair.focal_px > 0))

@@ -3,7 +3,10 @@
 Enabled by ``SimConfig.detections.formats`` (``pedx-graph simulate OUT --detections openpose_body25,coco``).
 Then every camera gets a raw image model (:func:`raw_cameras`): intrinsics ``K`` near the rectified ones and
 radial-tangential distortion ``D = (k1, k2, p1, p2, 0)`` drawn per camera from the config's ranges, written as
-the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files.  Detections are made on those raw images:
+the KITTI raw keys ``K_0x`` / ``D_0x`` of the calibration files (with ``right_rect_rotation_deg`` the raw
+right camera is also turned against the left one: ``R_rect_01`` differs from ``R_rect_00``).  Detections are
+made on those raw images (with ``detected_on: rectified``, on the rectified images instead, the calibration
+keeping its raw keys: what a user gets running a detector on a release's rectified images):
 
 * every person present (labelled or not: people outside the labelled distance range, too occluded to be
   labelled, or skipped by the annotators — ``labels.unlabelled_prob`` — are *bystanders*, detected all the
@@ -53,6 +56,7 @@ import json
 import zlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
@@ -108,8 +112,14 @@ def raw_cameras(calibs: dict[str, StereoCalibration], config: DetectorOutputConf
             raw_D = np.array([lo1 + (hi1 - lo1) * k1, lo2 + (hi2 - lo2) * k2,
                               config.distortion_tangential * (2 * t1 - 1),
                               config.distortion_tangential * (2 * t2 - 1), 0.0])
-            # the simulated pair's two cameras share the rectified orientation: R_rect_01 = R_rect_00
-            raws.append(RawCamera(raw_K=raw_K, raw_D=raw_D, rect_R_cam=np.asarray(calib.rect_R_cam, dtype=float),
+            rect_R_cam = np.asarray(calib.rect_R_cam, dtype=float)
+            if side == "right" and config.right_rect_rotation_deg > 0:
+                # the raw right camera turned against the left: R_rect_01 = R_rect_00 @ R (own generator, so
+                # that the other draws are those of a parallel pair)
+                axis = np.random.default_rng([int(seed), 11, p]).normal(size=3)
+                rotvec = np.deg2rad(config.right_rect_rotation_deg) * axis / np.linalg.norm(axis)
+                rect_R_cam = rect_R_cam @ cv2.Rodrigues(rotvec)[0]
+            raws.append(RawCamera(raw_K=raw_K, raw_D=raw_D, rect_R_cam=rect_R_cam,
                                   P_rect=np.asarray(P_rect, dtype=float)))
         out[name] = dataclasses.replace(calib, left_raw=raws[0], right_raw=raws[1])
     return out
@@ -271,7 +281,8 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                     occluded_frac = 1.0 - visible.sum() / in_image.sum()
                     if draws[0] < det_cfg.person_miss_prob + det_cfg.occluded_miss_prob * occluded_frac:
                         continue
-                    raw_uv = _distort(rect_uv, raw)
+                    # the pixels of the image the detector ran on (named raw_uv either way)
+                    raw_uv = _distort(rect_uv, raw) if det_cfg.detected_on == "raw" else rect_uv.copy()
                     shared = None
                     if det_cfg.stereo_shared_noise > 0:      # the same draws in every camera (own generator)
                         shared = np.random.default_rng([int(ctx.seed), 7, int(k), f_index, p_index]).normal(
