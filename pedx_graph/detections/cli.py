@@ -40,8 +40,12 @@ def register(subparsers) -> None:
     p.add_argument("--use-file-ids", action="store_true",
                    help="group by the ids in the files (OpenPose person_id, COCO track_id) instead of associating")
     p.add_argument("--config", default=None, help="YAML with an ImportConfig (noise: sigma curve, threshold)")
+    p.add_argument("--image-frame", default=None, choices=["auto", "raw", "rectified"],
+                   help="the images the detector ran on: raw (distorted) or rectified (e.g. a release's "
+                        "rectified images); default auto: told per stereo pair from the detections' rows "
+                        "(config: image_frame.images)")
     p.add_argument("--raw-images", "--review-images", dest="raw_images", default=None, metavar="FOLDER",
-                   help="the raw images the detections were made on (searched recursively, found by the names "
+                   help="the images the detections were made on, raw or rectified (searched recursively, found by the names "
                         "the files give): written rectified into OUT/images/ (pedx-graph export draws on them; "
                         "write_images: false in --config to skip), and each stretch where two tracks came "
                         "close (or a track and a detection no track holds) drawn on them, one JPEG per stretch "
@@ -84,6 +88,8 @@ def _run_import(args: argparse.Namespace) -> int:
             raise ValueError("coco: give exactly one annotation or results file")
         detections = read_coco(args.input[0], args.images, args.name_pattern, cameras)
     config.use_file_ids = config.use_file_ids or args.use_file_ids
+    if args.image_frame is not None:
+        config.image_frame.images = args.image_frame
     summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence,
                                 workers=args.workers, raw_images=args.raw_images,
                                 identity_fixes=args.identity_fixes)
@@ -93,6 +99,12 @@ def _run_import(args: argparse.Namespace) -> int:
     from pedx_graph.data.types import UNTRACKED
 
     for seq, record in sorted(summary["sequences"].items()):
+        for pair, frame in sorted((record.get("image_frame") or {}).items()):
+            rows = frame.get("row_difference_px")
+            measured = (f"; stereo rows {rows['raw']:.1f} px as raw, {rows['rectified']:.1f} px as rectified, "
+                        f"{frame['matches']} people" if rows else "")
+            print(f"  {seq}: pair {pair}: detections read as made on {frame['images']} images "
+                  f"({frame['decided_by']}{measured})")
         fixed = record.get("identity_fixes")
         if fixed:
             n = fixed["operations"]

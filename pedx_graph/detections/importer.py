@@ -8,7 +8,9 @@ people — triangulated, centred on the LiDAR — without its identity steps,
 :func:`~pedx_graph.detections.association.tracks_from_ids`)
 -> with a reviewer's identity fixes file, the tracks fixed (:mod:`pedx_graph.detections.fixes`)
 -> per person, frame and camera, undistort + rectify the keypoints
-(:func:`pedx_graph.detections.undistort.rectified`), drop those below the confidence threshold and turn the
+(:func:`pedx_graph.detections.undistort.rectified`; for the pairs whose detections were made on
+rectified images, told from their stereo rows by :mod:`pedx_graph.detections.image_frame`, the pixels as
+they are), drop those below the confidence threshold and turn the
 confidences into pixel noise (:class:`pedx_graph.detections.noise.DetectionNoiseConfig`) -> write
 ``labels/2d/<seq>/<cam>/<seq>_<cam>_<frame:07d>_<tid>.json`` with ``keypoint_set`` and per-keypoint
 ``confidence`` and ``sigma_px`` (:mod:`pedx_graph.data.labels2d`), copy ``calib/`` (and ``timestamps/``),
@@ -39,6 +41,7 @@ from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
+from pedx_graph.detections.image_frame import ImageFrameConfig, image_frames, pixel_calibrations
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
@@ -83,6 +86,11 @@ class ImportConfig:
     """Which stretches of frames ``import_summary.json`` lists for a second look at who is who
     (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground, or a track beside a
     detection no track holds, :mod:`pedx_graph.detections.review`)."""
+    image_frame: ImageFrameConfig = field(default_factory=ImageFrameConfig)
+    """Which images the detections' pixels are in, raw or rectified: by default told per pair from the
+    detections' own stereo rows (:mod:`pedx_graph.detections.image_frame`; a calibration with raw keys does
+    not say the detector saw raw images).  The decision goes to ``import_summary.json``
+    (``sequences.<seq>.image_frame``)."""
     write_images: bool = True
     """Given the raw images the detections were made on (``raw_images``): write them rectified into the
     dataset's ``images/`` (:mod:`pedx_graph.detections.rectified_images`), so ``pedx-graph export`` draws its
@@ -264,6 +272,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
     if uncalibrated:
         log.warning("%s: cameras %s are in no calibrated pair; their detections are skipped", seq, uncalibrated)
+    frames_record = image_frames(known, calibrations, config.image_frame, config.noise.min_confidence, seq)
+    calibrations = pixel_calibrations(calibrations, frames_record)
     clouds = _Clouds(source_root, seq, config.cloud_cache_mb) if source_root is not None else {}
     people: dict[str, dict[int, dict[str, Detection]]] = {}
     from pedx_graph.data.ground import ground_from_calibrations
@@ -332,7 +342,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
               "left_right_swapped_back": flipped,
-              "uncalibrated_cameras": uncalibrated,
+              "uncalibrated_cameras": uncalibrated, "image_frame": frames_record,
               "stereo_noise_check": check.record() if check is not None else None,
               "tracks_digest": digest, "identity_fixes": fixed, "identity_review": review,
               "review_sheets": sheets, "images": written_images}

@@ -6,8 +6,9 @@ export``'s overlays) use the rectified ones.  Given the folder of raw images (``
 found by its stem: :func:`~pedx_graph.detections.review_sheets.index_images`) is rectified with its
 camera's raw model (:func:`pedx_graph.data.images.rectify_image`, the model the keypoints are rectified
 with) and written as ``images/<seq>/<cam>/<seq>_<cam>_<frame:07d>.jpg`` (atomically).  A camera whose
-calibration has no raw model (``K_0x`` / ``D_0x``) had rectified images to begin with: they are copied
-(re-encoded when not JPEG).  A frame in which a camera detected nobody names no image; its image is found
+calibration has no raw model (``K_0x`` / ``D_0x``), or whose pair's detections the import found made on
+rectified images (:mod:`pedx_graph.detections.image_frame`: the pair is handed over without its raw
+models), had rectified images to begin with: they are copied (re-encoded when not JPEG).  A frame in which a camera detected nobody names no image; its image is found
 by the name the camera's other images follow (:func:`complete_stems`), so the export can show a person
 the detector missed there.
 
