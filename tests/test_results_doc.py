@@ -81,6 +81,31 @@ def test_identity_fixes_table_matches_the_json():
             f"identity switch" in readme) and t["review_fixed_id_switches"] == 0
 
 
+def test_image_frame_table_matches_the_json():
+    """docs/detections.md's table of bench_image_frame is what the committed JSON renders, and the prose's claims
+    hold: no pair read the wrong way by its own rows, and on the real rig's preset no pair read the wrong way at
+    all."""
+    import json
+
+    from pedx_graph.eval.benchmark_tables import IMAGE_FRAME_BEGIN, IMAGE_FRAME_END, image_frame_block
+
+    results = ROOT / "benchmarks" / "results"
+    text = (ROOT / "docs" / "detections.md").read_text()
+    block = text[text.index(IMAGE_FRAME_BEGIN):text.index(IMAGE_FRAME_END) + len(IMAGE_FRAME_END)] + "\n"
+    assert block == image_frame_block(results)
+    summary = json.loads((results / "bench_image_frame.json").read_text())["summary"]
+    assert {(s["rig"], s["images"]) for s in summary} == {(r, i) for r in ("default", "pedx")
+                                                          for i in ("raw", "rectified")}
+    assert all(s["wrong_by_own_rows"] == 0 for s in summary)
+    assert all(s["right"] == s["pairs"] for s in summary if s["rig"] == "pedx")
+    rows = json.loads((results / "bench_image_frame.json").read_text())["rows"]
+    assert all(r["decided_by"] == "stereo rows" or r["decided_by"].startswith("the other pairs' stereo rows")
+               for r in rows if r["rig"] == "pedx")
+    prose = " ".join(text.split())
+    assert "No pair was read the wrong way by its own rows." in prose
+    assert "on the real rig's preset every pair was decided by its own rows or followed one" in prose
+
+
 def test_joint_table_pools_the_seeds_by_frames():
     """The per-joint table and the pooled ratio weight each seed's means by its frames; the table lists every
     input that reports per-joint errors; runs without them add no table."""

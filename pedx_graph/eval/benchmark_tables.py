@@ -36,6 +36,10 @@ IDENTITY_FIXES_RUNS = (("bench_identity_fixes", "84 inputs (seeds 0-8, 17-21)"),
                        ("bench_identity_fixes_pedx_rig_heldout", "held out, real rig's preset, seeds 30-38"))
 
 
+#: Markers of docs/detections.md's table of ``benchmarks/bench_image_frame.py`` (raw or rectified images).
+IMAGE_FRAME_BEGIN, IMAGE_FRAME_END = "<!-- image-frame -->", "<!-- /image-frame -->"
+
+
 #: Suffix of a bench_detections input of a format's detections grouped by the simulator's ids.
 TRUE_IDS = "_true_ids"
 
@@ -293,6 +297,31 @@ def identity_fixes_block(results_dir: str | os.PathLike) -> str:
         commands.append(f"`{run['command']}`")
     lines += ["", "Commands: " + "; ".join(commands) + ".", IDENTITY_FIXES_END]
     return "\n".join(lines) + "\n"
+
+
+def image_frame_table(result: dict) -> list[str]:
+    """The table of a ``bench_image_frame`` run (its JSON as a dict): per rig, images the detector ran on and turn
+    of the raw right camera, the pairs, how they were read and what each reading does to the keypoints."""
+    lines = ["| rig | detector ran on | right camera turned (deg) | pairs | right (by its rows) | wrong by its rows "
+             "| wrong, undecided | median people matched | median abs. log evidence | keypoint error as read (px) "
+             "| right reading (px) | wrong reading (px) | decision (ms) |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for s in result["summary"]:
+        lines.append(f"| {s['rig']} | {s['images']} | {s['rotation_deg']:g} | {s['pairs']} | {s['right']} "
+                     f"({s['right_by_own_rows']}) | {s['wrong_by_own_rows']} | {s['wrong_undecided']} | "
+                     f"{_f(s['median_matches'], 0)} | {_f(s['median_abs_log_evidence'])} | "
+                     f"{_f(s['keypoint_error_px_as_read'])} | {_f(s['keypoint_error_px_right_reading'])} | "
+                     f"{_f(s['keypoint_error_px_wrong_reading'])} | {_f(s['median_decide_ms'], 0)} |")
+    return lines
+
+
+def image_frame_block(results_dir: str | os.PathLike) -> str:
+    """docs/detections.md's table of the committed ``bench_image_frame.json`` (markers included) and its
+    command."""
+    run = json.loads((Path(results_dir) / "bench_image_frame.json").read_text())
+    return "\n".join([IMAGE_FRAME_BEGIN, *image_frame_table(run), "", f"Command: `{run['command']}` (seeds "
+                      f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
+                      f"frames per scene; {', '.join(run['formats'])}).", IMAGE_FRAME_END]) + "\n"
 
 
 def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
