@@ -45,7 +45,8 @@ def register(subparsers) -> None:
                         "rectified images); default auto: told per stereo pair from the detections' rows "
                         "(config: image_frame.images)")
     p.add_argument("--raw-images", "--review-images", dest="raw_images", default=None, metavar="FOLDER",
-                   help="the images the detections were made on, raw or rectified (searched recursively, found by the names "
+                   help="the images the detections were made on, raw or rectified (searched recursively, found "
+                        "by the names "
                         "the files give): written rectified into OUT/images/ (pedx-graph export draws on them; "
                         "write_images: false in --config to skip), and each stretch where two tracks came "
                         "close (or a track and a detection no track holds) drawn on them, one JPEG per stretch "
@@ -105,6 +106,12 @@ def _run_import(args: argparse.Namespace) -> int:
                         f"{frame['matches']} people" if rows else "")
             print(f"  {seq}: pair {pair}: detections read as made on {frame['images']} images "
                   f"({frame['decided_by']}{measured})")
+        interval = record.get("frame_interval")
+        if interval:
+            implied = (f"; {interval['walking_tracks']} walking tracks imply {interval['implied_interval_s']:.3f} s"
+                       if interval.get("implied_interval_s") is not None else "")
+            print(f"  {seq}: frames {interval['frame_interval_s']:.3f} s apart ({interval['from']}){implied}"
+                  + ("" if interval["agrees"] else " -- check the frame rate (warning above)"))
         fixed = record.get("identity_fixes")
         if fixed:
             n = fixed["operations"]

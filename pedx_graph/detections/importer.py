@@ -41,6 +41,7 @@ from pedx_graph.data.labels2d import Label2D, write_label2d
 from pedx_graph.data.types import DataFormatError, View2D
 from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
+from pedx_graph.detections.frame_interval import WalkingCheckConfig, sequence_frame_interval, walking_check
 from pedx_graph.detections.image_frame import ImageFrameConfig, image_frames, pixel_calibrations
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
@@ -86,6 +87,10 @@ class ImportConfig:
     """Which stretches of frames ``import_summary.json`` lists for a second look at who is who
     (``sequences.<seq>.identity_review``: two tracks close in an image or on the ground, or a track beside a
     detection no track holds, :mod:`pedx_graph.detections.review`)."""
+    walking_check: WalkingCheckConfig = field(default_factory=WalkingCheckConfig)
+    """The association's frame interval (the sequence's timestamps when the dataset has them, else
+    ``association.tracker.frame_interval_s``) checked against how fast the tracked people walk
+    (:mod:`pedx_graph.detections.frame_interval`; ``import_summary.json``, ``sequences.<seq>.frame_interval``)."""
     image_frame: ImageFrameConfig = field(default_factory=ImageFrameConfig)
     """Which images the detections' pixels are in, raw or rectified: by default told per pair from the
     detections' own stereo rows (:mod:`pedx_graph.detections.image_frame`; a calibration with raw keys does
@@ -276,6 +281,10 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     calibrations = pixel_calibrations(calibrations, frames_record)
     clouds = _Clouds(source_root, seq, config.cloud_cache_mb) if source_root is not None else {}
     people: dict[str, dict[int, dict[str, Detection]]] = {}
+    interval_s, interval_from = sequence_frame_interval(source_root, seq, {d.frame for d in known},
+                                                        config.association.tracker.frame_interval_s)
+    association = dataclasses.replace(config.association, tracker=dataclasses.replace(
+        config.association.tracker, frame_interval_s=interval_s))
     from pedx_graph.data.ground import ground_from_calibrations
     ground = ground_from_calibrations(dict(calibrations), seq)
     if config.use_file_ids:
@@ -284,24 +293,32 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
             for det in sorted(dets, key=lambda d: (d.frame, d.camera, -d.score)):
                 frames[det.frame].setdefault(det.camera, det)
             people[tid] = frames
-        tracks = tracks_from_ids(people, calibrations, config.association, ground,     # centres for the cut
+        tracks = tracks_from_ids(people, calibrations, association, ground,     # centres for the cut
                                  clouds=clouds or None)
     else:
-        tracks = associate(known, calibrations, config.association, clouds=clouds or None, ground=ground,
+        tracks = associate(known, calibrations, association, clouds=clouds or None, ground=ground,
                            workers=workers)
     digest, fixed = tracks_digest(tracks), None
     if fixes is not None:
-        tracks, fixed = fix_tracks(tracks, list(fixes.operations), fixes_path, calibrations, config.association,
+        tracks, fixed = fix_tracks(tracks, list(fixes.operations), fixes_path, calibrations, association,
                                    ground, clouds=clouds or None, made_for=fixes.made_for,
                                    where=f"{seq}.made_for", untracked=untracked_detections(known, tracks))
         log.debug("%s: %d identity fix operations applied (%d detections moved, %d added, %d removed)", seq,
                   fixed["operations"], fixed["detections_moved"], fixed["detections_added"],
                   fixed["detections_removed"])
-    tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, config.association.keypoint_sigma_px,
-                                    config.association.keypoint_sigma_frac,
-                                    config.association.tracker.frame_interval_s)
+    tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, association.keypoint_sigma_px,
+                                    association.keypoint_sigma_frac, association.tracker.frame_interval_s)
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
+    walking = walking_check(tracks, ground, interval_s, config.walking_check)
+    walking["from"] = interval_from
+    if not walking["agrees"]:
+        log.warning("%s: the %d walking tracks move a median %.2f m per frame: at a walking speed of %.2f m/s "
+                    "that is a frame every %.3f s, not the %.3f s used (%s); give the sequence's timestamps "
+                    "(timestamps/timestamps-pointclouds-%s.txt) or association.tracker.frame_interval_s in "
+                    "--config, and the fit's fps", seq, walking["walking_tracks"], walking["m_per_frame"],
+                    config.walking_check.walking_speed_mps, walking["implied_interval_s"], interval_s,
+                    interval_from, seq)
     untracked = untracked_detections(known, tracks)
     review = review_summary(tracks, ground, config.review, untracked)
     if fixes is not None:
@@ -342,14 +359,14 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
               "left_right_swapped_back": flipped,
-              "uncalibrated_cameras": uncalibrated, "image_frame": frames_record,
+              "uncalibrated_cameras": uncalibrated, "image_frame": frames_record, "frame_interval": walking,
               "stereo_noise_check": check.record() if check is not None else None,
               "tracks_digest": digest, "identity_fixes": fixed, "identity_review": review,
               "review_sheets": sheets, "images": written_images}
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,
-                                                  lambda frame: clouds[frame], config.association.lidar_cut)
+                                                  lambda frame: clouds[frame], association.lidar_cut)
     return result
 
 

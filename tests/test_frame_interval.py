@@ -1,0 +1,85 @@
+"""The seconds between frames for the import's association: the dataset's timestamps when it has them, else the
+config's, checked against how fast the tracked people walk (a frame rate assumed rather than read is a convention
+the simulator and the code would share)."""
+import json
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+
+from pedx_graph.cli import main
+from pedx_graph.detections.frame_interval import WalkingCheckConfig, sequence_frame_interval, walking_check
+from scene_fixtures import small_scene
+
+UP = np.array([0.0, 0.0, -1.0])            # a z-down frame, as the real rig's
+GROUND = SimpleNamespace(world_up=UP)
+
+
+def test_the_interval_comes_from_the_timestamps_the_fit_reads(tmp_path, caplog):
+    folder = tmp_path / "timestamps"
+    folder.mkdir()
+    # two columns, epoch milliseconds, frame 3 missing: 0.2 s per frame step all the same
+    (folder / "timestamps-images-seqA.txt").write_text(
+        "\n".join(f"{f} {1512680000000 + 200 * f}" for f in range(10) if f != 3))
+    assert sequence_frame_interval(tmp_path, "seqA", range(2, 8), 0.1) == (0.2,
+                                                                            "timestamps/timestamps-images-seqA.txt")
+    # the point clouds' file, which the fit reads by default, comes first
+    (folder / "timestamps-pointclouds-seqA.txt").write_text("\n".join(f"{0.05 * f:.2f}" for f in range(10)))
+    assert sequence_frame_interval(tmp_path, "seqA", range(10), 0.1) == (0.05,
+                                                                          "timestamps/timestamps-pointclouds-seqA.txt")
+    assert sequence_frame_interval(tmp_path, "seqB", range(10), 0.1) == (0.1, "config")
+    assert sequence_frame_interval(None, "seqA", range(10), 0.1) == (0.1, "config")
+    (folder / "timestamps-pointclouds-seqA.txt").write_text("0 1 2\n")
+    assert sequence_frame_interval(tmp_path, "seqA", range(10), 0.1) == (0.1, "config")
+    assert "timestamps-pointclouds-seqA.txt" in caplog.text
+
+
+def walker(speed_m_per_frame: float, frames: int, heading: float, rng, noise_m: float = 0.1):
+    direction = np.array([np.cos(heading), np.sin(heading), 0.0])
+    start = np.array([rng.uniform(-10, 10), rng.uniform(5, 30), 1.5])
+    return SimpleNamespace(frames=[SimpleNamespace(frame=f, world_p=start + f * speed_m_per_frame * direction
+                                                   + rng.normal(scale=noise_m, size=3))
+                                   for f in range(frames)])
+
+
+def test_walking_tracks_tell_a_wrong_frame_interval():
+    rng = np.random.default_rng(0)
+    # people at 1.2-1.5 m/s filmed every 0.2 s; two standing, one seen on too few frames
+    tracks = [walker(rng.uniform(1.2, 1.5) * 0.2, 20, rng.uniform(0, 6.3), rng) for _ in range(6)]
+    tracks += [walker(0.0, 20, 0.0, rng) for _ in range(2)] + [walker(0.3, 3, 0.0, rng)]
+    wrong = walking_check(tracks, GROUND, 0.1)
+    assert wrong["walking_tracks"] == 6 and not wrong["agrees"]
+    assert 0.18 < wrong["implied_interval_s"] < 0.23 and wrong["ratio"] > 1.4
+    right = walking_check(tracks, GROUND, 0.2)
+    assert right["agrees"] and 0.9 < right["ratio"] < 1.15
+    # too few walkers: no verdict
+    few = walking_check(tracks[:3], GROUND, 0.1, WalkingCheckConfig(min_tracks=4))
+    assert few["implied_interval_s"] is None and few["agrees"]
+
+
+def test_import_uses_the_timestamps_and_warns_without_them(tmp_path, capsys, caplog):
+    """A scene filmed at 5 Hz: with its timestamps the association steps 0.2 s per frame and the walks agree;
+    without them it falls back to the config's 0.1 s and the walks give it away."""
+    from pedx_graph.sim.config import SimConfig
+
+    config = SimConfig()
+    config.scene.fps = 5.0
+    config.detections.formats = ("openpose_body25",)
+    root = small_scene(tmp_path / "scene", pedestrians=8, frames=20, seed=0, config=config)
+    args = ["import", "openpose", str(root / "detections" / "openpose_body25"), "--keypoint-set", "body25",
+            "--calib", str(root)]
+    assert main([*args, "--out", str(tmp_path / "timed")]) == 0
+    (timed,) = json.loads((tmp_path / "timed" / "import_summary.json").read_text())["sequences"].values()
+    interval = timed["frame_interval"]
+    assert interval["frame_interval_s"] == 0.2 and interval["from"].startswith("timestamps/")
+    assert interval["agrees"] and interval["walking_tracks"] >= 4
+    shutil.rmtree(root / "timestamps")
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "untimed")]) == 0
+    (untimed,) = json.loads((tmp_path / "untimed" / "import_summary.json").read_text())["sequences"].values()
+    interval = untimed["frame_interval"]
+    assert interval["frame_interval_s"] == 0.1 and interval["from"] == "config"
+    assert not interval["agrees"] and interval["ratio"] > 1.4
+    captured = capsys.readouterr()
+    assert "check the frame rate" in captured.out
+    assert "a frame every" in caplog.text and "association.tracker.frame_interval_s" in caplog.text
