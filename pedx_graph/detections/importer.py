@@ -313,12 +313,13 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     walking = walking_check(tracks, ground, interval_s, config.walking_check)
     walking["from"] = interval_from
     if not walking["agrees"]:
+        fix = ("check that file's times" if interval_from != "config" else
+               f"give the sequence's timestamps (timestamps/timestamps-pointclouds-{seq}.txt) or "
+               f"association.tracker.frame_interval_s in --config, and the fit's fps")
         log.warning("%s: the %d walking tracks move a median %.2f m per frame: at a walking speed of %.2f m/s "
-                    "that is a frame every %.3f s, not the %.3f s used (%s); give the sequence's timestamps "
-                    "(timestamps/timestamps-pointclouds-%s.txt) or association.tracker.frame_interval_s in "
-                    "--config, and the fit's fps", seq, walking["walking_tracks"], walking["m_per_frame"],
-                    config.walking_check.walking_speed_mps, walking["implied_interval_s"], interval_s,
-                    interval_from, seq)
+                    "that is a frame every %.3f s, not the %.3f s used (%s); %s", seq, walking["walking_tracks"],
+                    walking["m_per_frame"], config.walking_check.walking_speed_mps, walking["implied_interval_s"],
+                    interval_s, interval_from, fix)
     untracked = untracked_detections(known, tracks)
     review = review_summary(tracks, ground, config.review, untracked)
     if fixes is not None:
