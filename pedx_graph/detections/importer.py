@@ -367,7 +367,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     if len(clouds):
         from pedx_graph.detections.lidar_cut import write_track_segments
         result["segments"] = write_track_segments(out, seq, tracks, calibrations, ground,
-                                                  lambda frame: clouds[frame], association.lidar_cut)
+                                                  lambda frame: clouds[frame], association.lidar_cut,
+                                                  frames_with_cloud=set(clouds))
     return result
 
 

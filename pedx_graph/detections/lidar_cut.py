@@ -36,7 +36,7 @@ import logging
 import os
 from itertools import chain
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Callable, Collection, Mapping
 
 import cv2
 import numpy as np
@@ -420,10 +420,13 @@ def exclusive_cuts(cuts: list[np.ndarray], world_points: np.ndarray, centres: li
 
 def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
                          calibrations: Mapping[str, StereoCalibration], ground: GroundFrame,
-                         read_cloud: Callable[[int], np.ndarray], config: LidarCutConfig | None = None) -> dict:
+                         read_cloud: Callable[[int], np.ndarray], config: LidarCutConfig | None = None,
+                         frames_with_cloud: Collection[int] | None = None) -> dict:
     """Write every track's per-frame cut as ``labels/3d/segment/<seq>/<seq>_<frame:07d>_<tid>.ply`` under
     ``root``; ``read_cloud(frame)`` gives the frame's (N, 3) scene (an exception: the frame is skipped with a
-    warning).  Returns counts (``segments``, ``points``, ``frames_without_cloud``)."""
+    warning).  ``frames_with_cloud``: the frames that have a scene cloud (None: all); the others — a LiDAR
+    sampled at a lower rate than the cameras, PedX's at about half — are skipped with one warning for them
+    all.  Returns counts (``segments``, ``points``, ``frames_without_cloud``)."""
     from pedx_graph.data.writer import write_segment
 
     config = config or LidarCutConfig()
@@ -432,9 +435,17 @@ def write_track_segments(root: str | os.PathLike, sequence: str, tracks: list,
         for fr in track.frames:
             by_frame.setdefault(fr.frame, []).append((track.track_id, fr))
     counts = {"segments": 0, "points": 0, "frames_without_cloud": 0}
+    absent = sorted(f for f in by_frame if frames_with_cloud is not None and f not in frames_with_cloud)
+    if absent:
+        log.warning("%s: %d of %d track frames have no scene cloud (the LiDAR sampled less often than the cameras?"
+                    " first: %s); no segments cut there", sequence, len(absent), len(by_frame),
+                    ", ".join(map(str, absent[:5])))
+        counts["frames_without_cloud"] = len(absent)
+    missing = set(absent)
+    clouded = [f for f in sorted(by_frame) if f not in missing]
     if ground.ground_offset_m is None:
-        ground = ground_with_plane(ground, calibrations, _FrameClouds(read_cloud, sorted(by_frame)))
-    for frame in sorted(by_frame):
+        ground = ground_with_plane(ground, calibrations, _FrameClouds(read_cloud, clouded))
+    for frame in clouded:
         try:
             cloud = np.asarray(read_cloud(frame), dtype=float).reshape(-1, 3)
         except Exception as exc:  # noqa: BLE001 - a missing or bad cloud costs this frame its segments only

@@ -139,6 +139,10 @@ class LidarConfig:
     """Returns farther than this are discarded (HDL-32E: ~100 m), metres."""
     write_dropouts_as_inf: bool = True
     """Write lost returns into the full-scene PLY as ``inf`` points (PedX clouds contain inf points)."""
+    every_n_frames: int = 1
+    """A scene cloud (and its LiDAR segments, and a line of the point clouds' timestamps) is written every
+    this many frames, from the first: a LiDAR sampled less often than the cameras (PedX: about half their
+    rate).  The sweep is simulated every frame all the same, so the truth and every other file stay as at 1."""
 
 
 @dataclass
@@ -437,6 +441,7 @@ class SimConfig:
             ("scene.fps", self.scene.fps > 0),
             ("scene.sequence", bool(self.scene.sequence) and "_" not in self.scene.sequence),
             ("lidar.n_beams", self.lidar.n_beams >= 1),
+            ("lidar.every_n_frames", self.lidar.every_n_frames >= 1),
             ("lidar.azimuth_step_deg", 0 < self.lidar.azimuth_step_deg <= 90),
             ("lidar.dropout_prob", 0 <= self.lidar.dropout_prob < 1),
             ("lidar.range_noise_m", self.lidar.range_noise_m >= 0),

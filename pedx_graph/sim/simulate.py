@@ -232,8 +232,10 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
     ply_points = out_points
     if config.lidar.write_dropouts_as_inf and sweep.n_dropped:
         ply_points = np.concatenate([out_points, np.full((sweep.n_dropped, 3), np.inf)])
-    write_scene_points(out, seq, frame, ply_points)
-    counts["lidar_points"] += len(scene_points)
+    lidar_frame = k % config.lidar.every_n_frames == 0
+    if lidar_frame:
+        write_scene_points(out, seq, frame, ply_points)
+        counts["lidar_points"] += len(scene_points)
 
     truth_arrays = {"scene_points": out_points.astype(np.float32),
                     "scene_object_id": sweep.object_id.astype(np.int32),
@@ -299,7 +301,7 @@ def _simulate_frame(ctx: _FrameContext, k: int) -> dict:
             truth_arrays[f"segment_is_person__{tid}"] = is_person
             record["n_segment_points"] = int(len(index))
             record["n_segment_points_on_person"] = int(is_person.sum())
-            if len(index):
+            if len(index) and lidar_frame:
                 write_segment(out, seq, frame, tid, out_points[index])
                 counts["segments"] += 1
                 counts["segment_points"] += int(len(index))
@@ -538,8 +540,10 @@ def simulate(out_dir: str | Path, config: SimConfig | None = None, seed: int = 0
         if ctx_path is not None:
             Path(ctx_path).unlink(missing_ok=True)
 
-    for kind in ("pointclouds", "images"):
-        write_timestamps(out, seq, frame_seconds, kind=kind)
+    every = config.lidar.every_n_frames
+    write_timestamps(out, seq, {f: t for f, t in frame_seconds.items() if (f - sc.first_frame) % every == 0},
+                     kind="pointclouds")
+    write_timestamps(out, seq, frame_seconds, kind="images")
     output_up = output_T_sim[:3, 2]
     meta = {
         "seed": int(seed), "sequence": seq, "fps": sc.fps, "first_frame": sc.first_frame,
