@@ -188,7 +188,8 @@ from pedx_graph.body.templates import open_standing_keypoints_3d
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
-from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig, box_cover, keypoint_box
+from pedx_graph.detections.tracker import (Observation, Tracker, TrackerConfig, box_cover, image_sigma_px,
+                                          keypoint_box)
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.keypoints import lower_body_mask
@@ -385,6 +386,23 @@ class AssociationConfig:
     (``max_speed_mps``, ``frame_interval_s``) bounding how fast a person's disparity may change."""
     lidar_cut: LidarCutConfig = field(default_factory=LidarCutConfig)
     """How a person's LiDAR points are cut from a scene cloud (when clouds are given)."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.tracker, TrackerConfig) and isinstance(self.tracklet, TrackerConfig) and \
+                self.tracker.frame_interval_s != self.tracklet.frame_interval_s:
+            raise ValueError(f"association.tracker.frame_interval_s ({self.tracker.frame_interval_s:g}) and "
+                             f"association.tracklet.frame_interval_s ({self.tracklet.frame_interval_s:g}) differ: "
+                             "both trackers step the same frames; set both")
+
+    @property
+    def frame_interval_s(self) -> float:
+        """Seconds between consecutive frame numbers, as both trackers use it."""
+        return self.tracker.frame_interval_s
+
+    def with_frame_interval(self, seconds: float) -> "AssociationConfig":
+        """A copy whose two trackers (``tracker``, ``tracklet``) step ``seconds`` per frame."""
+        return dataclasses.replace(self, tracker=dataclasses.replace(self.tracker, frame_interval_s=float(seconds)),
+                                   tracklet=dataclasses.replace(self.tracklet, frame_interval_s=float(seconds)))
 
 
 @dataclass
@@ -1127,7 +1145,8 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
     keypoint distance from the person's keypoints linearly interpolated between its nearest observations
     before and after (extrapolated at the body's velocity between its two nearest observations on one side,
     the median keypoint step, when only one side exists; held with a single one), over
-    ``tracklet.keypoint_sigma_px + tracklet.motion_frac * h * sqrt(gap)``, and the log ratio of the
+    :func:`~pedx_graph.detections.tracker.image_sigma_px` of ``tracklet`` at ``h`` and the gap, and the log
+    ratio of the
     keypoints' vertical spans over ``tracklet.size_sigma`` (capped at ``tracklet.gate_sigmas``), added in
     quadrature.  ``observed``: frame -> (tracklet, detection, uv).  None when the person has no observation
     of that image within ``tracklet.max_misses`` frames."""
@@ -1161,7 +1180,7 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
     if both.sum() < config.min_shared_keypoints:
         return None
     height = max(np.ptp(predicted[both, 1]), np.ptp(uv[both, 1]), 1.0)
-    sigma = config.tracklet.keypoint_sigma_px + config.tracklet.motion_frac * height * np.sqrt(max(gap, 1))
+    sigma = image_sigma_px(config.tracklet, height, gap)
     distance = float(median(np.linalg.norm(predicted[both] - uv[both], axis=1))) / sigma
     size = 0.0
     span_pred, span_obs = np.ptp(predicted[both, 1]), np.ptp(uv[both, 1])

@@ -283,8 +283,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     people: dict[str, dict[int, dict[str, Detection]]] = {}
     interval_s, interval_from = sequence_frame_interval(source_root, seq, {d.frame for d in known},
                                                         config.association.tracker.frame_interval_s)
-    association = dataclasses.replace(config.association, tracker=dataclasses.replace(
-        config.association.tracker, frame_interval_s=interval_s))
+    association = config.association.with_frame_interval(interval_s)
     from pedx_graph.data.ground import ground_from_calibrations
     ground = ground_from_calibrations(dict(calibrations), seq)
     if config.use_file_ids:

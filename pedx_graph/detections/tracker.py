@@ -10,8 +10,10 @@ ray.  :class:`Tracker` links them over frames:
 * **cost** of a (track, observation) pair = the mean of the squared normalised residuals available:
 
   - keypoints, per image side both carry: the median over shared keypoints of ``|uv_pred - uv_obs|``
-    divided by ``sigma_2d = keypoint_sigma_px + motion_frac * h * sqrt(df)`` (``h`` the person's image height
-    in pixels, ``df`` the frames since the track's last observation on that side), and with ``size_sigma`` > 0
+    divided by ``sigma_2d = keypoint_sigma_px + motion_frac * h * sqrt(df) * frame_interval_s / 0.1 s``
+    (:func:`image_sigma_px`; ``h`` the person's image height in pixels, ``df`` the frames since the track's
+    last observation on that side: how far limbs and an unknown walking velocity move the keypoints grows with
+    the time between frames), and with ``size_sigma`` > 0
     the log ratio of the shared keypoints' vertical spans divided by it;
   - 3D centre, when both have one: the residual split along the viewing ray (divided by the two depth
     uncertainties and the motion noise, added in quadrature) and across it (divided by
@@ -52,6 +54,18 @@ def _predicted(state, uv_obs: np.ndarray, df: int) -> tuple[np.ndarray, np.ndarr
     return uv_pred, np.all(np.isfinite(uv_pred), axis=1) & np.all(np.isfinite(uv_obs), axis=1)
 
 
+#: The frame interval :attr:`TrackerConfig.motion_frac` is given for, seconds (it was measured at 10 Hz).
+MOTION_REFERENCE_INTERVAL_S = 0.1
+
+
+def image_sigma_px(config: "TrackerConfig", height_px: float, frames: float) -> float:
+    """The keypoints' expected frame-to-frame residual after prediction, pixels: ``keypoint_sigma_px +
+    motion_frac * height_px * sqrt(frames) * frame_interval_s / MOTION_REFERENCE_INTERVAL_S`` (``frames`` at
+    least 1)."""
+    scale = config.frame_interval_s / MOTION_REFERENCE_INTERVAL_S
+    return config.keypoint_sigma_px + config.motion_frac * height_px * float(np.sqrt(max(frames, 1))) * scale
+
+
 @dataclass
 class TrackerConfig:
     """Matching, birth and death of the across-frame tracker (pixels, metres, seconds, frames)."""
@@ -61,8 +75,10 @@ class TrackerConfig:
     keypoint_sigma_px: float = 4.0
     """Size-independent part of a keypoint's frame-to-frame residual after prediction, pixels per axis."""
     motion_frac: float = 0.04
-    """Size-dependent part: this fraction of the person's image height per sqrt(frame) (limbs swing while
-    walking; the median over keypoints absorbs the wrists)."""
+    """Size-dependent part: this fraction of the person's image height per sqrt(frame) at frames
+    :data:`MOTION_REFERENCE_INTERVAL_S` apart, in proportion to ``frame_interval_s`` at other rates (limbs
+    swing while walking, and a track just begun has no velocity yet: both move the keypoints by more the
+    longer between frames; the median over keypoints absorbs the wrists)."""
     lateral_sigma_m: float = 0.2
     """Uncertainty of a 3D centre across the viewing ray (keypoint noise, limb motion), metres."""
     accel_sigma_mps: float = 0.6
@@ -239,7 +255,7 @@ class Tracker:
                 continue
             shared_side = True
             height = max(state.height_px, obs.height_px(side), 1.0)
-            sigma = cfg.keypoint_sigma_px + cfg.motion_frac * height * np.sqrt(max(df, 1))
+            sigma = image_sigma_px(cfg, height, df)
             residual = float(median(np.linalg.norm(uv_pred[both] - uv_obs[both], axis=1))) / sigma
             if residual > cfg.gate_sigmas:
                 return _GATED
@@ -344,7 +360,7 @@ class Tracker:
             if median(left_u - right_u) <= 0:
                 return None
             height = max(state.height_px, obs.height_px(side), 1.0)
-            sigma = cfg.keypoint_sigma_px + cfg.motion_frac * height * np.sqrt(max(df, 1))
+            sigma = image_sigma_px(cfg, height, df)
             return float(median(np.abs(uv_pred[both, 1] - uv_obs[both, 1]))) / sigma
         return None
 
