@@ -28,6 +28,7 @@ the inputs whose counts changed.
     python benchmarks/bench_association.py [--seeds 0-8,17-21] [--pedestrians 10] [--frames 20]
                                            [--rig default|pedx] [--workers 2] [--baseline OLD.json]
                                            [--config FILE] [--range-oracle given|all]
+                                           [--fps HZ] [--frame-interval S]
                                            [--name bench_association] [--out benchmarks/results]
 
 ``--config FILE`` associates with that import config's ``association`` section (a YAML file as ``pedx-graph
@@ -36,6 +37,11 @@ name the fields it changes.
 
 ``--range-oracle given|all`` is a diagnostic: the association is told its people's true LiDAR ranges
 (:func:`truth_ranges`), to measure what better LiDAR evidence could buy it.
+
+``--fps HZ`` simulates the scenes at another frame rate; with ``--frame-interval`` the matching
+``association.tracker.frame_interval_s`` (or not), it measures what a frame rate assumed wrongly costs the
+association, and every row carries the import's check of the interval against the walking tracks
+(:func:`pedx_graph.detections.frame_interval.walking_check`, ``walk_*``).
 
 ``--rig pedx`` simulates the scenes on the real PedX rig's preset (its cameras, the z-down LiDAR frame, the
 ground's tilt; :data:`bench_detections.RIGS`), nothing of which the association is told.
@@ -69,6 +75,7 @@ from pedx_graph.config import ConfigError, load_config, to_dict  # noqa: E402
 import pedx_graph.detections.association as association  # noqa: E402
 from pedx_graph.detections.association import AssociationConfig, associate  # noqa: E402
 from pedx_graph.detections.importer import ImportConfig  # noqa: E402
+from pedx_graph.detections.frame_interval import walking_check  # noqa: E402
 from pedx_graph.detections.evaluate import (IN_LINE_LATERAL_M, PATHS_CROSS_DEG, PLACE_OFF_M,  # noqa: E402
                                             PLACE_SIGMAS, SWITCH_KINDS, detection_records, placement_counts,
                                             read_detection_truth, score_tracks, switch_geometry)
@@ -196,10 +203,13 @@ class SimulatedScene:
     """``(tracking id, frame) -> (3,)`` true centres (:func:`true_centres`)."""
 
 
-def simulated_scenes(seed: int, pedestrians: int, frames: int, rig: str, folder: str | Path):
+def simulated_scenes(seed: int, pedestrians: int, frames: int, rig: str, folder: str | Path,
+                     fps: float | None = None):
     """The seed's two scenes (module docstring), simulated into ``folder`` one after the other, as
-    :class:`SimulatedScene` s."""
+    :class:`SimulatedScene` s; ``fps``: their frame rate (None: the simulator's, 10 Hz)."""
     for s, (name, cfg) in enumerate(scene_configs(pedestrians, frames, rig=rig).items()):
+        if fps is not None:
+            cfg.scene.fps = float(fps)
         scene = Path(folder) / name
         simulate(scene, cfg, seed=seed + s, workers=1)
         seq = cfg.scene.sequence
@@ -212,13 +222,15 @@ def simulated_scenes(seed: int, pedestrians: int, frames: int, rig: str, folder:
 
 
 def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
-             config: AssociationConfig | None = None, range_oracle: str | None = None) -> list[dict]:
+             config: AssociationConfig | None = None, range_oracle: str | None = None,
+             fps: float | None = None) -> list[dict]:
     """The scored inputs of one seed: one row per scene and format (module docstring); ``config``: the
     association's (None: its defaults); ``range_oracle``: a mode of :func:`truth_ranges` (None: the
-    association's own LiDAR ranges)."""
+    association's own LiDAR ranges); ``fps``: the scenes' frame rate (None: the simulator's)."""
     rows = []
+    interval_s = (config or AssociationConfig()).tracker.frame_interval_s
     with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
-        for sc in simulated_scenes(seed, pedestrians, frames, rig, tmp):
+        for sc in simulated_scenes(seed, pedestrians, frames, rig, tmp, fps):
             name, scene, seq, cfg = sc.name, sc.root, sc.sequence, sc.config
             labelled, crossing, calibs, clouds, ground, centres = (sc.labelled, sc.crossing, sc.calibs, sc.clouds,
                                                                    sc.ground, sc.centres)
@@ -240,7 +252,8 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
                              **placement_counts(tracks, records, centres, ground),
                              **switch_geometry(score["switches"], centres, ground, 1.0 / cfg.scene.fps),
                              **review_counts(tracks, ground, score["switches"],
-                                                untracked_detections(detections, tracks))})
+                                                untracked_detections(detections, tracks)),
+                             **{f"walk_{k}": v for k, v in walking_check(tracks, ground, interval_s).items()}})
     return rows
 
 
@@ -371,6 +384,17 @@ def markdown(result: dict) -> str:
                      f"{total['switches_first_quarter_shortest']} and {total['switches_first_half_shortest']})."
                      if "switches_first_quarter" in total else ""),
                   ""]
+    walks = [r for r in result["rows"] if r.get("walk_ratio") is not None]
+    if walks:
+        flagged = sum(not r["walk_agrees"] for r in walks)
+        ratios = [r["walk_ratio"] for r in walks]
+        lines += ["## Frame interval check", "",
+                  f"Scenes at {result['scene_fps']:g} Hz, associated with frames {result['frame_interval_s']:g} s "
+                  f"apart.  The import's check of that interval against the walking tracks "
+                  f"(`pedx_graph.detections.frame_interval.walking_check`): {len(walks)} of {len(result['rows'])} "
+                  f"inputs had enough walking tracks; the interval their walks imply over the one used: "
+                  f"{min(ratios):.2f}-{max(ratios):.2f} (median {float(np.median(ratios)):.2f}); flagged: "
+                  f"{flagged}.", ""]
     if result.get("changed") is not None:
         lines += [f"## Changed against the baseline ({result['baseline_command']})", ""]
         if result["changed"]:
@@ -413,6 +437,11 @@ def main(argv: list[str] | None = None) -> int:
     add_scene_arguments(parser)
     parser.add_argument("--baseline", help="an earlier run's JSON to list the changed inputs against")
     parser.add_argument("--config", help="an import config YAML whose association section is used")
+    parser.add_argument("--fps", type=float, default=None,
+                        help="simulate the scenes at this frame rate (default: the simulator's, 10 Hz); the "
+                             "association steps frames by --frame-interval all the same")
+    parser.add_argument("--frame-interval", type=float, default=None, metavar="S",
+                        help="the association's tracker.frame_interval_s (default: its config's, 0.1 s)")
     parser.add_argument("--range-oracle", choices=RANGE_ORACLES,
                         help="tell the association its people's true LiDAR ranges (a diagnostic: truth_ranges)")
     parser.add_argument("--name", default="bench_association", help="file name of the outputs, without suffix")
@@ -434,9 +463,13 @@ def main(argv: list[str] | None = None) -> int:
         config = load_config(ImportConfig, args.config).association
     except ConfigError as exc:
         parser.error(str(exc))
+    if args.frame_interval is not None:
+        if not args.frame_interval > 0:
+            parser.error(f"--frame-interval must be positive, got {args.frame_interval}")
+        config = config.with_frame_interval(args.frame_interval)
     t0 = time.perf_counter()
     rows = rows_per_seed(run_seed, seeds, args.workers, args.pedestrians, args.frames, args.rig, config,
-                         args.range_oracle)
+                         args.range_oracle, args.fps)
     shown = public_args(argv)                 # the baseline by its file name: no machine paths in the results
     shown = [Path(a).name if k and shown[k - 1] == "--baseline" else
              f"--baseline={Path(a.split('=', 1)[1]).name}" if a.startswith("--baseline=") else a
@@ -444,7 +477,8 @@ def main(argv: list[str] | None = None) -> int:
     result = {"command": " ".join(["python benchmarks/bench_association.py"] + shown),
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
               "rig": args.rig, "workers": args.workers, "association_changes": changed_fields(config),
-              "range_oracle": args.range_oracle,
+              "range_oracle": args.range_oracle, "scene_fps": args.fps or SimConfig().scene.fps,
+              "frame_interval_s": config.tracker.frame_interval_s,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS
                                        + GEOMETRY_COUNTS + (ORACLE_COUNTS if args.range_oracle else ())},

@@ -40,6 +40,15 @@ IDENTITY_FIXES_RUNS = (("bench_identity_fixes", "84 inputs (seeds 0-8, 17-21)"),
 IMAGE_FRAME_BEGIN, IMAGE_FRAME_END = "<!-- image-frame -->", "<!-- /image-frame -->"
 
 
+#: Markers of docs/detections.md's table of ``bench_association.py --fps`` runs (other frame rates).
+FRAME_RATES_BEGIN, FRAME_RATES_END = "<!-- frame-rates -->", "<!-- /frame-rates -->"
+#: The frame-rate runs in the table's order: result name, the scenes' rate; ``bench_association`` is the 10 Hz
+#: run, of which the seeds the others ran are shown.
+FRAME_RATE_RUNS = (("bench_association", "10 Hz"), ("bench_association_5hz_at_10hz", "5 Hz"),
+                   ("bench_association_5hz", "5 Hz"), ("bench_association_20hz_at_10hz", "20 Hz"),
+                   ("bench_association_20hz", "20 Hz"))
+
+
 #: Suffix of a bench_detections input of a format's detections grouped by the simulator's ids.
 TRUE_IDS = "_true_ids"
 
@@ -322,6 +331,37 @@ def image_frame_block(results_dir: str | os.PathLike) -> str:
     return "\n".join([IMAGE_FRAME_BEGIN, *image_frame_table(run), "", f"Command: `{run['command']}` (seeds "
                       f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
                       f"frames per scene; {', '.join(run['formats'])}).", IMAGE_FRAME_END]) + "\n"
+
+
+def frame_rates_block(results_dir: str | os.PathLike) -> str:
+    """docs/detections.md's table of the association at other frame rates (markers included): per run of
+    :data:`FRAME_RATE_RUNS` (the 10 Hz run restricted to the seeds of the others) its totals, the walks'
+    implied interval over the one used (range) and the inputs the check flagged; then the commands."""
+    results_dir = Path(results_dir)
+    runs = {name: json.loads((results_dir / f"{name}.json").read_text()) for name, _ in FRAME_RATE_RUNS}
+    seeds = sorted({r["seed"] for name, _ in FRAME_RATE_RUNS[1:] for r in runs[name]["rows"]})
+    lines = [FRAME_RATES_BEGIN,
+             "| scenes | association told | tracks (false) | recovered / labelled | id switches (crossing) | "
+             "centres off > 0.5 m / placed | walks imply / interval used | flagged |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    commands = []
+    for name, rate in FRAME_RATE_RUNS:
+        run = runs[name]
+        rows = [r for r in run["rows"] if r["seed"] in seeds]
+        total = {k: sum(r[k] for r in rows) for k in ("tracks", "false_tracks", "recovered", "labelled_people",
+                                                       "id_switches", "crossing_id_switches",
+                                                       "misplaced_centres", "placed_frames")}
+        ratios = [r["walk_ratio"] for r in rows if r.get("walk_ratio") is not None]
+        flagged = sum(1 for r in rows if r.get("walk_ratio") is not None and not r["walk_agrees"])
+        interval = run.get("frame_interval_s", 0.1)
+        lines.append(f"| {rate} | {interval:g} s | {total['tracks']} ({total['false_tracks']}) | "
+                     f"{total['recovered']} / {total['labelled_people']} | {total['id_switches']} "
+                     f"({total['crossing_id_switches']}) | {total['misplaced_centres']} / {total['placed_frames']} | "
+                     f"{min(ratios):.2f}-{max(ratios):.2f} | {flagged} of {len(ratios)} |")
+        commands.append(f"`{run['command']}`" + (f" (seeds {seeds[0]}-{seeds[-1]} of it)"
+                                                  if name == "bench_association" else ""))
+    lines += ["", "Commands: " + "; ".join(commands) + ".", FRAME_RATES_END]
+    return "\n".join(lines) + "\n"
 
 
 def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
