@@ -58,7 +58,10 @@ def from_dict(cls: type[T], data: dict | None, *, source: str = "<dict>", prefix
                                        base=nested if isinstance(nested, tp) else None)
         else:
             kwargs[f.name] = _coerce(value, tp, source, f"{prefix}{f.name}")
-    return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
+    try:
+        return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
+    except (TypeError, ValueError) as exc:           # a class's own check of its fields (``__post_init__``)
+        raise ConfigError(f"{source}: '{prefix.rstrip('.') or '<root>'}': {exc}") from None
 
 
 def _list_element(tp: Any) -> type | None:

@@ -117,8 +117,12 @@ def test_a_five_hertz_scene_is_tracked_as_a_ten_hertz_one(tmp_path):
     assert score["recovered"] == score["labelled_people"] and score["false_tracks"] == 0
 
 
-def test_the_two_trackers_step_the_same_frames():
+def test_the_two_trackers_step_the_same_frames(tmp_path):
     import pytest
+
+    from pedx_graph.config import load_config
+    from pedx_graph.config_ranges import ConfigError
+    from pedx_graph.detections.importer import ImportConfig
 
     from pedx_graph.detections.association import AssociationConfig
     from pedx_graph.detections.tracker import TrackerConfig
@@ -128,3 +132,10 @@ def test_the_two_trackers_step_the_same_frames():
     assert AssociationConfig().tracklet.min_track_frames == config.tracklet.min_track_frames == 1
     with pytest.raises(ValueError, match="tracklet.frame_interval_s"):
         AssociationConfig(tracker=TrackerConfig(frame_interval_s=0.2))
+    # from a file: one line naming the file and the section
+    path = tmp_path / "import.yaml"
+    path.write_text("association:\n  tracker:\n    frame_interval_s: 0.2\n")
+    with pytest.raises(ConfigError, match=r"import.yaml: 'association': .*set both"):
+        load_config(ImportConfig, path)
+    path.write_text("association:\n  tracker:\n    frame_interval_s: 0.2\n  tracklet:\n    frame_interval_s: 0.2\n")
+    assert load_config(ImportConfig, path).association.frame_interval_s == 0.2
