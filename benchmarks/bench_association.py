@@ -228,7 +228,7 @@ def run_seed(seed: int, pedestrians: int, frames: int, rig: str = "default",
     association's (None: its defaults); ``range_oracle``: a mode of :func:`truth_ranges` (None: the
     association's own LiDAR ranges); ``fps``: the scenes' frame rate (None: the simulator's)."""
     rows = []
-    interval_s = (config or AssociationConfig()).tracker.frame_interval_s
+    interval_s = (config or AssociationConfig()).frame_interval_s
     with tempfile.TemporaryDirectory(prefix="bench_association_") as tmp:
         for sc in simulated_scenes(seed, pedestrians, frames, rig, tmp, fps):
             name, scene, seq, cfg = sc.name, sc.root, sc.sequence, sc.config
@@ -478,7 +478,7 @@ def main(argv: list[str] | None = None) -> int:
               "seeds_text": args.seeds, "seeds": seeds, "pedestrians": args.pedestrians, "frames": args.frames,
               "rig": args.rig, "workers": args.workers, "association_changes": changed_fields(config),
               "range_oracle": args.range_oracle, "scene_fps": args.fps or SimConfig().scene.fps,
-              "frame_interval_s": config.tracker.frame_interval_s,
+              "frame_interval_s": config.frame_interval_s,
               "motion": "CMU hold-out clips" if SHARED_CMU.is_dir() else "procedural gait",
               "rows": rows, "totals": {k: sum(r[k] for r in rows) for k in COUNTS + PLACEMENT_COUNTS + REVIEW_COUNTS
                                        + GEOMETRY_COUNTS + (ORACLE_COUNTS if args.range_oracle else ())},

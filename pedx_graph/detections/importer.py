@@ -282,7 +282,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     clouds = _Clouds(source_root, seq, config.cloud_cache_mb) if source_root is not None else {}
     people: dict[str, dict[int, dict[str, Detection]]] = {}
     interval_s, interval_from = sequence_frame_interval(source_root, seq, {d.frame for d in known},
-                                                        config.association.tracker.frame_interval_s)
+                                                        config.association.frame_interval_s)
     association = config.association.with_frame_interval(interval_s)
     from pedx_graph.data.ground import ground_from_calibrations
     ground = ground_from_calibrations(dict(calibrations), seq)
@@ -306,7 +306,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                   fixed["operations"], fixed["detections_moved"], fixed["detections_added"],
                   fixed["detections_removed"])
     tracks, flipped = unflip_tracks(tracks, calibrations, ground, config.flips, association.keypoint_sigma_px,
-                                    association.keypoint_sigma_frac, association.tracker.frame_interval_s)
+                                    association.keypoint_sigma_frac, association.frame_interval_s)
     if flipped:
         log.info("%s: %d detections had their left and right swapped back", seq, flipped)
     walking = walking_check(tracks, ground, interval_s, config.walking_check)
@@ -314,7 +314,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     if not walking["agrees"]:
         fix = ("check that file's times" if interval_from != "config" else
                f"give the sequence's timestamps (timestamps/timestamps-pointclouds-{seq}.txt) or "
-               f"association.tracker.frame_interval_s in --config, and the fit's fps")
+               f"association.tracker.frame_interval_s and tracklet.frame_interval_s in --config, and the fit's fps")
         log.warning("%s: the %d walking tracks move a median %.2f m per frame: at a walking speed of %.2f m/s "
                     "that is a frame every %.3f s, not the %.3f s used (%s); %s", seq, walking["walking_tracks"],
                     walking["m_per_frame"], config.walking_check.walking_speed_mps, walking["implied_interval_s"],
