@@ -13,7 +13,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "import", help="import OpenPose / COCO keypoint files as a PedX-layout dataset",
         description="Read detector keypoints (OpenPose JSON: BODY_25, BODY_25B, COCO-18; COCO annotation or "
-                    "results files) made on the raw images, undistort and rectify them with the calibration, "
+                    "results files) made on the raw or the rectified images (told per stereo pair from the "
+                    "detections' rows, or --image-frame), undistort and rectify the raw ones with the calibration, "
                     "group them into people (the files' ids with --use-file-ids, else stereo + tracking "
                     "association) and write labels/2d in the PedX layout with keypoint_set, confidence and "
                     "sigma_px per keypoint, plus calib/ (copied), pointclouds/ (linked) and LiDAR segments cut "
