@@ -81,7 +81,8 @@ class WalkingCheckConfig:
     max_ratio: float = 1.5
     """Warn when the interval the walks imply differs from the one used by more than this factor (frame
     rates differ by 2x and more: 5, 10, 20, 30 Hz; PedX's labelled frames by about 1.7x from 10 Hz; walkers
-    vary: the simulator's CMU-driven ones move 1.5-1.9 m/s, which reads as 1.03-1.34x on its scenes)."""
+    vary: the simulator's CMU-driven ones move 1.5-1.9 m/s, which reads as 1.00-1.35x on the association
+    benchmark's 10 Hz inputs)."""
 
 
 def walking_check(tracks, ground, frame_interval_s: float, config: WalkingCheckConfig | None = None) -> dict:
