@@ -104,7 +104,7 @@ def test_the_config_overrides_the_test_and_only_rectified_pairs_lose_their_raw_m
     calibs = pixel_calibrations({first.name: first, second.name: second},
                                 {"camA-camB": {"images": "rectified"}, "camC-camD": {"images": "raw"}})
     assert calibs["camA-camB"].left_raw is None and calibs["camA-camB"].right_raw is None
-    assert calibs["camC-camD"].left_raw is first.left_raw or calibs["camC-camD"].left_raw is second.left_raw
+    assert calibs["camC-camD"].left_raw is second.left_raw and calibs["camC-camD"].right_raw is second.right_raw
     assert calibs["camC-camD"].left_raw is not None
     with pytest.raises(ValueError, match="image_frame.images"):
         ImageFrameConfig(images="distorted")
