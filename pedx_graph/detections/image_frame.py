@@ -105,29 +105,36 @@ def _pair_cost(left: np.ndarray, right: np.ndarray, min_keypoints: int) -> float
     return cost if cost <= 0.25 * max(h_left, h_right) else None
 
 
+def match_people(left: list, right: list, min_keypoints: int = 4) -> list[tuple[int, int]]:
+    """One frame's people matched between a pair's two images: ``(index in left, index in right)``.  ``left``,
+    ``right``: per detection a tuple of readings of its pixels ((K, 2) each, NaN = absent; the same readings
+    in the same order on both sides).  A pair of detections is a candidate when :func:`_pair_cost` accepts it
+    under some reading; the match (Hungarian) minimises the smallest of the readings' median row
+    differences."""
+    if not left or not right:
+        return []
+    readings = len(left[0])
+    costs = np.full((len(left), len(right), readings), np.inf)
+    for a, la in enumerate(left):
+        for b, rb in enumerate(right):
+            for h in range(readings):
+                cost = _pair_cost(la[h], rb[h], min_keypoints)
+                if cost is not None:
+                    costs[a, b, h] = cost
+    best = costs.min(axis=2)
+    return [(int(a), int(b)) for a, b in zip(*linear_sum_assignment(np.where(np.isfinite(best), best, 1e12)))
+            if np.isfinite(best[a, b])]
+
+
 def matched_people(frames: list[tuple[list, list]], min_keypoints: int = 4) -> np.ndarray:
     """(M, 4) per person matched between the two images: the median row difference ``v_left - v_right``
     (pixels) over the keypoints present in both with the pixels read as raw (undistorted and rectified) and
     as rectified (as they are), and the person's median keypoint position in the left image as read
     rectified (u, v pixels).  ``frames``: per frame ``(left, right)``, each a list per detection of
-    ``(uv_read_as_raw, uv_as_it_is)`` ((K, 2) each, NaN = absent).  A pair of detections is a candidate when
-    :func:`_pair_cost` accepts it under either reading; the match (Hungarian) minimises the smaller of the
-    two readings' median row differences."""
+    ``(uv_read_as_raw, uv_as_it_is)`` ((K, 2) each, NaN = absent), matched by :func:`match_people`."""
     rows = []
     for left, right in frames:
-        if not left or not right:
-            continue
-        costs = np.full((len(left), len(right), 2), np.inf)
-        for a, la in enumerate(left):
-            for b, rb in enumerate(right):
-                for h in range(2):
-                    cost = _pair_cost(la[h], rb[h], min_keypoints)
-                    if cost is not None:
-                        costs[a, b, h] = cost
-        best = costs.min(axis=2)
-        for a, b in zip(*linear_sum_assignment(np.where(np.isfinite(best), best, 1e12))):
-            if not np.isfinite(best[a, b]):
-                continue
+        for a, b in match_people(left, right, min_keypoints):
             both = np.all(np.isfinite(left[a][0]) & np.isfinite(right[b][0]), axis=1)
             rows.append((np.median(left[a][0][both, 1] - right[b][0][both, 1]),
                          np.median(left[a][1][both, 1] - right[b][1][both, 1]),
