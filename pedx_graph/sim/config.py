@@ -31,6 +31,7 @@ import numpy as np
 
 from pedx_graph.config import ConfigError, from_dict, read_yaml, to_dict
 from pedx_graph.data.detector_model import DetectorNoiseConfig
+from pedx_graph.detections.pixel_units import PIXEL_UNITS
 from pedx_graph.sim.render import ImageConfig
 
 #: Stereo pair names of the release: forward and left-facing pairs.
@@ -395,6 +396,14 @@ class DetectorOutputConfig:
     raw model ``K_0x`` / ``D_0x``) or ``rectified`` (the rectified images, as a user running a detector on a
     release that ships only rectified images, PedX's among them; the calibration still carries the raw
     keys, as PedX's does).  Either way the calibration files get the raw keys."""
+    image_scale: float = 1.0
+    """The detector saw the images resized by this factor (a 12 MP image shrunk to save time or storage):
+    every written pixel is multiplied by it, and the COCO image list gives the resized width and height
+    (rounded); 1 = the images at the calibration's size.  Noise, misses and clutter are drawn at full size."""
+    pixel_units: str = "pixels"
+    """How the written keypoints are expressed: ``pixels``; ``unit``, each coordinate divided by the image's
+    width or height, in [0, 1] (OpenPose's ``--keypoint_scale 3``); ``signed_unit``, mapped to [-1, 1]
+    (``--keypoint_scale 4``).  Applied after ``image_scale``."""
 
     def __post_init__(self) -> None:
         for name in ("formats", "distortion_k1", "distortion_k2"):
@@ -492,6 +501,8 @@ class SimConfig:
             ("detections.raw_principal_jitter_px", 0 <= det.raw_principal_jitter_px <= 500),
             ("detections.right_rect_rotation_deg", 0 <= det.right_rect_rotation_deg <= 10),
             ("detections.detected_on", det.detected_on in ("raw", "rectified")),
+            ("detections.image_scale", 0.05 <= det.image_scale <= 4),
+            ("detections.pixel_units", det.pixel_units in PIXEL_UNITS),
         ]
         for slot, pair in (("forward", self.cameras.forward), ("left", self.cameras.left)):
             checks.append((f"cameras.{slot}.focal_px", pair.focal_px > 0))

@@ -34,7 +34,11 @@ keeping its raw keys: what a user gets running a detector on a release's rectifi
   alike (truth kind stays ``person``, with ``"flipped": true``);
 * OpenPose formats, with ``split_prob`` > 0: a person's skeleton broken in two by the bottom-up grouping, its
   upper body and its hips and legs written as two people (no whole detection of it in that image);
-* the detection score is the mean confidence of its present keypoints.
+* the detection score is the mean confidence of its present keypoints;
+* with ``image_scale`` != 1 every written pixel is that of the image resized by it (and the COCO image list
+  gives the resized size), and with ``pixel_units`` other than ``pixels`` the coordinates are normalised by
+  the image's size (:func:`pedx_graph.detections.pixel_units.to_detector_units`): what a detector run on
+  resized images, or told to write normalised coordinates, gives.
 
 Written files (``<image>`` = ``<seq>_<cam>_<frame:07d>``, the release's image name)::
 
@@ -63,6 +67,7 @@ from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_
 from pedx_graph.keypoints import lower_body_mask, mirror_index, mirror_order
 from pedx_graph.data.detector_model import corrupt_keypoints
 from pedx_graph.data.types import RawCamera, StereoCalibration
+from pedx_graph.detections.pixel_units import to_detector_units
 from pedx_graph.sim import cameras
 from pedx_graph.sim.config import DETECTOR_FORMATS, PEDX_VERTICAL_DISPARITY_SD_PX, DetectorOutputConfig
 from pedx_graph.utils import atomic_write_bytes
@@ -329,12 +334,15 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                     c_uv, c_conf = _clutter(template, size, rng)
                     if (c_conf > 0).sum() >= 2:
                         people_uv.append((c_uv, c_conf, {"kind": "clutter"}))
+                if det_cfg.image_scale != 1.0 or det_cfg.pixel_units != "pixels":
+                    people_uv = [(to_detector_units(uv, size, (det_cfg.image_scale,) * 2, det_cfg.pixel_units),
+                                  conf, record) for uv, conf, record in people_uv]
                 for index, (uv, conf, record) in enumerate(people_uv):
                     entries.append((view.camera, frame, uv, conf,
                                     {"camera": view.camera, "frame": frame, "index": index, **record}))
                 if fmt.startswith("openpose_"):
                     write_openpose(openpose_path(ctx.out, fmt, seq, view.camera, frame),
-                                   [(uv, conf) for uv, conf, _ in people_uv])
+                                   [(uv, conf) for uv, conf, _ in people_uv], _digits(det_cfg.pixel_units))
         out[fmt] = entries
     return out
 
@@ -347,21 +355,27 @@ def _distort(rect_uv: np.ndarray, raw: RawCamera) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- writers
 
-def _triplets(uv: np.ndarray, conf: np.ndarray) -> list[float]:
-    """``[x0, y0, c0, ...]`` with absent keypoints as ``0, 0, 0`` (pixels rounded to 1/1000 px)."""
+def _triplets(uv: np.ndarray, conf: np.ndarray, digits: int = 3) -> list[float]:
+    """``[x0, y0, c0, ...]`` with absent keypoints as ``0, 0, 0`` (coordinates rounded to ``digits`` decimals:
+    1/1000 px, or 7 for normalised coordinates)."""
     out = []
     for (u, v), c in zip(uv, conf):
         if np.isfinite(u) and np.isfinite(v) and c > 0:
-            out += [round(float(u), 3), round(float(v), 3), round(float(c), 4)]
+            out += [round(float(u), digits), round(float(v), digits), round(float(c), 4)]
         else:
             out += [0.0, 0.0, 0.0]
     return out
 
 
-def write_openpose(path: Path, people: list[tuple[np.ndarray, np.ndarray]]) -> Path:
+def _digits(pixel_units: str) -> int:
+    """Decimals a written coordinate keeps: 1/1000 px, or 1e-7 of the image for normalised ones."""
+    return 3 if pixel_units == "pixels" else 7
+
+
+def write_openpose(path: Path, people: list[tuple[np.ndarray, np.ndarray]], digits: int = 3) -> Path:
     """One OpenPose JSON file (``version`` 1.3, ``person_id`` [-1], empty face/hand arrays)."""
     doc = {"version": 1.3, "people": [
-        {"person_id": [-1], "pose_keypoints_2d": _triplets(uv, conf), "face_keypoints_2d": [],
+        {"person_id": [-1], "pose_keypoints_2d": _triplets(uv, conf, digits), "face_keypoints_2d": [],
          "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": [], "pose_keypoints_3d": [],
          "face_keypoints_3d": [], "hand_left_keypoints_3d": [], "hand_right_keypoints_3d": []}
         for uv, conf in people]}
@@ -374,7 +388,9 @@ def write_sequence_files(out: Path, config, calibs: dict[str, StereoCalibration]
     seq = config.scene.sequence
     sc = config.scene
     camera_names = [name for calib in calibs.values() for name in calib.name.split("-")]
-    sizes = {name: calib.image_size for calib in calibs.values() for name in calib.name.split("-")}
+    scale = config.detections.image_scale
+    sizes = {name: tuple(int(round(v * scale)) for v in calib.image_size)
+             for calib in calibs.values() for name in calib.name.split("-")}
     counts = {}
     for fmt, items in entries.items():
         items = sorted(items, key=lambda e: (e[1], camera_names.index(e[0]), e[4]["index"]))
@@ -394,7 +410,7 @@ def write_sequence_files(out: Path, config, calibs: dict[str, StereoCalibration]
             for cam, frame, uv, conf, _ in items:
                 present = conf > 0
                 results.append({"image_id": image_id[(cam, frame)], "category_id": 1,
-                                "keypoints": _triplets(uv, conf),
+                                "keypoints": _triplets(uv, conf, _digits(config.detections.pixel_units)),
                                 "score": round(float(conf[present].mean()) if present.any() else 0.0, 4)})
             list_path, results_path = coco_paths(out, seq)
             atomic_write_bytes(list_path, (json.dumps({"images": images, "categories": categories},
