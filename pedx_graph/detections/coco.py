@@ -1,8 +1,8 @@
 """Read COCO keypoint files (annotation files and detector results files) into
 :class:`~pedx_graph.detections.types.Detection` (keypoint set ``coco17``).
 
-* Annotation file: ``{"images": [{id, file_name, ...}], "annotations": [{image_id, category_id, bbox,
-  keypoints [x, y, v]*17, ...}], "categories": [...]}``.  Visibility ``v``: 0 not labelled (absent),
+* Annotation file: ``{"images": [{id, file_name, [width, height], ...}], "annotations": [{image_id,
+  category_id, bbox, keypoints [x, y, v]*17, ...}], "categories": [...]}``.  Visibility ``v``: 0 not labelled (absent),
   1 labelled but not visible (confidence 1, ``occluded``), 2 visible (confidence 1).  A ``track_id`` key
   (PoseTrack-style files) becomes the track id; a ``score`` key the detection score (else 1).
 * Results file (what top-down detectors write): a list of ``{image_id, category_id, keypoints [x, y, s]*17,
@@ -10,8 +10,11 @@
   file names through an image list: a COCO annotation file or a bare ``{"images": [...]}`` / ``[{id,
   file_name}]`` file.  Without one, the image id is the frame and ``camera`` names the camera.
 
-Camera and frame of an image come from its ``file_name`` (:mod:`pedx_graph.detections.naming`).  Only the
-person category (``category_id`` of the category named ``person``; 1 when there is no category list) is read.
+An image's ``width`` and ``height``, when given, become its detections'
+:attr:`~pedx_graph.detections.types.Detection.image_size` (the import compares it with the calibration's:
+detections made on resized images).  Camera and frame of an image come from its ``file_name``
+(:mod:`pedx_graph.detections.naming`).  Only the person category (``category_id`` of the category named
+``person``; 1 when there is no category list) is read.
 """
 from __future__ import annotations
 
@@ -63,6 +66,22 @@ def image_table(doc, path: Path, name_pattern: str | None = None,
     return table
 
 
+def image_sizes(doc, path: Path) -> dict[int, tuple[int, int]]:
+    """``image id -> (width, height)`` of the images of a COCO ``images`` list that give both (positive
+    integers; :func:`image_table` has checked the list itself)."""
+    images = doc.get("images") if isinstance(doc, dict) else doc
+    sizes = {}
+    for index, image in enumerate(images):
+        if "width" not in image and "height" not in image:
+            continue
+        for key in ("width", "height"):
+            if not (_integer(image.get(key)) and image[key] > 0):
+                raise DataFormatError(path, f"images[{index}].{key}",
+                                      f"must be a positive integer (pixels), got {image.get(key)!r}")
+        sizes[int(image["id"])] = (int(image["width"]), int(image["height"]))
+    return sizes
+
+
 def _person_category(doc) -> int:
     for cat in (doc.get("categories") or []) if isinstance(doc, dict) else []:
         if isinstance(cat, dict) and cat.get("name") == "person" and _number(cat.get("id")):
@@ -106,6 +125,7 @@ def read_coco_annotations(path: str | os.PathLike, name_pattern: str | None = No
     if not isinstance(doc, dict) or not isinstance(doc.get("annotations"), list):
         raise DataFormatError(path, "annotations", "missing (an annotation file has 'images' and 'annotations')")
     images = image_table(doc, path, name_pattern, camera_names)
+    sizes = image_sizes(doc, path)
     person = _person_category(doc)
     out = []
     for index, ann in enumerate(doc["annotations"]):
@@ -132,7 +152,8 @@ def read_coco_annotations(path: str | os.PathLike, name_pattern: str | None = No
         out.append(Detection(camera=image.camera, frame=image.frame, keypoint_set="coco17", image_uv=uv,
                              confidence=present.astype(float), score=float(score), source=f"{path}#{field}",
                              track_id=_track_id(ann), bbox=_bbox(ann, path, f"{field}.bbox"),
-                             occluded=vis == 1, sequence=image.sequence, image=image.stem))
+                             occluded=vis == 1, sequence=image.sequence, image=image.stem,
+                             image_size=sizes.get(int(ann["image_id"]))))
     return out
 
 
@@ -148,10 +169,12 @@ def read_coco_results(path: str | os.PathLike, images: str | os.PathLike | None 
     doc = _load(path)
     if not isinstance(doc, list):
         raise DataFormatError(path, None, "a results file is a list of {image_id, keypoints, score}")
-    table = None
+    table, sizes = None, {}
     if images is not None:
         images = Path(images)
-        table = image_table(_load(images), images, name_pattern, camera_names)
+        listing = _load(images)
+        table = image_table(listing, images, name_pattern, camera_names)
+        sizes = image_sizes(listing, images)
     elif camera is None:
         raise DataFormatError(path, "image_id", "image ids need an image list (the annotation file) or a camera name")
     out = []
@@ -185,7 +208,7 @@ def read_coco_results(path: str | os.PathLike, images: str | os.PathLike | None 
                              score=float(conf[present].mean() if score is None else score),
                              source=f"{path}#{field}", track_id=_track_id(item),
                              bbox=_bbox(item, path, f"{field}.bbox"), sequence=image.sequence,
-                             image=image.stem))
+                             image=image.stem, image_size=sizes.get(int(image_id))))
     return out
 
 

@@ -20,7 +20,9 @@ class Detection:
     keypoint_set: str
     """Which keypoints, in which order: one of :data:`KEYPOINT_SET_NAMES`."""
     image_uv: np.ndarray
-    """(K, 2) float pixels in the RAW (distorted) image the detector saw; NaN where absent."""
+    """(K, 2) float coordinates in the image the detector saw (raw or rectified, at the calibration's size or
+    resized, pixels or normalised: :mod:`pedx_graph.detections.pixel_scale` brings them to the calibration's
+    pixels on import); NaN where absent."""
     confidence: np.ndarray
     """(K,) in [0, 1]; 0 where absent.  COCO annotations: visibility v = 0 -> 0, 1 -> 1 with
     :attr:`occluded` set, 2 -> 1."""
@@ -31,7 +33,7 @@ class Detection:
     track_id: str | None = None
     """An id given by the file (OpenPose ``person_id`` >= 0, a COCO track id), else None."""
     bbox: np.ndarray | None = None
-    """(4,) ``x, y, w, h`` in the raw image, pixels, if the file gives one."""
+    """(4,) ``x, y, w, h`` in the image the detector saw, in its coordinates, if the file gives one."""
     occluded: np.ndarray | None = None
     """(K,) bool: labelled but marked not visible (COCO ``v = 1``); None when the file has no such flag."""
     sequence: str | None = None
@@ -39,6 +41,10 @@ class Detection:
     image: str | None = None
     """Stem of the image the detector saw (its file name without folder and extension) when the file names
     it (an OpenPose file's name, a COCO image's ``file_name``), else None."""
+    image_size: tuple[int, int] | None = None
+    """``(width, height)`` of the image the detector saw, pixels, when the file gives it (a COCO image's
+    ``width`` and ``height``), else None; :mod:`pedx_graph.detections.pixel_scale` compares it with the
+    calibration's."""
 
     @property
     def present(self) -> np.ndarray:
