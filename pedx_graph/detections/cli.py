@@ -14,7 +14,9 @@ def register(subparsers) -> None:
         "import", help="import OpenPose / COCO keypoint files as a PedX-layout dataset",
         description="Read detector keypoints (OpenPose JSON: BODY_25, BODY_25B, COCO-18; COCO annotation or "
                     "results files) made on the raw or the rectified images (told per stereo pair from the "
-                    "detections' rows, or --image-frame), undistort and rectify the raw ones with the calibration, "
+                    "detections' rows, or --image-frame), at the calibration's size or resized (a COCO image list's "
+                    "sizes, or --detector-image-scale; checked against the LiDAR) or in normalised coordinates, "
+                    "undistort and rectify the raw ones with the calibration, "
                     "group them into people (the files' ids with --use-file-ids, else stereo + tracking "
                     "association) and write labels/2d in the PedX layout with keypoint_set, confidence and "
                     "sigma_px per keypoint, plus calib/ (copied), pointclouds/ (linked) and LiDAR segments cut "
@@ -45,6 +47,10 @@ def register(subparsers) -> None:
                    help="the images the detector ran on: raw (distorted) or rectified (e.g. a release's "
                         "rectified images); default auto: told per stereo pair from the detections' rows "
                         "(config: image_frame.images)")
+    p.add_argument("--detector-image-scale", type=float, default=None, metavar="S",
+                   help="the detector ran on the images resized by S (0.5: half their width and height); "
+                        "default: from the files' image sizes (COCO image lists), else the calibration's size, "
+                        "checked against the LiDAR (config: pixel_scale.scale)")
     p.add_argument("--raw-images", "--review-images", dest="raw_images", default=None, metavar="FOLDER",
                    help="the images the detections were made on, raw or rectified (searched recursively, found "
                         "by the names "
@@ -92,6 +98,9 @@ def _run_import(args: argparse.Namespace) -> int:
     config.use_file_ids = config.use_file_ids or args.use_file_ids
     if args.image_frame is not None:
         config.image_frame.images = args.image_frame
+    if args.detector_image_scale is not None:
+        from pedx_graph.detections.pixel_scale import PixelScaleConfig
+        config.pixel_scale = PixelScaleConfig(**{**vars(config.pixel_scale), "scale": args.detector_image_scale})
     summary = import_detections(detections, args.calib, args.out, config, sequence=args.sequence,
                                 workers=args.workers, raw_images=args.raw_images,
                                 identity_fixes=args.identity_fixes)
@@ -101,6 +110,16 @@ def _run_import(args: argparse.Namespace) -> int:
     from pedx_graph.data.types import UNTRACKED
 
     for seq, record in sorted(summary["sequences"].items()):
+        scales = record.get("pixel_scale") or {}
+        for camera, used in sorted((scales.get("cameras") or {}).items()):
+            if used["units"] != "pixels" or used["scale"] != [1.0, 1.0]:
+                print(f"  {seq}: camera {camera}: coordinates read as {used['units'].replace('_', ' ')}"
+                      + (f" of images resized by {used['scale'][0]:.4g} x {used['scale'][1]:.4g}"
+                         if used["units"] == "pixels" else "") + f" ({used['from']})")
+        for pair, check in sorted((scales.get("lidar_check") or {}).items()):
+            if check.get("judged"):
+                print(f"  {seq}: pair {pair}: {check['people_on_lidar']} of {check['people']} people matched in "
+                      f"its two images lie on the LiDAR's returns at that scale (pixel check)")
         for pair, frame in sorted((record.get("image_frame") or {}).items()):
             rows = frame.get("row_difference_px")
             measured = (f"; stereo rows {rows['raw']:.1f} px as raw, {rows['rectified']:.1f} px as rectified, "

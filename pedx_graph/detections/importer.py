@@ -1,10 +1,12 @@
 """``pedx-graph import openpose|coco``: detector files -> a dataset in the PedX release layout, ready to fit.
 
 Steps: read the files (:mod:`.openpose`, :mod:`.coco`; camera and frame from the file / image names,
-:mod:`.naming`) -> group them into people: the file's own ids with ``use_file_ids`` (OpenPose ``person_id``,
-COCO ``track_id``; every detection must have one), else :func:`pedx_graph.detections.association.associate`
-(stereo, over frames, across pairs; with file ids each frame is placed as the association places its
-people — triangulated, centred on the LiDAR — without its identity steps,
+:mod:`.naming`) -> bring their coordinates to the calibration's pixels (resized images, normalised
+coordinates; checked against the LiDAR: :mod:`.pixel_scale`) -> group them into people: the file's own
+ids with ``use_file_ids`` (OpenPose ``person_id``, COCO ``track_id``; every detection must have one), else
+:func:`pedx_graph.detections.association.associate` (stereo, over frames, across pairs; with file ids each
+frame is placed as the association places its people — triangulated, centred on the LiDAR — without its
+identity steps,
 :func:`~pedx_graph.detections.association.tracks_from_ids`)
 -> with a reviewer's identity fixes file, the tracks fixed (:mod:`pedx_graph.detections.fixes`)
 -> per person, frame and camera, undistort + rectify the keypoints
@@ -43,6 +45,7 @@ from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.frame_interval import WalkingCheckConfig, sequence_frame_interval, walking_check
 from pedx_graph.detections.image_frame import ImageFrameConfig, image_frames, pixel_calibrations
+from pedx_graph.detections.pixel_scale import PixelScaleConfig, detector_pixels, resized_cameras
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
@@ -96,6 +99,10 @@ class ImportConfig:
     detections' own stereo rows (:mod:`pedx_graph.detections.image_frame`; a calibration with raw keys does
     not say the detector saw raw images).  The decision goes to ``import_summary.json``
     (``sequences.<seq>.image_frame``)."""
+    pixel_scale: PixelScaleConfig = field(default_factory=PixelScaleConfig)
+    """Which coordinates the detections are in: the calibrated images' pixels, pixels of resized copies (a
+    COCO image list's sizes, or ``scale``), or coordinates normalised by the image size; checked against the
+    LiDAR (:mod:`pedx_graph.detections.pixel_scale`; ``import_summary.json``, ``sequences.<seq>.pixel_scale``)."""
     write_images: bool = True
     """Given the raw images the detections were made on (``raw_images``): write them rectified into the
     dataset's ``images/`` (:mod:`pedx_graph.detections.rectified_images`), so ``pedx-graph export`` draws its
@@ -277,15 +284,17 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     uncalibrated = sorted({d.camera for d in detections} - {d.camera for d in known})
     if uncalibrated:
         log.warning("%s: cameras %s are in no calibrated pair; their detections are skipped", seq, uncalibrated)
+    clouds = _Clouds(source_root, seq, config.cloud_cache_mb) if source_root is not None else {}
+    from pedx_graph.data.ground import ground_from_calibrations
+    ground = ground_from_calibrations(dict(calibrations), seq)
+    known, scale_record = detector_pixels(known, calibrations, config.pixel_scale, clouds or None, seq,
+                                          ground.world_up)
     frames_record = image_frames(known, calibrations, config.image_frame, config.noise.min_confidence, seq)
     calibrations = pixel_calibrations(calibrations, frames_record)
-    clouds = _Clouds(source_root, seq, config.cloud_cache_mb) if source_root is not None else {}
     people: dict[str, dict[int, dict[str, Detection]]] = {}
     interval_s, interval_from = sequence_frame_interval(source_root, seq, {d.frame for d in known},
                                                         config.association.frame_interval_s)
     association = config.association.with_frame_interval(interval_s)
-    from pedx_graph.data.ground import ground_from_calibrations
-    ground = ground_from_calibrations(dict(calibrations), seq)
     if config.use_file_ids:
         for tid, dets in sorted(_group_by_file_ids(known).items()):
             frames: dict[int, dict[str, Detection]] = defaultdict(dict)
@@ -329,13 +338,15 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         stems = image_stems(known)
         open_stretches = [i for i, s in enumerate(review["stretches"]) if not s.get("checked")]
         place = {i: k for k, i in enumerate(open_stretches)}
+        resized = resized_cameras(scale_record, calibrations)
         sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
                   "sheets": write_review_sheets(tracks, [review["stretches"][i] for i in open_stretches], images,
                                                 out / "review" / seq, stems,
-                                                [place[i] for i in review["check_order"]], untracked=untracked)}
+                                                [place[i] for i in review["check_order"]], untracked=untracked,
+                                                resized=resized)}
         if config.write_images:
             from pedx_graph.detections.rectified_images import write_rectified_images
-            written_images = write_rectified_images(out, seq, stems, images, calibrations, workers)
+            written_images = write_rectified_images(out, seq, stems, images, calibrations, workers, resized)
     people = {track.track_id: {fr.frame: dict(fr.detections) for fr in track.frames} for track in tracks}
     views = {(tid, frame, camera): detection_view(det, calibrations, config.noise)
              for tid, frames in people.items() for frame, cams in frames.items() for camera, det in cams.items()}
@@ -359,7 +370,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
               "left_right_swapped_back": flipped,
-              "uncalibrated_cameras": uncalibrated, "image_frame": frames_record, "frame_interval": walking,
+              "uncalibrated_cameras": uncalibrated, "pixel_scale": scale_record, "image_frame": frames_record,
+              "frame_interval": walking,
               "stereo_noise_check": check.record() if check is not None else None,
               "tracks_digest": digest, "identity_fixes": fixed, "identity_review": review,
               "review_sheets": sheets, "images": written_images}

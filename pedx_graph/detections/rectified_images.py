@@ -26,6 +26,7 @@ from pathlib import Path
 
 from pedx_graph.data.images import image_path, read_image, rectification_maps, rectify_image
 from pedx_graph.data.types import RawCamera
+from pedx_graph.detections.pixel_units import calibration_sized
 from pedx_graph.detections.undistort import find_camera, raw_camera
 from pedx_graph.execution.executors import map_ordered
 from pedx_graph.utils import atomic_write_bytes, encode_image
@@ -83,13 +84,15 @@ def complete_stems(stems: dict[tuple[str, int], str], images: dict[str, Path]) -
 
 def _camera_job(job: tuple) -> dict:
     """Write one camera's images (a module-level function for the worker processes): ``job = (out, seq,
-    camera, raw model or None, image size, [(frame, raw image path)])``; returns what it wrote."""
-    out, seq, camera, raw, image_size, items = job
+    camera, raw model or None, image size, [(frame, raw image path)], resize)`` (``resize``: ``(size, scale)``
+    of :func:`~pedx_graph.detections.pixel_scale.resized_cameras` for a camera whose images the detector saw
+    at another size, else None); returns what it wrote."""
+    out, seq, camera, raw, image_size, items, resize = job
     maps = None
     written, unreadable = 0, []
     for frame, source in items:
         target = image_path(out, seq, camera, frame)
-        if raw is None and Path(source).suffix.lower() in (".jpg", ".jpeg"):
+        if raw is None and resize is None and Path(source).suffix.lower() in (".jpg", ".jpeg"):
             atomic_write_bytes(target, Path(source).read_bytes())          # already rectified: as it is
             written += 1
             continue
@@ -97,6 +100,8 @@ def _camera_job(job: tuple) -> dict:
         if image is None:
             unreadable.append(str(source))
             continue
+        if resize is not None:
+            image = calibration_sized(image, *resize)
         if raw is not None:
             if not principal_point_fits(raw, image.shape):
                 return {"camera": camera, "written": written, "unreadable": unreadable,
@@ -112,12 +117,15 @@ def _camera_job(job: tuple) -> dict:
 
 
 def write_rectified_images(out: str | os.PathLike, sequence: str, stems: dict[tuple[str, int], str],
-                           images: dict[str, Path], calibrations, workers: int = 1) -> dict:
+                           images: dict[str, Path], calibrations, workers: int = 1, resized: dict | None = None
+                           ) -> dict:
     """Write the images named by ``stems`` (``(camera, frame)`` -> image stem,
     :func:`~pedx_graph.detections.review_sheets.image_stems`) from ``images`` (stem -> raw image path)
     rectified under ``out`` (module docstring), with the frames :func:`complete_stems` finds by name;
-    ``workers`` processes, one camera each.  Returns the record for the import summary: ``folder``,
-    ``written``, ``without_image`` (frames named by a detection whose image is not in the folder),
+    ``workers`` processes, one camera each; ``resized``:
+    :func:`~pedx_graph.detections.pixel_scale.resized_cameras` (those cameras' images are brought to the
+    calibration's size first, where the detections' pixels now are).  Returns the record for the import
+    summary: ``folder``, ``written``, ``without_image`` (frames named by a detection whose image is not in the folder),
     ``found_by_name`` (frames without a detection whose image was found by name), ``rectified_cameras``,
     ``copied_cameras`` (no raw model: rectified already), ``skipped_cameras`` (camera -> reason) and
     ``unreadable`` (files OpenCV could not decode)."""
@@ -134,7 +142,8 @@ def write_rectified_images(out: str | os.PathLike, sequence: str, stems: dict[tu
     jobs = []
     for camera in sorted(by_camera):
         calib, side = find_camera(calibrations, camera)
-        jobs.append((Path(out), sequence, camera, raw_camera(calib, side), tuple(calib.image_size), by_camera[camera]))
+        jobs.append((Path(out), sequence, camera, raw_camera(calib, side), tuple(calib.image_size), by_camera[camera],
+                     (resized or {}).get(camera)))
     record = {"folder": f"images/{sequence}", "written": 0, "without_image": missing,
               "found_by_name": len(stems) - named, "rectified_cameras": [], "copied_cameras": [],
               "skipped_cameras": {}, "unreadable": []}

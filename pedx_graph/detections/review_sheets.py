@@ -29,6 +29,7 @@ import numpy as np
 
 from pedx_graph.data.types import UNTRACKED
 from pedx_graph.detections.naming import strip_name
+from pedx_graph.detections.pixel_units import calibration_sized
 from pedx_graph.keypoints import limb_edges
 from pedx_graph.utils import atomic_write_bytes, encode_image
 
@@ -122,7 +123,7 @@ def image_stems(detections: list) -> dict[tuple[str, int], str]:
 def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frames: int = 10,
                  cell_height_px: int = 240, pad_frac: float = 0.15,
                  stems: dict[tuple[str, int], str] | None = None,
-                 untracked: dict | None = None) -> tuple[np.ndarray, dict] | None:
+                 untracked: dict | None = None, resized: dict | None = None) -> tuple[np.ndarray, dict] | None:
     """The sheet of one stretch (module docstring) as a BGR image, and what it holds (``frames``, ``cameras``,
     ``cells``, ``cells_with_image`` and the ``[camera, frame]`` of the others, ``without_image``); None when
     neither track has a detection in it.  A cell is ``cell_height_px`` high, or less where its crop is more
@@ -133,7 +134,9 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
     by another person's detection there; without, by the two tracks' only); ``untracked``: ``(camera, frame,
     source)`` -> :class:`~pedx_graph.detections.types.Detection` of the detections no track holds, for the
     ones the stretch lists (``"untracked"``; left out without it; their frames are drawn too, a frame before
-    or after the stretch where one lies there: it was close to the track's frame next to it)."""
+    or after the stretch where one lies there: it was close to the track's frame next to it); ``resized``:
+    :func:`~pedx_graph.detections.pixel_scale.resized_cameras` (their images are brought to the calibration's
+    size, where the detections' pixels now are)."""
     import cv2
 
     names = list(stretch["tracks"])
@@ -185,6 +188,8 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
             stem = next((det.image for det in [d for _, d in dets] + extra if det.image), None) \
                 or (stems or {}).get((camera, frame))
             image = cv2.imread(str(images[stem]), cv2.IMREAD_COLOR) if stem in images else None
+            if image is not None and camera in (resized or {}):
+                image = calibration_sized(image, *resized[camera])
             cells += 1
             found += image is not None
             if image is None:
@@ -201,7 +206,8 @@ def review_sheet(tracks: dict, stretch: dict, images: dict[str, Path], max_frame
 
 def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, Path], out: str | os.PathLike,
                         stems: dict[tuple[str, int], str] | None = None, order: list[int] | None = None,
-                        max_frames: int = 10, cell_height_px: int = 240, untracked: list | None = None) -> list[dict]:
+                        max_frames: int = 10, cell_height_px: int = 240, untracked: list | None = None,
+                        resized: dict | None = None) -> list[dict]:
     """One JPEG per stretch under ``out`` (``<n>_<a>_<b>_<first>-<last>.jpg``, ``<n>_<a>_untracked_...`` for a
     stretch of one track, ``n`` its place in ``order``, :func:`~pedx_graph.detections.review.check_order`,
     from 1: the files sort in the order to check them; written atomically); returns the index: per stretch
@@ -209,7 +215,7 @@ def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, P
     how many of its cells had their image.  ``tracks``:
     :class:`~pedx_graph.detections.association.DetectedTrack`; ``stems``: :func:`image_stems`; ``untracked``:
     the detections no track holds (:func:`~pedx_graph.detections.review.untracked_detections`), drawn where a
-    stretch lists them."""
+    stretch lists them; ``resized``: as in :func:`review_sheet`."""
     by_id = {t.track_id: {fr.frame: dict(fr.detections) for fr in t.frames} for t in tracks}
     loose = {(det.camera, det.frame, det.source): det for det in untracked or []}
     out = Path(out)
@@ -217,7 +223,8 @@ def write_review_sheets(tracks: list, stretches: list[dict], images: dict[str, P
     width = len(str(len(stretches)))
     index = []
     for k, stretch in enumerate(stretches):
-        drawn = review_sheet(by_id, stretch, images, max_frames, cell_height_px, stems=stems, untracked=loose)
+        drawn = review_sheet(by_id, stretch, images, max_frames, cell_height_px, stems=stems, untracked=loose,
+                             resized=resized)
         names = list(stretch["tracks"])
         entry = {"check": place[k], "tracks": names, "first_frame": stretch["first_frame"],
                  "last_frame": stretch["last_frame"], "sheet": None}
