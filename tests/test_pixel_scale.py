@@ -153,7 +153,7 @@ def test_resized_openpose_pixels_are_refused_then_read_as_told(scenes, tmp_path,
     assert _import_openpose(scenes["half"], tmp_path / "refused") != 0
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "_keypoints.json: field 'keypoints'" in err
-    assert "--detector-image-scale (about 0.50 here)" in err and "0.50 x those read" in err
+    assert "--detector-image-scale (import.pixel_scale.scale; about 0.50 here)" in err and "0.50 x those read" in err
     assert _import_openpose(scenes["half"], tmp_path / "told", "--detector-image-scale", "0.5") == 0
     told = _labels(tmp_path / "told")
     assert told.keys() == full.keys() and len(full) > 50

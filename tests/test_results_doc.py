@@ -106,6 +106,31 @@ def test_image_frame_table_matches_the_json():
     assert "on the real rig's preset every pair was decided by its own rows or followed one" in prose
 
 
+def test_pixel_scale_table_matches_the_json():
+    """docs/detections.md's table of bench_pixel_scale is what the committed JSON renders, and the prose's claims
+    hold: every input handled right, refusals naming the factor to within the trial grid, the accepted inputs
+    far from a refusal."""
+    import json
+
+    from pedx_graph.eval.benchmark_tables import PIXEL_SCALE_BEGIN, PIXEL_SCALE_END, pixel_scale_block
+
+    results = ROOT / "benchmarks" / "results"
+    text = (ROOT / "docs" / "detections.md").read_text()
+    block = text[text.index(PIXEL_SCALE_BEGIN):text.index(PIXEL_SCALE_END) + len(PIXEL_SCALE_END)] + "\n"
+    assert block == pixel_scale_block(results)
+    rows = json.loads((results / "bench_pixel_scale.json").read_text())["rows"]
+    assert len(rows) == 190 and all(r["right"] for r in rows)
+    assert {(r["rig"], r["written_scale"], r["written_units"]) for r in rows} == {
+        (rig, scale, units) for rig in ("default", "pedx")
+        for scale, units in ((1.0, "pixels"), (0.75, "pixels"), (0.5, "pixels"), (1.0, "unit"), (1.0, "signed_unit"))}
+    refused = [r for r in rows if r.get("best_scale") and r["refused"]]
+    assert refused and all(abs(r["best_scale"] / r["written_scale"] - 1) < 0.015 for r in refused)
+    accepted = [r for r in rows if not r["refused"] and r.get("people_on_lidar")]
+    assert max(r["people_on_lidar_elsewhere"] / r["people_on_lidar"] for r in accepted) < 0.79
+    prose = " ".join(text.split())
+    assert "Every input is handled right" in prose and "0.79 times as many people" in prose
+
+
 def test_frame_rates_table_matches_the_json():
     """docs/detections.md's table of the association at other frame rates is what the committed JSON renders,
     and the prose's claims hold: the walking check flags every input associated at the wrong rate and none at

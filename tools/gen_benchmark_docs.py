@@ -13,9 +13,10 @@ sys.path.insert(0, str(ROOT))
 from pedx_graph.eval.benchmark_tables import (DETECTIONS_BEGIN, DETECTIONS_END, DETECTIONS_PEDX_BEGIN,  # noqa: E402
                                               DETECTIONS_PEDX_END, DETECTIONS_PEDX_FOLDER, IDENTITY_FIXES_BEGIN,
                                               FRAME_RATES_BEGIN, FRAME_RATES_END, IDENTITY_FIXES_END,
-                                              IMAGE_FRAME_BEGIN, IMAGE_FRAME_END, benchmark_block,
-                                              detections_block, frame_rates_block, identity_fixes_block,
-                                              image_frame_block, replace_block)
+                                              IMAGE_FRAME_BEGIN, IMAGE_FRAME_END, PIXEL_SCALE_BEGIN,
+                                              PIXEL_SCALE_END, benchmark_block, detections_block,
+                                              frame_rates_block, identity_fixes_block, image_frame_block,
+                                              pixel_scale_block, replace_block)
 from pedx_graph.utils import atomic_write_text  # noqa: E402
 
 
@@ -39,6 +40,9 @@ def main() -> int:
     if IMAGE_FRAME_BEGIN not in text:
         raise SystemExit(f"{path}: no {IMAGE_FRAME_BEGIN} marker")
     text = replace_block(text, image_frame_block(results), IMAGE_FRAME_BEGIN, IMAGE_FRAME_END)
+    if PIXEL_SCALE_BEGIN not in text:
+        raise SystemExit(f"{path}: no {PIXEL_SCALE_BEGIN} marker")
+    text = replace_block(text, pixel_scale_block(results), PIXEL_SCALE_BEGIN, PIXEL_SCALE_END)
     if FRAME_RATES_BEGIN not in text:
         raise SystemExit(f"{path}: no {FRAME_RATES_BEGIN} marker")
     text = replace_block(text, frame_rates_block(results), FRAME_RATES_BEGIN, FRAME_RATES_END)

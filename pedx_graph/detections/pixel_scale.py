@@ -208,14 +208,14 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
         first = min((d for d in detections if d.camera in cameras), key=lambda d: (d.frame, d.camera, d.source))
         used = sorted({c["scale"][0] for c in cameras.values()})
         used_text = " / ".join(f"{sx:.3g}" for sx in used)
-        hint = f" (about {used[0] * verdict['best_scale']:.2f} here)" if len(used) == 1 else ""
+        hint = f"; about {used[0] * verdict['best_scale']:.2f} here" if len(used) == 1 else ""
         raise DataFormatError(
             first.source.split("#")[0], "keypoints",
             f"{where or 'detections'}: the detections lie on the LiDAR's people only if their pixels are "
             f"{verdict['best_scale']:.2f} x those read ({verdict['people_on_lidar_at_best']} of {people} people "
             f"matched in stereo against {verdict['people_on_lidar']} as read, at {used_text} x the calibration's "
             f"image size, S_rect_00): were they made on resized images?  Give the resize with "
-            f"--detector-image-scale{hint} (import.pixel_scale.scale), or turn the check off "
+            f"--detector-image-scale (import.pixel_scale.scale{hint}), or turn the check off "
             f"(import.pixel_scale.check)")
     return out, record
 

@@ -40,6 +40,11 @@ IDENTITY_FIXES_RUNS = (("bench_identity_fixes", "84 inputs (seeds 0-8, 17-21)"),
 IMAGE_FRAME_BEGIN, IMAGE_FRAME_END = "<!-- image-frame -->", "<!-- /image-frame -->"
 
 
+#: Markers of docs/detections.md's table of ``benchmarks/bench_pixel_scale.py`` (resized images, normalised
+#: coordinates).
+PIXEL_SCALE_BEGIN, PIXEL_SCALE_END = "<!-- pixel-scale -->", "<!-- /pixel-scale -->"
+
+
 #: Markers of docs/detections.md's table of ``bench_association.py --fps`` runs (other frame rates).
 FRAME_RATES_BEGIN, FRAME_RATES_END = "<!-- frame-rates -->", "<!-- /frame-rates -->"
 #: The frame-rate runs in the table's order: result name, the scenes' rate; ``bench_association`` is the 10 Hz
@@ -331,6 +336,61 @@ def image_frame_block(results_dir: str | os.PathLike) -> str:
     return "\n".join([IMAGE_FRAME_BEGIN, *image_frame_table(run), "", f"Command: `{run['command']}` (seeds "
                       f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
                       f"frames per scene; {', '.join(run['formats'])}).", IMAGE_FRAME_END]) + "\n"
+
+
+def _pixel_case(s: dict) -> tuple[int, str]:
+    """A ``bench_pixel_scale`` summary row's place and name in the docs' table."""
+    written = (f"pixels of images resized by {s['written_scale']:g}" if s["written_units"] == "pixels"
+               and s["written_scale"] != 1 else "pixels of the calibrated images" if s["written_units"] == "pixels"
+               else "[0, 1] of the image" if s["written_units"] == "unit" else "[-1, 1] of the image")
+    case = {("coco", "as written"): "COCO, with its image list's sizes", ("coco", "no sizes"): "COCO, no sizes",
+            ("openpose_body25", "as written"): "OpenPose",
+            ("openpose_body25", "told"): "OpenPose, told the resize",
+            ("openpose_body25", "told twice"): "OpenPose, told 0.5 (no resize was made)"}[(s["format"], s["case"])]
+    order = (s["written_units"] != "pixels", -s["written_scale"], s["case"] == "told twice")
+    return order, f"{written}; {case}"
+
+
+def pixel_scale_table(result: dict) -> list[str]:
+    """The table of a ``bench_pixel_scale`` run (its JSON as a dict): per way the coordinates were written and
+    read, the inputs the import handled right (accepted when it reads them right, else refused) on each rig,
+    how far a refusal's factor from the LiDAR is from the truth (median), and the accepted inputs' margin
+    (the most people any scale beyond the tolerance puts on the LiDAR's returns over those the scale used
+    puts there; the largest)."""
+    import statistics
+
+    groups: dict[tuple, dict] = {}
+    for row in result["rows"]:
+        order, name = _pixel_case(row)
+        g = groups.setdefault((order, name), {"reads_right": row["reads_right"], "rigs": {}, "off": [],
+                                              "margin": [], "ms": []})
+        right, inputs = g["rigs"].get(row["rig"], (0, 0))
+        g["rigs"][row["rig"]] = (right + bool(row["right"]), inputs + 1)
+        if row.get("best_scale_error") is not None:
+            g["off"].append(row["best_scale_error"])
+        if not row["refused"] and row.get("people_on_lidar"):
+            g["margin"].append(row["people_on_lidar_elsewhere"] / row["people_on_lidar"])
+        g["ms"].append(1000 * row["seconds"])
+    lines = ["| coordinates written; read from | read right as they are | right / inputs, default rig | "
+             "right / inputs, real rig's preset | refusal: LiDAR's factor off (median) | accepted: people on the "
+             "LiDAR at another scale / at the one used (largest) | time (ms, median) |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for (_, name), g in sorted(groups.items()):
+        rigs = [f"{g['rigs'][r][0]} / {g['rigs'][r][1]}" if r in g["rigs"] else "-" for r in ("default", "pedx")]
+        off = f"{100 * statistics.median(g['off']):.1f} %" if g["off"] else "-"
+        margin = f"{max(g['margin']):.2f}" if g["margin"] else "-"
+        lines.append(f"| {name} | {'yes' if g['reads_right'] else 'no'} | {rigs[0]} | {rigs[1]} | {off} | {margin} "
+                     f"| {statistics.median(g['ms']):.0f} |")
+    return lines
+
+
+def pixel_scale_block(results_dir: str | os.PathLike) -> str:
+    """docs/detections.md's table of the committed ``bench_pixel_scale.json`` (markers included) and its
+    command."""
+    run = json.loads((Path(results_dir) / "bench_pixel_scale.json").read_text())
+    return "\n".join([PIXEL_SCALE_BEGIN, *pixel_scale_table(run), "", f"Command: `{run['command']}` (seeds "
+                      f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
+                      "frames per scene).", PIXEL_SCALE_END]) + "\n"
 
 
 def frame_rates_block(results_dir: str | os.PathLike) -> str:
