@@ -329,13 +329,22 @@ def image_frame_table(result: dict) -> list[str]:
     return lines
 
 
+def _small_scenes_block(results_dir: str | os.PathLike, name: str, table, begin: str, end: str,
+                        formats: bool = False) -> str:
+    """A docs table (markers included) of a committed benchmark run on small seeded scenes (``<name>.json``,
+    rendered by ``table``) and its command, seeds and scene size (and formats)."""
+    run = json.loads((Path(results_dir) / f"{name}.json").read_text())
+    listed = f"; {', '.join(run['formats'])}" if formats else ""
+    return "\n".join([begin, *table(run), "", f"Command: `{run['command']}` (seeds "
+                      f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
+                      f"frames per scene{listed}).", end]) + "\n"
+
+
 def image_frame_block(results_dir: str | os.PathLike) -> str:
     """docs/detections.md's table of the committed ``bench_image_frame.json`` (markers included) and its
     command."""
-    run = json.loads((Path(results_dir) / "bench_image_frame.json").read_text())
-    return "\n".join([IMAGE_FRAME_BEGIN, *image_frame_table(run), "", f"Command: `{run['command']}` (seeds "
-                      f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
-                      f"frames per scene; {', '.join(run['formats'])}).", IMAGE_FRAME_END]) + "\n"
+    return _small_scenes_block(results_dir, "bench_image_frame", image_frame_table, IMAGE_FRAME_BEGIN,
+                               IMAGE_FRAME_END, formats=True)
 
 
 def _pixel_case(s: dict) -> tuple[int, str]:
@@ -387,10 +396,8 @@ def pixel_scale_table(result: dict) -> list[str]:
 def pixel_scale_block(results_dir: str | os.PathLike) -> str:
     """docs/detections.md's table of the committed ``bench_pixel_scale.json`` (markers included) and its
     command."""
-    run = json.loads((Path(results_dir) / "bench_pixel_scale.json").read_text())
-    return "\n".join([PIXEL_SCALE_BEGIN, *pixel_scale_table(run), "", f"Command: `{run['command']}` (seeds "
-                      f"{', '.join(map(str, run['seeds']))}; {run['pedestrians']} pedestrians x {run['frames']} "
-                      "frames per scene).", PIXEL_SCALE_END]) + "\n"
+    return _small_scenes_block(results_dir, "bench_pixel_scale", pixel_scale_table, PIXEL_SCALE_BEGIN,
+                               PIXEL_SCALE_END)
 
 
 def frame_rates_block(results_dir: str | os.PathLike) -> str:
