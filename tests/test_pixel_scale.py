@@ -207,3 +207,39 @@ def test_images_the_detector_saw_resized_are_brought_back_to_the_calibration_siz
     import cv2
     (written,) = (tmp_path / "out").rglob("*.jpg")
     assert cv2.imread(str(written)).shape == (1500, 2000, 3)
+
+
+def test_a_raw_image_size_is_a_calibrated_size_too(tmp_path):
+    """Detections on raw images of another size than the rectified ones (KITTI's ``S_0x``): the raw size, and
+    that size resized, are read as such; raw pixels beyond the rectified image are inside the raw one."""
+    import dataclasses
+
+    from pedx_graph.data.calib import format_cam_to_cam, read_cam_to_cam
+    from pedx_graph.data.types import RawCamera
+
+    base = _pair()
+    K = np.array([[1800.0, 0, 1200], [0, 1800, 850], [0, 0, 1]])
+    raws = [RawCamera(raw_K=K, raw_D=np.zeros(5), rect_R_cam=np.eye(3), P_rect=P, image_size=(2400, 1700))
+            for P in (base.left_P_rect, base.right_P_rect)]
+    calib = dataclasses.replace(base, left_raw=raws[0], right_raw=raws[1])
+    path = tmp_path / "calib_cam_to_cam_camA-camB.txt"
+    path.write_text(format_cam_to_cam(calib))
+    assert "S_00: 2400.0 1700.0" in path.read_text()
+    assert read_cam_to_cam(path, "camA")["left_raw"].image_size == (2400, 1700)
+    uv = np.random.default_rng(4).uniform(0, 1, size=(17, 2)) * (2350, 1650)
+    calibs = {calib.name: calib}
+    out, record = detector_pixels([_detection("camA", uv, (2400, 1700))], calibs, PixelScaleConfig())
+    assert record["cameras"]["camA"]["scale"] == [1.0, 1.0] and out[0].image_uv is not None
+    out, record = detector_pixels([_detection("camA", uv / 2, (1200, 850))], calibs, PixelScaleConfig())
+    assert record["cameras"]["camA"]["scale"] == [0.5, 0.5] and np.allclose(out[0].image_uv, uv)
+    with pytest.raises(DataFormatError, match=r"1200x1000, none of its calibrated sizes 2000x1500 \(S_rect_00\), "
+                                              r"2400x1700 \(S_00\) resized"):
+        detector_pixels([_detection("camA", uv / 2, (1200, 1000))], calibs, PixelScaleConfig())
+    # without S_00 the raw image is taken as twice the raw principal point: the same bounds
+    bare = [dataclasses.replace(r, image_size=None) for r in raws]
+    unsized = {calib.name: dataclasses.replace(calib, left_raw=bare[0], right_raw=bare[1])}
+    detector_pixels([_detection("camA", uv, None, source=f"f{i}.json#[0]") for i in range(5)], unsized,
+                    PixelScaleConfig())
+    with pytest.raises(DataFormatError, match="beyond its image"):
+        detector_pixels([_detection("camA", uv, None, source=f"f{i}.json#[0]") for i in range(5)], calibs | {
+            calib.name: base}, PixelScaleConfig())

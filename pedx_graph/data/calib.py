@@ -7,8 +7,8 @@ Each file holds one ``key: values`` per line.  Two kinds are used per stereo pai
     ``P_rect_01`` applies to points in the rectified *left* frame and carries ``-f * baseline`` in
     ``[0, 3]``.  The raw image model ``K_0x`` (3x3) and ``D_0x`` (OpenCV radial-tangential, 4/5/8/12/14
     values) is kept when both are present (:class:`~pedx_graph.data.types.RawCamera`, used to undistort
-    detections made on raw images).  Other KITTI keys (``S_xx``, ``R_xx``, ``T_xx``, ``calib_time``, ...)
-    are accepted and ignored.
+    detections made on raw images), with the raw image size ``S_0x`` when given.  Other KITTI keys (``R_xx``,
+    ``T_xx``, ``calib_time``, ...) are accepted and ignored.
 
 ``calib_cam_to_range_<left>.txt``
     ``R`` (3x3) and ``T`` (3), or ``Tr`` (3x4): ``range_p = R @ cam_p + T``, i.e. ``world_T_cam``
@@ -277,7 +277,13 @@ def _read_raw_camera(entries: dict[str, str], path, index: str, rect_R: np.ndarr
         raise DataFormatError(path, f"D_{index}", f"expected 4, 5, 8, 12 or 14 distortion coefficients, "
                                                   f"found {count}")
     raw_D = get_floats(entries, f"D_{index}", count, path)
-    return RawCamera(raw_K=raw_K, raw_D=raw_D, rect_R_cam=rect_R, P_rect=P_rect)
+    size = None
+    if f"S_{index}" in entries:
+        values = get_floats(entries, f"S_{index}", 2, path)
+        if not (np.all(values >= 1) and np.all(values == np.round(values))):
+            raise DataFormatError(path, f"S_{index}", f"raw image size must be two positive integers, got {values}")
+        size = (int(values[0]), int(values[1]))
+    return RawCamera(raw_K=raw_K, raw_D=raw_D, rect_R_cam=rect_R, P_rect=P_rect, image_size=size)
 
 
 def read_cam_to_range(path: str | os.PathLike, limits: CalibrationLimits | None = None) -> np.ndarray:
@@ -376,6 +382,8 @@ def format_cam_to_cam(calib: StereoCalibration, right_rect_R_cam: np.ndarray | N
     for index, raw in (("00", calib.left_raw), ("01", calib.right_raw)):
         if raw is not None:
             lines += [f"K_{index}: {_fmt(raw.raw_K)}", f"D_{index}: {_fmt(raw.raw_D)}"]
+            if raw.image_size is not None:
+                lines.append(f"S_{index}: {float(raw.image_size[0])!r} {float(raw.image_size[1])!r}")
     return "\n".join(lines) + "\n"
 
 

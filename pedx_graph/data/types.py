@@ -52,6 +52,8 @@ class RawCamera:
     """(3, 3) rotation: this camera's frame -> its rectified frame (``R_rect_0x``)."""
     P_rect: np.ndarray
     """(3, 4) rectified projection of this camera (``P_rect_0x``); its left 3x3 maps rectified rays to pixels."""
+    image_size: tuple[int, int] | None = None
+    """(width, height) of the raw image in pixels (``S_0x``), None when the file does not give it."""
 
 
 @dataclass(frozen=True)

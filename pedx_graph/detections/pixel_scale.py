@@ -12,11 +12,14 @@ simulator and the import had shared the convention that the pixels are the calib
   (OpenPose's ``--keypoint_scale 3``), or [-1, 1] when more than ``signed_fraction`` of them are negative
   (``--keypoint_scale 4``) — and become pixels with the calibration's image size (a resize cancels in them);
 * **scale** of pixels, per camera: ``scale`` > 0 in the config says it for every camera; else the files'
-  image sizes (a COCO image list's ``width`` and ``height``) against the calibration's ``S_rect_00``, per
-  axis (one size per camera; a size that is not the calibration's resized — its aspect differs by more
-  than the rounding of a resize — is refused: a crop, or another camera); else 1;
+  image sizes (a COCO image list's ``width`` and ``height``) against the calibration's: the rectified size
+  ``S_rect_00``, or the raw ``S_0x`` when given (detections on raw images), equal, or resized (per axis; one
+  size per camera; a size that is a resize of both is taken as the rectified one's, and the LiDAR check
+  catches the other; a size that is none of them resized — its aspect off by more than the rounding of a
+  resize — is refused: a crop, or another camera); else 1;
 * **inside the image**, per camera: more than ``max_outside_fraction`` of the keypoints beyond the
-  calibration's image by a tenth of its size is refused (pixels of a larger image, a resize given twice);
+  calibrated image by a tenth of its size (the larger of the rectified and the raw image: ``S_0x``, or
+  twice the raw principal point) is refused (pixels of a larger image, a resize given twice);
 * **the LiDAR check** (with point clouds, ``check``): a person matched between a pair's two images
   (:func:`pedx_graph.detections.image_frame.match_people`) has, at a trial scale (its pixels divided by it,
   read as rectified, or undistorted with the raw model when the pair has one: either reading counts), a
@@ -39,11 +42,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pedx_graph.data.types import DataFormatError, StereoCalibration
+from pedx_graph.data.types import DataFormatError, RawCamera, StereoCalibration
 from pedx_graph.detections.image_frame import match_people
 from pedx_graph.detections.pixel_units import PIXEL_UNITS, from_detector_units
 from pedx_graph.detections.types import Detection
-from pedx_graph.detections.undistort import undistort_rectify
+from pedx_graph.detections.undistort import find_camera, raw_camera, undistort_rectify
 
 log = logging.getLogger(__name__)
 
@@ -119,9 +122,21 @@ def coordinate_units(uv: np.ndarray, config: PixelScaleConfig) -> str:
     return "signed_unit" if np.mean(uv < 0) > config.signed_fraction else "unit"
 
 
-def _file_scale(dets: list[Detection], size: tuple[int, int], calib_name: str) -> tuple[float, float] | None:
-    """(sx, sy) from the detections' image sizes against the calibration's ``size``, or None when no detection
-    gives one; :class:`DataFormatError` for two sizes or a size that is not ``size`` resized."""
+def raw_image_size(raw: RawCamera | None) -> tuple[int, int] | None:
+    """The raw image's (width, height): ``S_0x`` when the calibration gives it, else twice the raw principal
+    point (a lens centred in its image, to within the sensor's offset), None without a raw model."""
+    if raw is None:
+        return None
+    if raw.image_size is not None:
+        return tuple(raw.image_size)
+    return int(round(2 * raw.raw_K[0, 2])), int(round(2 * raw.raw_K[1, 2]))
+
+
+def _file_scale(dets: list[Detection], sizes: dict[str, tuple[int, int]], camera: str) -> tuple[float, float] | None:
+    """(sx, sy) from the detections' image sizes against the calibrated image sizes of ``camera`` (``sizes``:
+    ``"S_rect_00"`` -> rectified, and ``"S_0x"`` -> raw when the calibration gives it), or None when no
+    detection gives one; :class:`DataFormatError` for two sizes, or a size that is none of them resized.  A size
+    equal to one is scale 1; else the first whose aspect it has (the rectified size first)."""
     given = {}
     for det in dets:
         if det.image_size is not None:
@@ -133,12 +148,17 @@ def _file_scale(dets: list[Detection], size: tuple[int, int], calib_name: str) -
         raise DataFormatError(det_a.source.split("#")[0], "images (width, height)",
                               f"camera {det_a.camera} has images of two sizes, {a[0]}x{a[1]} and {b[0]}x{b[1]}")
     (width, height), det = next(iter(given.items()))
-    sx, sy = width / size[0], height / size[1]
-    if abs(sx - sy) > 1.0 / min(width, height) + 1e-9:
-        raise DataFormatError(det.source.split("#")[0], "images (width, height)",
-                              f"camera {det.camera}'s images are {width}x{height}, not the calibration's "
-                              f"{size[0]}x{size[1]} (S_rect_00 of {calib_name}) resized: cropped, or another camera?")
-    return sx, sy
+    for size in sizes.values():
+        if (width, height) == tuple(size):
+            return 1.0, 1.0
+    for size in sizes.values():
+        sx, sy = width / size[0], height / size[1]
+        if abs(sx - sy) <= 1.0 / min(width, height) + 1e-9:
+            return sx, sy
+    known = ", ".join(f"{w}x{h} ({key})" for key, (w, h) in sizes.items())
+    raise DataFormatError(det.source.split("#")[0], "images (width, height)",
+                          f"camera {camera}'s images are {width}x{height}, none of its calibrated sizes {known} "
+                          f"resized: cropped, or another camera?")
 
 
 def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoCalibration],
@@ -154,23 +174,30 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
         by_camera.setdefault(det.camera, []).append(det)
     sizes = {camera: calib.image_size for calib in calibrations.values() for camera in calib.name.split("-")}
     pair_of = {camera: name for name, calib in calibrations.items() for camera in name.split("-")}
+    raw_sizes = {camera: raw_image_size(raw_camera(*find_camera(calibrations, camera))) for camera in by_camera}
+    index = {"left": "00", "right": "01"}
     converted: dict[int, Detection] = {}
     cameras = {}
     units = coordinate_units(np.concatenate([d.image_uv[d.present] for d in detections] + [np.zeros((0, 2))]),
                              config)
     for camera, dets in sorted(by_camera.items()):
         size = sizes[camera]
+        side = find_camera(calibrations, camera)[1]
+        calibrated = {f"S_rect_{index[side]}": size}
+        raw = raw_camera(*find_camera(calibrations, camera))
+        if raw is not None and raw.image_size is not None:
+            calibrated[f"S_{index[side]}"] = tuple(raw.image_size)
         if units != "pixels":
             scale, source = (1.0, 1.0), "normalised coordinates"
         elif config.scale > 0:
             scale, source = (config.scale, config.scale), "config"
-            from_files = _file_scale(dets, size, pair_of[camera])
+            from_files = _file_scale(dets, calibrated, camera)
             if from_files is not None and max(abs(np.log(np.asarray(from_files) / config.scale))) > 0.01:
                 log.warning("%s: camera %s: the files' image sizes say the pixels are %.4g x the calibration's; "
                             "pixel_scale.scale %.4g is used", where or "detections", camera, from_files[0],
                             config.scale)
         else:
-            from_files = _file_scale(dets, size, pair_of[camera])
+            from_files = _file_scale(dets, calibrated, camera)
             scale, source = (from_files, "image sizes in the files") if from_files is not None else (
                 (1.0, 1.0), "the calibration's image size")
         for det in dets:
@@ -183,7 +210,12 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
                 corners = from_detector_units(np.reshape(bbox, (2, 2)) + [[0.0, 0.0], bbox[:2]], size, scale, units)
                 bbox = np.concatenate([corners[0], corners[1] - corners[0]])
             converted[id(det)] = dataclasses.replace(det, image_uv=uv, bbox=bbox)
-        _check_inside([converted[id(d)] for d in dets], size, config, pair_of[camera])
+        if raw_sizes[camera] is not None and tuple(raw_sizes[camera]) != tuple(size):
+            bounds = tuple(int(v) for v in np.maximum(size, raw_sizes[camera]))
+            label = f"the larger of its rectified and raw images, {pair_of[camera]}"
+        else:
+            bounds, label = tuple(size), f"S_rect_00 of {pair_of[camera]}"
+        _check_inside([converted[id(d)] for d in dets], bounds, config, label)
         cameras[camera] = {"units": units, "scale": [round(float(v), 6) for v in scale], "from": source}
     out = [converted[id(d)] for d in detections]
     record = {"cameras": cameras, "lidar_check": {}}
@@ -232,8 +264,8 @@ def resized_cameras(record: dict, calibrations: dict[str, StereoCalibration]) ->
             if used["units"] != "pixels" or tuple(used["scale"]) != (1.0, 1.0)}
 
 
-def _check_inside(dets: list[Detection], size: tuple[int, int], config: PixelScaleConfig, calib_name: str) -> None:
-    """Refuse a camera whose converted keypoints lie beyond the image
+def _check_inside(dets: list[Detection], size: tuple[int, int], config: PixelScaleConfig, label: str) -> None:
+    """Refuse a camera whose converted keypoints lie beyond its image of ``size`` (``label`` says which)
     (:attr:`PixelScaleConfig.max_outside_fraction`)."""
     uv = np.concatenate([d.image_uv[d.present] for d in dets]) if dets else np.zeros((0, 2))
     if len(uv) == 0:
@@ -245,7 +277,7 @@ def _check_inside(dets: list[Detection], size: tuple[int, int], config: PixelSca
                                                     | (d.image_uv[d.present] > np.asarray(size) + margin), axis=1)))
         raise DataFormatError(det.source.split("#")[0], "keypoints",
                               f"{outside.mean():.0%} of camera {det.camera}'s keypoints lie beyond its image "
-                              f"({size[0]}x{size[1]}, S_rect_00 of {calib_name}) as read: made on larger images, "
+                              f"({size[0]}x{size[1]}, {label}) as read: made on larger images, "
                               f"or a resize given that the pixels do not have?")
 
 
