@@ -134,7 +134,8 @@ def test_pixel_scale_table_matches_the_json():
 def test_frame_rates_table_matches_the_json():
     """docs/detections.md's table of the association at other frame rates is what the committed JSON renders,
     and the prose's claims hold: the walking check flags every input associated at the wrong rate and none at
-    the right one, and told the interval a 5 Hz scene keeps nearly every labelled person (it was about half)."""
+    the right one, told the interval a 5 Hz scene keeps nearly every labelled person (it was about half), and
+    over one duration the switches fall as the rate rises."""
     import json
 
     from pedx_graph.eval.benchmark_tables import FRAME_RATES_BEGIN, FRAME_RATES_END, frame_rates_block
@@ -148,7 +149,8 @@ def test_frame_rates_table_matches_the_json():
         return json.loads((results / f"{name}.json").read_text())["rows"]
 
     for name, right in (("bench_association_5hz_at_10hz", False), ("bench_association_5hz", True),
-                        ("bench_association_20hz_at_10hz", False), ("bench_association_20hz", True)):
+                        ("bench_association_20hz_at_10hz", False), ("bench_association_20hz", True),
+                        ("bench_association_10hz_4s", True), ("bench_association_20hz_4s", True)):
         checked = [r for r in rows(name) if r.get("walk_ratio") is not None]
         assert len(checked) >= 20 and all(r["walk_agrees"] == right for r in checked), name
     assert all(r["walk_agrees"] for r in rows("bench_association") if r.get("walk_ratio") is not None)
@@ -157,6 +159,16 @@ def test_frame_rates_table_matches_the_json():
     assert sum(r["recovered"] for r in untold) < 0.7 * sum(r["labelled_people"] for r in untold)
     prose = " ".join(text.split())
     assert "flags every input associated at the wrong rate and none at the right one" in prose
+    # over one duration (4 s) the more frames, the fewer switches; the prose quotes the runs' totals
+    totals = {name: json.loads((results / f"{name}.json").read_text())["totals"]
+              for name in ("bench_association_5hz", "bench_association_10hz_4s", "bench_association_20hz_4s")}
+    switches = [(t["id_switches"], t["crossing_id_switches"]) for t in totals.values()]
+    assert switches[0][0] > switches[1][0] > switches[2][0]
+    assert ("switches less the more frames it sees: {} times ({} crossing) at 5 Hz, {} ({}) at 10 Hz, {} ({}) at "
+            "20 Hz".format(*switches[0], *switches[1], *switches[2])) in prose
+    assert "the 4 s scenes break {} tracks into pieces (fragmentations) against {} at 10 Hz and {} at 5 Hz".format(
+        totals["bench_association_20hz_4s"]["fragmentations"], totals["bench_association_10hz_4s"]["fragmentations"],
+        totals["bench_association_5hz"]["fragmentations"]) in prose
 
 
 def test_joint_table_pools_the_seeds_by_frames():
