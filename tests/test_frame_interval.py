@@ -139,3 +139,25 @@ def test_the_two_trackers_step_the_same_frames(tmp_path):
         load_config(ImportConfig, path)
     path.write_text("association:\n  tracker:\n    frame_interval_s: 0.2\n  tracklet:\n    frame_interval_s: 0.2\n")
     assert load_config(ImportConfig, path).association.frame_interval_s == 0.2
+
+
+def test_how_long_a_track_coasts_is_given_in_time_at_higher_rates():
+    """``max_misses`` (and the stitch gap) are frame counts given for 0.1 s between frames: at 20 Hz a track
+    coasts as long in time, twice the frames; at 5 Hz it keeps its frames (never fewer than given)."""
+    from pedx_graph.detections.tracker import Observation, Tracker, TrackerConfig, frames_for
+
+    assert frames_for(TrackerConfig(frame_interval_s=0.05), 5) == 10
+    assert frames_for(TrackerConfig(frame_interval_s=0.1), 5) == 5
+    assert frames_for(TrackerConfig(frame_interval_s=0.2), 5) == 5
+
+    def person(frame: int) -> Observation:
+        uv = np.c_[np.full(10, 500.0 + 2.0 * frame), np.linspace(300.0, 600.0, 10)]
+        return Observation(frame=frame, uv={"left": uv}, score=0.9)
+
+    for interval, kept in ((0.05, True), (0.1, False)):
+        tracker = Tracker(TrackerConfig(frame_interval_s=interval))
+        first = [tracker.step(f, [person(f)])[0] for f in range(6)]
+        assert len(set(first)) == 1
+        # unseen for 8 frames: 0.4 s at 20 Hz (within 10 frames' coasting), 0.8 s at 10 Hz (beyond 5)
+        again = tracker.step(14, [person(14)])[0]
+        assert (again == first[0]) is kept, interval

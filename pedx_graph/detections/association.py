@@ -188,8 +188,8 @@ from pedx_graph.body.templates import open_standing_keypoints_3d
 from pedx_graph.data.ground import GroundFrame, ground_from_calibrations
 from pedx_graph.data.types import StereoCalibration
 from pedx_graph.detections.lidar_cut import LidarCutConfig, ground_with_plane
-from pedx_graph.detections.tracker import (Observation, Tracker, TrackerConfig, box_cover, image_sigma_px,
-                                          keypoint_box)
+from pedx_graph.detections.tracker import (Observation, Tracker, TrackerConfig, box_cover, frames_for,
+                                          image_sigma_px, keypoint_box)
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
 from pedx_graph.keypoints import lower_body_mask
@@ -379,7 +379,9 @@ class AssociationConfig:
     typical walking speed (about 1.2-1.5 m/s in pedestrian studies); 0 = no prior."""
     stitch_max_gap_frames: int = 10
     """A pair's track of a person lost and found again up to this many frames later is joined to the track
-    that found it when one straight walk explains both (:func:`stitch_tracks`), frames; 0 = off."""
+    that found it when one straight walk explains both (:func:`stitch_tracks`), frames; 0 = off.  Given for
+    0.1 s between frames: at a higher rate as many frames as cover the same time
+    (:func:`~pedx_graph.detections.tracker.frames_for`)."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """What makes a pair's person a track: ``min_track_frames`` (checked again on the output's tracks after
     every repair), ``min_mean_score``, and the speed limits
@@ -1157,7 +1159,7 @@ def _interpolation_cost(observed: dict, frame: int, uv: np.ndarray, config: Asso
     f0 = int(before[-1]) if len(before) else None
     f1 = int(after[0]) if len(after) else None
     gaps = [abs(frame - g) for g in (f0, f1) if g is not None]
-    if min(gaps) > config.tracklet.max_misses:
+    if min(gaps) > frames_for(config.tracklet, config.tracklet.max_misses):
         return None
     if f0 is not None and f1 is not None:
         w = (frame - f0) / (f1 - f0)
@@ -1434,7 +1436,7 @@ def complete_frames(people: list[_Person], calib: StereoCalibration, config: Ass
                 own = {g: item for g, item in person.sides[side].items() if g != f}
                 stay = _interpolation_cost(own, f, uv, config)
                 if stay is None:
-                    if any(abs(g - f) <= config.tracklet.max_misses for g in own):
+                    if any(abs(g - f) <= frames_for(config.tracklet, config.tracklet.max_misses) for g in own):
                         continue           # its neighbours in time share too few keypoints with it to judge
                     stay = config.tracklet.gate_sigmas         # alone in its image: nothing holds it there
                 range_m = ranges.get(id(det)) if ranges else None
@@ -2394,7 +2396,7 @@ def stitch_tracks(tracks: list[list[Observation]], calib: StereoCalibration,
     together, leave two pieces that the found one fits; the far one's noisy depths fit it best, and the walk
     cannot tell which); chains of joins make one track.  Returns the tracks, each joined chain in the place
     of its first track, the others as they were."""
-    max_gap = config.stitch_max_gap_frames
+    max_gap = frames_for(config.tracker, config.stitch_max_gap_frames) if config.stitch_max_gap_frames > 0 else 0
     if max_gap <= 0 or len(tracks) < 2:
         return tracks
     gate = config.gate_sigmas

@@ -26,7 +26,8 @@ ray.  :class:`Tracker` links them over frames:
   ``min_box_iou``.  Matching: :func:`scipy.optimize.linear_sum_assignment` on the gated cost matrix;
 * **birth**: an unmatched observation with score >= ``birth_min_score`` starts a *tentative* track, confirmed
   after ``confirm_hits`` observations; a tentative track that misses ``tentative_max_misses`` consecutive
-  frames dies, a confirmed one after ``max_misses``;
+  frames dies, a confirmed one after ``max_misses`` (given for 0.1 s between frames: at a higher rate the
+  same time, :func:`frames_for`);
 * **output** (:meth:`Tracker.tracks`): confirmed tracks with at least ``min_track_frames`` observations and a
   mean detection score >= ``min_mean_score`` — single false detections and flickering clutter never become
   tracks.
@@ -64,6 +65,13 @@ def image_sigma_px(config: "TrackerConfig", height_px: float, frames: float) -> 
     least 1)."""
     scale = config.frame_interval_s / MOTION_REFERENCE_INTERVAL_S
     return config.keypoint_sigma_px + config.motion_frac * height_px * float(np.sqrt(max(frames, 1))) * scale
+
+
+def frames_for(config: "TrackerConfig", frames: int) -> int:
+    """A frame count given for frames :data:`MOTION_REFERENCE_INTERVAL_S` apart (how long a track coasts), at
+    ``config.frame_interval_s``: as many frames as cover the same time at a higher rate, never fewer than
+    given at a lower one (a track coasting fewer frames at 5 Hz lost more people than it kept apart)."""
+    return max(int(frames), int(round(frames * MOTION_REFERENCE_INTERVAL_S / config.frame_interval_s)))
 
 
 @dataclass
@@ -118,7 +126,9 @@ class TrackerConfig:
     tentative_max_misses: int = 1
     """A tentative track dies after this many consecutive frames without an observation."""
     max_misses: int = 5
-    """A confirmed track dies after this many consecutive frames without an observation (occlusion)."""
+    """A confirmed track dies after this many consecutive frames without an observation (occlusion), given
+    for frames :data:`MOTION_REFERENCE_INTERVAL_S` apart: at a higher rate as many frames as cover the same
+    time (:func:`frames_for`)."""
     min_track_frames: int = 5
     """Only tracks with at least this many observations are output."""
     min_mean_score: float = 0.35
@@ -459,7 +469,8 @@ class Tracker:
         return assigned
 
     def _miss_limit(self, track: _Track) -> int:
-        return self.config.max_misses if track.confirmed else self.config.tentative_max_misses
+        cfg = self.config
+        return frames_for(cfg, cfg.max_misses) if track.confirmed else cfg.tentative_max_misses
 
     def tracks(self) -> list[list[Observation]]:
         """The output tracks (module docstring), each a list of observations in frame order; ordered by first
