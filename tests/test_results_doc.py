@@ -166,7 +166,7 @@ def test_frame_rates_table_matches_the_json():
     assert switches[0][0] > switches[1][0] > switches[2][0]
     assert ("switches less the more frames it sees: {} times ({} crossing) at 5 Hz, {} ({}) at 10 Hz, {} ({}) at "
             "20 Hz".format(*switches[0], *switches[1], *switches[2])) in prose
-    assert "the 4 s scenes break {} tracks into pieces (fragmentations) against {} at 10 Hz and {} at 5 Hz".format(
+    assert "now the 4 s scenes break {} tracks into pieces against {} at 10 Hz and {} at 5 Hz".format(
         totals["bench_association_20hz_4s"]["fragmentations"], totals["bench_association_10hz_4s"]["fragmentations"],
         totals["bench_association_5hz"]["fragmentations"]) in prose
 
