@@ -89,7 +89,7 @@ class ImageFrameConfig:
             raise ValueError("image_frame.min_matches and max_frames must be >= 1, min_keypoints >= 2")
 
 
-def _pair_cost(left: np.ndarray, right: np.ndarray, min_keypoints: int) -> float | None:
+def pair_row_cost(left: np.ndarray, right: np.ndarray, min_keypoints: int) -> float | None:
     """Median ``|v_left - v_right|`` (pixels) over the keypoints present in both ((K, 2) rectified pixels,
     NaN = absent), or None when they are too few, the disparity is not positive, the heights differ by
     more than 1.5x or the rows by more than a quarter of the height (not one person)."""
@@ -108,7 +108,7 @@ def _pair_cost(left: np.ndarray, right: np.ndarray, min_keypoints: int) -> float
 def match_people(left: list, right: list, min_keypoints: int = 4) -> list[tuple[int, int]]:
     """One frame's people matched between a pair's two images: ``(index in left, index in right)``.  ``left``,
     ``right``: per detection a tuple of readings of its pixels ((K, 2) each, NaN = absent; the same readings
-    in the same order on both sides).  A pair of detections is a candidate when :func:`_pair_cost` accepts it
+    in the same order on both sides).  A pair of detections is a candidate when :func:`pair_row_cost` accepts it
     under some reading; the match (Hungarian) minimises the smallest of the readings' median row
     differences."""
     if not left or not right:
@@ -118,7 +118,7 @@ def match_people(left: list, right: list, min_keypoints: int = 4) -> list[tuple[
     for a, la in enumerate(left):
         for b, rb in enumerate(right):
             for h in range(readings):
-                cost = _pair_cost(la[h], rb[h], min_keypoints)
+                cost = pair_row_cost(la[h], rb[h], min_keypoints)
                 if cost is not None:
                     costs[a, b, h] = cost
     best = costs.min(axis=2)
