@@ -2,7 +2,8 @@
 
 Steps: read the files (:mod:`.openpose`, :mod:`.coco`; camera and frame from the file / image names,
 :mod:`.naming`) -> bring their coordinates to the calibration's pixels (resized images, normalised
-coordinates; checked against the LiDAR: :mod:`.pixel_scale`) -> group them into people: the file's own
+coordinates; checked against the LiDAR: :mod:`.pixel_scale`; a pair's cameras named the wrong way round
+refused: :mod:`.pair_order`) -> group them into people: the file's own
 ids with ``use_file_ids`` (OpenPose ``person_id``, COCO ``track_id``; every detection must have one), else
 :func:`pedx_graph.detections.association.associate` (stereo, over frames, across pairs; with file ids each
 frame is placed as the association places its people — triangulated, centred on the LiDAR — without its
@@ -45,6 +46,7 @@ from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.frame_interval import WalkingCheckConfig, sequence_frame_interval, walking_check
 from pedx_graph.detections.image_frame import ImageFrameConfig, image_frames, pixel_calibrations
+from pedx_graph.detections.pair_order import pair_order
 from pedx_graph.detections.pixel_scale import PixelScaleConfig, detector_pixels, resized_cameras
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
@@ -289,6 +291,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     ground = ground_from_calibrations(dict(calibrations), seq)
     known, scale_record = detector_pixels(known, calibrations, config.pixel_scale, clouds or None, seq,
                                           ground.world_up)
+    order_record = pair_order(known, calibrations, config.noise.min_confidence, seq)
     frames_record = image_frames(known, calibrations, config.image_frame, config.noise.min_confidence, seq)
     calibrations = pixel_calibrations(calibrations, frames_record)
     people: dict[str, dict[int, dict[str, Detection]]] = {}
@@ -370,7 +373,8 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                 written += 1
     result = {"detections": len(detections), "tracks": len(people), "labels_written": written,
               "left_right_swapped_back": flipped,
-              "uncalibrated_cameras": uncalibrated, "pixel_scale": scale_record, "image_frame": frames_record,
+              "uncalibrated_cameras": uncalibrated, "pixel_scale": scale_record, "pair_order": order_record,
+              "image_frame": frames_record,
               "frame_interval": walking,
               "stereo_noise_check": check.record() if check is not None else None,
               "tracks_digest": digest, "identity_fixes": fixed, "identity_review": review,
