@@ -116,10 +116,10 @@ def _run_import(args: argparse.Namespace) -> int:
                 print(f"  {seq}: camera {camera}: coordinates read as {used['units'].replace('_', ' ')}"
                       + (f" of images resized by {used['scale'][0]:.4g} x {used['scale'][1]:.4g}"
                          if used["units"] == "pixels" else "") + f" ({used['from']})")
-        for pair, check in sorted((scales.get("lidar_check") or {}).items()):
-            if check.get("judged"):
-                print(f"  {seq}: pair {pair}: {check['people_on_lidar']} of {check['people']} people matched in "
-                      f"its two images lie on the LiDAR's returns at that scale (pixel check)")
+        check = (scales.get("lidar_check") or {}).get("all pairs") or {}
+        if check.get("judged"):
+            print(f"  {seq}: {check['people_on_lidar']} of {check['people']} people matched in a pair's two images "
+                  f"lie on the LiDAR's returns at the pixels' scale (pixel check)")
         for pair, frame in sorted((record.get("image_frame") or {}).items()):
             rows = frame.get("row_difference_px")
             measured = (f"; stereo rows {rows['raw']:.1f} px as raw, {rows['rectified']:.1f} px as rectified, "

@@ -46,9 +46,9 @@ from pedx_graph.detections.association import AssociationConfig
 from pedx_graph.detections.flips import FlipConfig, unflip_tracks
 from pedx_graph.detections.frame_interval import WalkingCheckConfig, sequence_frame_interval, walking_check
 from pedx_graph.detections.image_frame import ImageFrameConfig, image_frames, pixel_calibrations
+from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.pair_order import pair_order
 from pedx_graph.detections.pixel_scale import PixelScaleConfig, detector_pixels, resized_cameras
-from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
@@ -105,6 +105,10 @@ class ImportConfig:
     """Which coordinates the detections are in: the calibrated images' pixels, pixels of resized copies (a
     COCO image list's sizes, or ``scale``), or coordinates normalised by the image size; checked against the
     LiDAR (:mod:`pedx_graph.detections.pixel_scale`; ``import_summary.json``, ``sequences.<seq>.pixel_scale``)."""
+    check_pair_order: bool = True
+    """Stop the import where a stereo pair's two cameras look named the wrong way round (the people of the
+    image named left lie to the right of the other's: :mod:`pedx_graph.detections.pair_order`); False: only
+    count (``sequences.<seq>.pair_order``)."""
     write_images: bool = True
     """Given the raw images the detections were made on (``raw_images``): write them rectified into the
     dataset's ``images/`` (:mod:`pedx_graph.detections.rectified_images`), so ``pedx-graph export`` draws its
@@ -291,7 +295,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     ground = ground_from_calibrations(dict(calibrations), seq)
     known, scale_record = detector_pixels(known, calibrations, config.pixel_scale, clouds or None, seq,
                                           ground.world_up)
-    order_record = pair_order(known, calibrations, config.noise.min_confidence, seq)
+    order_record = pair_order(known, calibrations, config.noise.min_confidence, seq, refuse=config.check_pair_order)
     frames_record = image_frames(known, calibrations, config.image_frame, config.noise.min_confidence, seq)
     calibrations = pixel_calibrations(calibrations, frames_record)
     people: dict[str, dict[int, dict[str, Detection]]] = {}

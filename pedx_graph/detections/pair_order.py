@@ -58,9 +58,10 @@ def _on_one_row(left: list, right: list) -> int:
 
 
 def pair_order(detections: list, calibrations: dict[str, StereoCalibration], min_confidence: float,
-               where: str = "") -> dict[str, dict]:
-    """Pair name -> ``{"matched", "matched_exchanged"}`` for the pairs with detections in both cameras
-    (module docstring); :class:`DataFormatError` for a pair whose cameras look exchanged."""
+               where: str = "", refuse: bool = True) -> dict[str, dict]:
+    """Pair name -> ``{"matched", "matched_exchanged", "exchanged"}`` for the pairs with detections in both
+    cameras (module docstring); with ``refuse``, :class:`DataFormatError` for a pair whose cameras look
+    exchanged (``exchanged`` true)."""
     out = {}
     for name, calib in sorted(calibrations.items()):
         left, _, right = name.partition("-")
@@ -79,12 +80,13 @@ def pair_order(detections: list, calibrations: dict[str, StereoCalibration], min
             frames = [frames[i] for i in np.linspace(0, len(frames) - 1, MAX_FRAMES).round().astype(int)]
         named = sum(_on_one_row(by_frame[f][left], by_frame[f][right]) for f in frames)
         exchanged = sum(_on_one_row(by_frame[f][right], by_frame[f][left]) for f in frames)
-        out[name] = {"matched": named, "matched_exchanged": exchanged}
-        if exchanged >= MIN_MATCHES and exchanged >= RATIO * max(named, 1):
+        looks_exchanged = exchanged >= MIN_MATCHES and exchanged >= RATIO * max(named, 1)
+        out[name] = {"matched": named, "matched_exchanged": exchanged, "exchanged": looks_exchanged}
+        if looks_exchanged and refuse:
             raise DataFormatError(
                 first[left].source.split("#")[0], "camera",
                 f"{where or 'detections'}: pair {name}: the people of the image named {left} (the left camera) lie "
                 f"to the right of those of {right} ({exchanged} people matched with the cameras exchanged, "
                 f"{named} as named): the two cameras' detections look named the wrong way round; check the file "
-                f"names or --camera NAME=CALIB_NAME")
+                f"names or --camera NAME=CALIB_NAME (import.check_pair_order: false only counts)")
     return out

@@ -125,8 +125,8 @@ def write_rectified_images(out: str | os.PathLike, sequence: str, stems: dict[tu
     ``workers`` processes, one camera each; ``resized``:
     :func:`~pedx_graph.detections.pixel_scale.resized_cameras` (those cameras' images are brought to the
     calibration's size first, where the detections' pixels now are).  Returns the record for the import
-    summary: ``folder``, ``written``, ``without_image`` (frames named by a detection whose image is not in the folder),
-    ``found_by_name`` (frames without a detection whose image was found by name), ``rectified_cameras``,
+    summary: ``folder``, ``written``, ``without_image`` (frames named by a detection whose image is not in the
+    folder), ``found_by_name`` (frames without a detection whose image was found by name), ``rectified_cameras``,
     ``copied_cameras`` (no raw model: rectified already), ``skipped_cameras`` (camera -> reason) and
     ``unreadable`` (files OpenCV could not decode)."""
     by_camera: dict[str, list] = defaultdict(list)
