@@ -26,26 +26,18 @@ def main() -> int:
     atomic_write_text(path, replace_block(path.read_text(), benchmark_block(results)))
     path = ROOT / "docs" / "detections.md"
     text = path.read_text()
-    if DETECTIONS_BEGIN not in text:
-        raise SystemExit(f"{path}: no {DETECTIONS_BEGIN} marker")
-    text = replace_block(text, detections_block(results), DETECTIONS_BEGIN, DETECTIONS_END)
-    if DETECTIONS_PEDX_BEGIN not in text:
-        raise SystemExit(f"{path}: no {DETECTIONS_PEDX_BEGIN} marker")
-    text = replace_block(text, detections_block(ROOT / DETECTIONS_PEDX_FOLDER, DETECTIONS_PEDX_FOLDER,
-                                                DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END),
-                         DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END)
-    if IDENTITY_FIXES_BEGIN not in text:
-        raise SystemExit(f"{path}: no {IDENTITY_FIXES_BEGIN} marker")
-    text = replace_block(text, identity_fixes_block(results), IDENTITY_FIXES_BEGIN, IDENTITY_FIXES_END)
-    if IMAGE_FRAME_BEGIN not in text:
-        raise SystemExit(f"{path}: no {IMAGE_FRAME_BEGIN} marker")
-    text = replace_block(text, image_frame_block(results), IMAGE_FRAME_BEGIN, IMAGE_FRAME_END)
-    if PIXEL_SCALE_BEGIN not in text:
-        raise SystemExit(f"{path}: no {PIXEL_SCALE_BEGIN} marker")
-    text = replace_block(text, pixel_scale_block(results), PIXEL_SCALE_BEGIN, PIXEL_SCALE_END)
-    if FRAME_RATES_BEGIN not in text:
-        raise SystemExit(f"{path}: no {FRAME_RATES_BEGIN} marker")
-    text = replace_block(text, frame_rates_block(results), FRAME_RATES_BEGIN, FRAME_RATES_END)
+    blocks = ((DETECTIONS_BEGIN, DETECTIONS_END, lambda: detections_block(results)),
+              (DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END,
+               lambda: detections_block(ROOT / DETECTIONS_PEDX_FOLDER, DETECTIONS_PEDX_FOLDER,
+                                        DETECTIONS_PEDX_BEGIN, DETECTIONS_PEDX_END)),
+              (IDENTITY_FIXES_BEGIN, IDENTITY_FIXES_END, lambda: identity_fixes_block(results)),
+              (IMAGE_FRAME_BEGIN, IMAGE_FRAME_END, lambda: image_frame_block(results)),
+              (PIXEL_SCALE_BEGIN, PIXEL_SCALE_END, lambda: pixel_scale_block(results)),
+              (FRAME_RATES_BEGIN, FRAME_RATES_END, lambda: frame_rates_block(results)))
+    for begin, end, block in blocks:
+        if begin not in text:
+            raise SystemExit(f"{path}: no {begin} marker")
+        text = replace_block(text, block(), begin, end)
     atomic_write_text(path, text)
     return 0
 
