@@ -71,15 +71,19 @@ def pair_order(detections: list, calibrations: dict[str, StereoCalibration], min
         first = {}
         for det in detections:
             if det.camera in raws:
-                by_frame[det.frame][det.camera].append(_readings(det, raws[det.camera], min_confidence))
+                by_frame[det.frame][det.camera].append(det)
                 first.setdefault(det.camera, det)
         frames = sorted(f for f, sides in by_frame.items() if sides[left] and sides[right])
         if not frames:
             continue
         if len(frames) > MAX_FRAMES:
             frames = [frames[i] for i in np.linspace(0, len(frames) - 1, MAX_FRAMES).round().astype(int)]
-        named = sum(_on_one_row(by_frame[f][left], by_frame[f][right]) for f in frames)
-        exchanged = sum(_on_one_row(by_frame[f][right], by_frame[f][left]) for f in frames)
+        named = exchanged = 0
+        for f in frames:            # the readings of the frames matched only
+            lf, rt = ([_readings(det, raws[camera], min_confidence) for det in by_frame[f][camera]]
+                      for camera in (left, right))
+            named += _on_one_row(lf, rt)
+            exchanged += _on_one_row(rt, lf)
         looks_exchanged = exchanged >= MIN_MATCHES and exchanged >= RATIO * max(named, 1)
         out[name] = {"matched": named, "matched_exchanged": exchanged, "exchanged": looks_exchanged}
         if looks_exchanged and refuse:
