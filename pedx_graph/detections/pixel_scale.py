@@ -172,19 +172,15 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
     by_camera: dict[str, list[Detection]] = {}
     for det in detections:
         by_camera.setdefault(det.camera, []).append(det)
-    sizes = {camera: calib.image_size for calib in calibrations.values() for camera in calib.name.split("-")}
-    pair_of = {camera: name for name, calib in calibrations.items() for camera in name.split("-")}
-    raw_sizes = {camera: raw_image_size(raw_camera(*find_camera(calibrations, camera))) for camera in by_camera}
     index = {"left": "00", "right": "01"}
     converted: dict[int, Detection] = {}
     cameras = {}
     units = coordinate_units(np.concatenate([d.image_uv[d.present] for d in detections] + [np.zeros((0, 2))]),
                              config)
     for camera, dets in sorted(by_camera.items()):
-        size = sizes[camera]
-        side = find_camera(calibrations, camera)[1]
+        calib, side = find_camera(calibrations, camera)
+        size, raw = calib.image_size, raw_camera(calib, side)
         calibrated = {f"S_rect_{index[side]}": size}
-        raw = raw_camera(*find_camera(calibrations, camera))
         if raw is not None and raw.image_size is not None:
             calibrated[f"S_{index[side]}"] = tuple(raw.image_size)
         if units != "pixels":
@@ -210,11 +206,12 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
                 corners = from_detector_units(np.reshape(bbox, (2, 2)) + [[0.0, 0.0], bbox[:2]], size, scale, units)
                 bbox = np.concatenate([corners[0], corners[1] - corners[0]])
             converted[id(det)] = dataclasses.replace(det, image_uv=uv, bbox=bbox)
-        if raw_sizes[camera] is not None and tuple(raw_sizes[camera]) != tuple(size):
-            bounds = tuple(int(v) for v in np.maximum(size, raw_sizes[camera]))
-            label = f"the larger of its rectified and raw images, {pair_of[camera]}"
+        raw_size = raw_image_size(raw)
+        if raw_size is not None and tuple(raw_size) != tuple(size):
+            bounds = tuple(int(v) for v in np.maximum(size, raw_size))
+            label = f"the larger of its rectified and raw images, {calib.name}"
         else:
-            bounds, label = tuple(size), f"S_rect_00 of {pair_of[camera]}"
+            bounds, label = tuple(size), f"S_rect_00 of {calib.name}"
         _check_inside([converted[id(d)] for d in dets], bounds, config, label)
         cameras[camera] = {"units": units, "scale": [round(float(v), 6) for v in scale], "from": source}
     out = [converted[id(d)] for d in detections]
