@@ -351,6 +351,7 @@ RULES: dict[str, Range | Choice] = {
     "AssociationConfig.swap_motion_m": NON_NEGATIVE,
     "AssociationConfig.swap_size_frac": NON_NEGATIVE,
     "AssociationConfig.min_height_frames": COUNT,
+    "AssociationConfig.lone_height_gate_sigmas": Range(0.0, lo_open=True, allow_inf=True),
     "AssociationConfig.end_gap_frames": COUNT,
     "AssociationConfig.backward_birth_frames": NON_NEGATIVE_INT,
     "AssociationConfig.stitch_max_gap_frames": NON_NEGATIVE_INT,

@@ -1340,6 +1340,33 @@ def test_a_frame_of_a_taller_person_walking_alongside_is_taken_out_of_the_shorte
         [[id(o) for o in short], [id(o) for o in tall]]
 
 
+def test_a_one_image_detection_far_off_its_tracks_height_is_dropped_though_no_other_track_explains_it():
+    """At frame 10 the short walker's track holds, in its left image only, the detection of someone 5 m
+    nearer on nearly the same ray whom the pair does not track (seen in that image alone): about 1.6 times
+    the walk's image height, more than ``lone_height_gate_sigmas`` of its sigma off it.  The detection goes
+    with its frame.  The tall walker 0.4 m behind (some 6 sigmas off) stays without a track of its own to
+    explain it; so do the walker's own one-image detection, and the near one's with the rule off."""
+    from pedx_graph.detections.association import drop_other_heights
+
+    calib, short, tall = _short_and_tall(np.random.default_rng(9))
+    near = _walker_of_height(calib, (15.0, -1.4 * 15.0 / 20.0), (0.0, 0.14 * 15.0 / 20.0), range(20),
+                             np.random.default_rng(10), 1.0)
+
+    def with_left_of(person: list) -> list:
+        lone = Observation(frame=10, uv={"left": person[10].uv["left"]}, score=0.8,
+                           payload={"left": person[10].payload["left"]})
+        return short[:10] + [lone] + short[11:]
+
+    (kept,) = drop_other_heights([with_left_of(near)], calib, AssociationConfig())
+    assert [o.frame for o in kept] == [f for f in range(20) if f != 10]
+    assert [id(o) for o in kept] == [id(o) for o in short[:10] + short[11:]]
+    for person, config in ((tall, AssociationConfig()), (short, AssociationConfig()),
+                           (near, AssociationConfig(lone_height_gate_sigmas=float("inf")))):
+        track = with_left_of(person)
+        (kept,) = drop_other_heights([track], calib, config)
+        assert [id(o) for o in kept] == [id(o) for o in track]
+
+
 def test_the_taller_ones_detection_in_one_image_of_an_unpaired_frame_is_taken_out_and_the_other_image_kept():
     """The short and the tall walker again; at frame 10 the short one's track holds its own left detection
     and the tall one's right detection, unpaired (the stereo pairing refused them).  The right image's

@@ -113,7 +113,8 @@ Steps:
    follow, so the exchange is made when it fits the two tracks to such walks clearly
    better (a tracker carrying each on with the other while they were missed in turns); after it, a
    detection whose image height is off its track's walk and on the walk of another track near it in that
-   image is dropped, with its frame unless the frame is unpaired and seen in the other image too
+   image, or in a frame without a centre far off it (``lone_height_gate_sigmas``), is dropped, with its
+   frame unless the frame is unpaired and seen in the other image too
    (:func:`drop_other_heights`).  Last, a piece of at most 3 frames at a track's end that a gap of at least
    ``end_gap_frames`` frames parts from the rest is left out where the rest's walk misses every frame of it
    (column and image height, in each image the frame is seen in) by more than ``gate_sigmas^2``
@@ -342,6 +343,14 @@ class AssociationConfig:
     """A track's frames are checked against the walk of its image heights (:func:`drop_other_heights`) when
     at least this many of them have a height in one image (a walk through fewer fits the frame it should
     judge)."""
+    lone_height_gate_sigmas: float = 7.0
+    """A frame without a centre (seen in one image, or in both but unpaired) whose image height in an image lies
+    more than this many of its sigmas off its track's walk there loses that image's detection even where no
+    other track's walk allows that height (:func:`drop_other_heights`): a person keeps their height, and a
+    detection that far off it is someone the pair does not track there (seen in that image alone, or hidden
+    behind the track's person in the other).  Twice ``gate_sigmas``: at ``gate_sigmas`` itself, 23 of the 25
+    detections so dropped over 264 simulated inputs were the track's own person's (scratch count, 2026-12-07;
+    docs/detections.md).  ``inf``: never without another track."""
     swap_size_frac: float = 0.03
     """How far a walker's image height leaves the straight walk's (``s0 / (1 + c tau)``, :func:`_walk_cost`)
     beyond its fit error (:func:`standing_height_px`), as a fraction of the height (gait, posture): added to
@@ -2123,9 +2132,11 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
     ``gate_sigmas`` of its uncertainty off its track's walk in that image, while another of the pair's
     tracks' walk there passes within half that height of its column at that frame and allows its height, is
     that other person's in that image (the per-camera tracker gave it to the wrong track where the two
-    met).  Every image the frame is seen in and the track has ``min_height_frames`` heights in is judged.
-    An unpaired frame (no centre) seen in both images loses only that image's detection; any other such
-    frame is dropped (a stereo or LiDAR centre made with the other person's detection is not the track's).
+    met).  A frame without a centre whose height lies more than ``lone_height_gate_sigmas`` (twice as far)
+    off the walk is someone else's in that image even where no track's walk allows it: someone the pair
+    does not track there.  Every image the frame is seen in and the track has ``min_height_frames`` heights
+    in is judged.  An unpaired frame (no centre) seen in both images loses only that image's detection; any
+    other such frame is dropped (a stereo or LiDAR centre made with the other person's detection is not the track's).
     Not moved: among the many frames of a scene one frame now and then fits another walk better by chance
     (:func:`repair_swaps` exchanges two frames at least); a dropped frame costs a frame, a kept one mixes
     two people.  A track left empty is removed.  Returns the tracks."""
@@ -2136,7 +2147,9 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
         kept = []
         for obs in track:
             off = {side for side in obs.uv if side in walks[k]
-                   and _someone_elses_height(obs.frame, side, k, walks, gate)}
+                   and (_someone_elses_height(obs.frame, side, k, walks, gate)
+                        or obs.world_p is None and _far_off_height(obs.frame, walks[k][side],
+                                                                    config.lone_height_gate_sigmas))}
             if not off:
                 kept.append(obs)
             elif obs.world_p is None and set(obs.uv) - off:    # unpaired: the other image's detection stays
@@ -2310,14 +2323,21 @@ def off_walk_ends(track: list[Observation], calib: StereoCalibration, config: As
     return track[first:last]
 
 
+def _far_off_height(frame: int, walk: tuple, gate: float) -> bool:
+    """Whether a track's image height at ``frame`` lies more than ``gate`` of its sigmas off the track's walk in
+    that image (``walk``: one side of :func:`_height_walks`); False without a height there."""
+    values, _, height_at = walk
+    _, height, height_sigma = values.get(frame, (np.nan, np.nan, np.nan))
+    return bool(abs(height - height_at(frame)) > gate * height_sigma)         # NaN: no height, False
+
+
 def _someone_elses_height(frame: int, side: str, k: int, walks: list[dict], gate: float) -> bool:
     """Whether track ``k``'s height in image ``side`` at ``frame`` is off its own walk there and allowed by
     another track's walk passing near it (:func:`drop_other_heights`; ``walks``: :func:`_height_walks` of
     every track)."""
-    values, _, height_at = walks[k][side]
-    column, height, height_sigma = values.get(frame, (np.nan, np.nan, np.nan))
-    if not abs(height - height_at(frame)) > gate * height_sigma:      # NaN: no height, kept
+    if not _far_off_height(frame, walks[k][side], gate):
         return False
+    column, height, height_sigma = walks[k][side][0][frame]
     return any(abs(column - column_at(frame)) <= 0.5 * height
                and abs(height - other_height_at(frame)) <= gate * height_sigma
                for j, walk in enumerate(walks) if j != k and side in walk
