@@ -26,7 +26,6 @@ Writes ``bench_realrig.json`` and ``bench_realrig.md`` into ``--out`` (default b
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import shutil
 import sys

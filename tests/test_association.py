@@ -1329,7 +1329,6 @@ def test_a_frame_of_a_taller_person_walking_alongside_is_taken_out_of_the_shorte
     from pedx_graph.detections.association import drop_other_heights
 
     calib, short, tall = _short_and_tall(np.random.default_rng(9))
-    frames = range(20)
     mixed = short[:10] + [tall[10]] + short[11:]
     rest = tall[:10] + tall[11:]
     kept = drop_other_heights([mixed, rest], calib, AssociationConfig())

@@ -147,7 +147,6 @@ def project(readme: Readme, world_p: np.ndarray, side: str) -> np.ndarray:
 
 def write_dataset(root: Path, readme: Readme, walkers: dict, model) -> None:
     rng = np.random.default_rng(0)
-    pair = f"{LEFT}-{RIGHT}"
     files = {readme.path("cam_to_cam", left=LEFT, right=RIGHT): readme.cam_to_cam,
              readme.path("cam_to_range", left=LEFT): readme.cam_to_range}
     for rel, keys in files.items():

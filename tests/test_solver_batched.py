@@ -276,7 +276,7 @@ def test_stereo_batch_equals_single_frames():
     model = ctx.model
     rng = np.random.default_rng(6)
     calib = make_test_calibration()
-    setups, pts = [], []
+    setups = []
     for i in range(3):
         uv = rng.uniform(100, 900, size=(18, 2))
         uv[rng.choice(18, 4, replace=False)] = np.nan
