@@ -387,6 +387,12 @@ class DetectorOutputConfig:
     """The raw focal lengths differ from the rectified one by up to this fraction (per camera and axis)."""
     raw_principal_jitter_px: float = 12.0
     """The raw principal point differs from the rectified one by up to this many pixels per axis."""
+    raw_margin_px: tuple[float, float] = (0.0, 0.0)
+    """The raw images are larger than the rectified ones by this many pixels on each side, (x, y): their
+    principal point shifted by it, their size ``S_0x`` (written to the calibration) the rectified size plus
+    twice it, and people seen by the raw image beyond the rectified one detected too.  A real camera's raw
+    image is its sensor's, which rectification crops (PedX's rectified 3645 x 2687 is no sensor size);
+    (0, 0) = the raw images of the rectified size, no ``S_0x`` written."""
     right_rect_rotation_deg: float = 0.0
     """The raw right camera is turned against the raw left one by a rotation of this angle, degrees, about
     an axis drawn per pair (``R_rect_01 = R_rect_00 @ R``; written to the calibration), as a real pair's
@@ -406,7 +412,7 @@ class DetectorOutputConfig:
     (``--keypoint_scale 4``).  Applied after ``image_scale``."""
 
     def __post_init__(self) -> None:
-        for name in ("formats", "distortion_k1", "distortion_k2"):
+        for name in ("formats", "distortion_k1", "distortion_k2", "raw_margin_px"):
             value = getattr(self, name)
             if isinstance(value, list):
                 setattr(self, name, tuple(value))
@@ -499,6 +505,8 @@ class SimConfig:
             ("detections.distortion_tangential", 0 <= det.distortion_tangential <= 0.01),
             ("detections.raw_focal_jitter", 0 <= det.raw_focal_jitter <= 0.2),
             ("detections.raw_principal_jitter_px", 0 <= det.raw_principal_jitter_px <= 500),
+            ("detections.raw_margin_px", len(det.raw_margin_px) == 2
+             and all(0 <= v <= 2000 for v in det.raw_margin_px)),
             ("detections.right_rect_rotation_deg", 0 <= det.right_rect_rotation_deg <= 10),
             ("detections.detected_on", det.detected_on in ("raw", "rectified")),
             ("detections.image_scale", 0.05 <= det.image_scale <= 4),

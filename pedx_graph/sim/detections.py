@@ -19,7 +19,9 @@ keeping its raw keys: what a user gets running a detector on a release's rectifi
   :mod:`pedx_graph.eval.detector_noise` (:func:`~pedx_graph.eval.detector_noise.corrupt_keypoints`: noise
   growing with the person's image height, per-keypoint factors, misses, left/right swaps, outliers; with
   ``stereo_shared_noise`` part of the noise is one offset in every camera, as an error a real detector makes
-  alike from several viewpoints); points outside the raw image are absent;
+  alike from several viewpoints); points outside the raw image are absent (with ``raw_margin_px`` the raw
+  image is larger than the rectified one, ``S_0x`` written, and people it sees beyond the rectified image are
+  detected: :func:`detector_image_size`);
 * confidence per keypoint: ``c = c0 * h / (h + h_half) * exp(-e^2 / 2) + N(0, s^2)`` clipped to [0.02, 1],
   ``c0`` = ``confidence_visible`` or ``confidence_occluded``, ``e`` = the keypoint's pixel error divided by
   ``confidence_error_sigmas`` times its noise sigma — confidence falls with the error and with occlusion
@@ -112,6 +114,10 @@ def raw_cameras(calibs: dict[str, StereoCalibration], config: DetectorOutputConf
             raw_K[1, 1] *= 1 + config.raw_focal_jitter * (2 * fy_j - 1)
             raw_K[0, 2] += config.raw_principal_jitter_px * (2 * cx_j - 1)
             raw_K[1, 2] += config.raw_principal_jitter_px * (2 * cy_j - 1)
+            raw_K[:2, 2] += np.asarray(config.raw_margin_px, dtype=float)
+            raw_size = None
+            if any(config.raw_margin_px):
+                raw_size = tuple(int(round(v + 2 * m)) for v, m in zip(calib.image_size, config.raw_margin_px))
             lo1, hi1 = config.distortion_k1
             lo2, hi2 = config.distortion_k2
             raw_D = np.array([lo1 + (hi1 - lo1) * k1, lo2 + (hi2 - lo2) * k2,
@@ -125,9 +131,40 @@ def raw_cameras(calibs: dict[str, StereoCalibration], config: DetectorOutputConf
                 rotvec = np.deg2rad(config.right_rect_rotation_deg) * axis / np.linalg.norm(axis)
                 rect_R_cam = rect_R_cam @ cv2.Rodrigues(rotvec)[0]
             raws.append(RawCamera(raw_K=raw_K, raw_D=raw_D, rect_R_cam=rect_R_cam,
-                                  P_rect=np.asarray(P_rect, dtype=float)))
+                                  P_rect=np.asarray(P_rect, dtype=float), image_size=raw_size))
         out[name] = dataclasses.replace(calib, left_raw=raws[0], right_raw=raws[1])
     return out
+
+
+def detector_image_size(calib: StereoCalibration, raw: RawCamera | None, config: DetectorOutputConfig
+                        ) -> tuple[int, int]:
+    """(width, height) of the images the detector ran on, before ``image_scale``: the raw image's (``S_0x``)
+    when detected on raw images that have a size of their own, else the rectified one's."""
+    if config.detected_on == "raw" and raw is not None and raw.image_size is not None:
+        return tuple(int(v) for v in raw.image_size)
+    return tuple(int(v) for v in calib.image_size)
+
+
+def _detector_sees(rect_uv: np.ndarray, raw_uv: np.ndarray, view, size: tuple[int, int],
+                   config: DetectorOutputConfig) -> np.ndarray:
+    """(K,) which keypoints (rectified ``rect_uv``, and ``raw_uv`` in the image the detector ran on, both
+    (K, 2)) the detector's image holds: a raw image of a size of its own (``raw_margin_px``) the points inside
+    it, within twice the margin of the rectified image (beyond it the distortion polynomial folds far points
+    back in); else the rectified image's."""
+    rect_size = tuple(view.calib.image_size)
+    if tuple(size) == rect_size:
+        return view.in_image(rect_uv)
+    margin = 2.0 * np.asarray(config.raw_margin_px, dtype=float)
+    near = _inside(np.asarray(rect_uv, dtype=float) + margin, tuple(np.asarray(rect_size) + 2 * margin))
+    return near & _inside(raw_uv, size)
+
+
+def _inside(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(K,) whether each pixel (``uv`` (K, 2)) lies inside an image of ``size`` (width, height)."""
+    uv = np.asarray(uv, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < size[0]) & (uv[:, 1] >= 0) \
+            & (uv[:, 1] < size[1])
 
 
 # ---------------------------------------------------------------------------------------------- keypoint sets
@@ -270,12 +307,14 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
         for calib in ctx.calibs.values():
             for view in cameras.camera_views(calib):
                 raw = calib.left_raw if view.side == "left" else calib.right_raw
-                size = calib.image_size
+                size = detector_image_size(calib, raw, det_cfg)
                 people_uv = []
                 for p_index, person in enumerate(present_people):
                     tid = person.tracking_id
                     rect_uv, depth = view.project(set_points[tid])
-                    in_image = view.in_image(rect_uv) & (depth > 0.5)
+                    # the pixels of the image the detector ran on (named raw_uv either way)
+                    raw_uv = _distort(rect_uv, raw) if det_cfg.detected_on == "raw" else rect_uv.copy()
+                    in_image = _detector_sees(rect_uv, raw_uv, view, size, det_cfg) & (depth > 0.5)
                     draws = rng.random(3)
                     if in_image.sum() < det_cfg.min_visible_keypoints:
                         continue
@@ -286,8 +325,6 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                     occluded_frac = 1.0 - visible.sum() / in_image.sum()
                     if draws[0] < det_cfg.person_miss_prob + det_cfg.occluded_miss_prob * occluded_frac:
                         continue
-                    # the pixels of the image the detector ran on (named raw_uv either way)
-                    raw_uv = _distort(rect_uv, raw) if det_cfg.detected_on == "raw" else rect_uv.copy()
                     shared = None
                     if det_cfg.stereo_shared_noise > 0:      # the same draws in every camera (own generator)
                         shared = np.random.default_rng([int(ctx.seed), 7, int(k), f_index, p_index]).normal(
@@ -389,8 +426,9 @@ def write_sequence_files(out: Path, config, calibs: dict[str, StereoCalibration]
     sc = config.scene
     camera_names = [name for calib in calibs.values() for name in calib.name.split("-")]
     scale = config.detections.image_scale
-    sizes = {name: tuple(int(round(v * scale)) for v in calib.image_size)
-             for calib in calibs.values() for name in calib.name.split("-")}
+    sizes = {name: tuple(int(round(v * scale)) for v in detector_image_size(calib, raw, config.detections))
+             for calib in calibs.values()
+             for name, raw in zip(calib.name.split("-"), (calib.left_raw, calib.right_raw))}
     counts = {}
     for fmt, items in entries.items():
         items = sorted(items, key=lambda e: (e[1], camera_names.index(e[0]), e[4]["index"]))
