@@ -48,7 +48,8 @@ from pedx_graph.detections.frame_interval import WalkingCheckConfig, sequence_fr
 from pedx_graph.detections.image_frame import ImageFrameConfig, image_frames, pixel_calibrations
 from pedx_graph.detections.noise import DetectionNoiseConfig, detection_height_px, stereo_row_scale
 from pedx_graph.detections.pair_order import pair_order
-from pedx_graph.detections.pixel_scale import PixelScaleConfig, detector_pixels, resized_cameras
+from pedx_graph.detections.pixel_scale import (PixelScaleConfig, detector_pixels, resized_cameras,
+                                              seen_calibrations)
 from pedx_graph.detections.review import ReviewConfig, review_summary, untracked_detections
 from pedx_graph.detections.types import Detection
 from pedx_graph.detections.undistort import find_camera, rectified
@@ -295,6 +296,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
     ground = ground_from_calibrations(dict(calibrations), seq)
     known, scale_record = detector_pixels(known, calibrations, config.pixel_scale, clouds or None, seq,
                                           ground.world_up)
+    as_read, calibrations = calibrations, seen_calibrations(calibrations, scale_record["cameras"])
     order_record = pair_order(known, calibrations, config.noise.min_confidence, seq, refuse=config.check_pair_order)
     frames_record = image_frames(known, calibrations, config.image_frame, config.noise.min_confidence, seq)
     calibrations = pixel_calibrations(calibrations, frames_record)
@@ -345,7 +347,7 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
         stems = image_stems(known)
         open_stretches = [i for i, s in enumerate(review["stretches"]) if not s.get("checked")]
         place = {i: k for k, i in enumerate(open_stretches)}
-        resized = resized_cameras(scale_record, calibrations)
+        resized = resized_cameras(scale_record, as_read)
         sheets = {"folder": f"review/{seq}", "images_in_folder": len(images),
                   "sheets": write_review_sheets(tracks, [review["stretches"][i] for i in open_stretches], images,
                                                 out / "review" / seq, stems,

@@ -10,7 +10,10 @@ simulator and the import had shared the convention that the pixels are the calib
 * **units** (``units: auto``; one for the sequence, every camera's coordinates together): coordinates that
   all lie within [-1, 1] (at least ``min_keypoints`` of them) are normalised by the image size — [0, 1]
   (OpenPose's ``--keypoint_scale 3``), or [-1, 1] when more than ``signed_fraction`` of them are negative
-  (``--keypoint_scale 4``) — and become pixels with the calibration's image size (a resize cancels in them);
+  (``--keypoint_scale 4``) — and become pixels with the calibration's image size (a resize cancels in them).
+  Where a camera's raw image has a size of its own (``S_0x``: a sensor's, larger than the rectified image
+  rectification cropped), they are read at the rectified size and the raw model is given for that size
+  (:func:`seen_calibrations`), so either reading of the pair (:mod:`.image_frame`) lands on the right points;
 * **scale** of pixels, per camera: ``scale`` > 0 in the config says it for every camera; else the files'
   image sizes (a COCO image list's ``width`` and ``height``) against the calibration's: the rectified size
   ``S_rect_00``, or the raw ``S_0x`` when given (detections on raw images), equal, or resized (per axis; one
@@ -221,7 +224,7 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
     totals = np.zeros(len(TRIAL_SCALES), dtype=int)
     people = 0
     frames_with_cloud, off_ground = set(clouds), _OffGround(clouds, world_up, config)
-    for name, calib in sorted(calibrations.items()):
+    for name, calib in sorted(seen_calibrations(calibrations, cameras).items()):
         left, right = name.split("-")
         if left not in cameras or right not in cameras:
             continue
@@ -249,14 +252,54 @@ def detector_pixels(detections: list[Detection], calibrations: dict[str, StereoC
     return out, record
 
 
+def _normalised_raw_size(raw: RawCamera | None, size: tuple[int, int], used: dict | None) -> tuple | None:
+    """(raw width / rectified width, raw height / rectified height) for a camera whose coordinates were
+    normalised (``used``: its entry of :func:`detector_pixels`' record) and whose raw image has a size of its
+    own (``S_0x``, not the rectified ``size``); else None."""
+    if used is None or used["units"] == "pixels" or raw is None or raw.image_size is None:
+        return None
+    if tuple(int(v) for v in raw.image_size) == tuple(int(v) for v in size):
+        return None
+    return raw.image_size[0] / size[0], raw.image_size[1] / size[1]
+
+
+def seen_calibrations(calibrations: dict[str, StereoCalibration], cameras: dict) -> dict[str, StereoCalibration]:
+    """The pairs as the read coordinates need them (``cameras``: the ``"cameras"`` of :func:`detector_pixels`'
+    record).  Normalised coordinates say nothing of the image's size and are read at the rectified size
+    (``S_rect_00``); where the raw image has a size of its own (``S_0x``) and the detector saw the raw image,
+    its pixels are those read times raw / rectified size, per axis.  Such a camera's raw model is given for
+    the pixels as read: ``K_0x``'s rows scaled by rectified / raw size (the raw image resized to the
+    rectified size), so that reading the pixels as raw (:mod:`.image_frame`) undistorts the right points.
+    Other cameras keep their models."""
+    out = {}
+    for name, calib in calibrations.items():
+        raws = {}
+        for side, camera in zip(("left", "right"), name.split("-")):
+            raw = raw_camera(calib, side)
+            ratio = _normalised_raw_size(raw, calib.image_size, cameras.get(camera))
+            if ratio is not None:
+                raw_K = np.array(raw.raw_K, dtype=float)
+                raw_K[0] /= ratio[0]
+                raw_K[1] /= ratio[1]
+                raws[f"{side}_raw"] = dataclasses.replace(raw, raw_K=raw_K, image_size=tuple(calib.image_size))
+        out[name] = dataclasses.replace(calib, **raws) if raws else calib
+    return out
+
+
 def resized_cameras(record: dict, calibrations: dict[str, StereoCalibration]) -> dict:
     """Camera -> ``(calibration image size, scale or None)`` for the cameras of :func:`detector_pixels`'
     ``record`` whose images the detector saw at another size (``scale``: its pixels per calibration pixel;
-    None: normalised coordinates, any size), for
+    None: normalised coordinates, any size; raw / rectified size for normalised coordinates of a raw image
+    with a size of its own, whose model :func:`seen_calibrations` gives for the rectified size), for
     :func:`~pedx_graph.detections.pixel_units.calibration_sized` (the review sheets and the rectified images
-    drawn from the images the detector saw)."""
-    sizes = {camera: calib.image_size for calib in calibrations.values() for camera in calib.name.split("-")}
-    return {camera: (sizes[camera], tuple(used["scale"]) if used["units"] == "pixels" else None)
+    drawn from the images the detector saw).  ``calibrations``: as read from the files."""
+    sizes, ratios = {}, {}
+    for calib in calibrations.values():
+        for side, camera in zip(("left", "right"), calib.name.split("-")):
+            sizes[camera] = calib.image_size
+            ratios[camera] = _normalised_raw_size(raw_camera(calib, side), calib.image_size,
+                                                  record["cameras"].get(camera))
+    return {camera: (sizes[camera], tuple(used["scale"]) if used["units"] == "pixels" else ratios[camera])
             for camera, used in record["cameras"].items()
             if used["units"] != "pixels" or tuple(used["scale"]) != (1.0, 1.0)}
 
