@@ -285,3 +285,34 @@ def test_a_duplicated_person_is_the_same_detection_again_and_the_association_dro
             pairs += 1
             both_kept += len(drop_duplicates(items, config)) == 2
     assert pairs > 50 and both_kept <= 0.03 * pairs, (pairs, both_kept)
+
+
+def test_the_detectors_own_definitions_lie_a_set_distance_off_the_fits():
+    """``detections.definition_shift_m``: every keypoint of a set is moved by about that distance, the same
+    move for a seed, turning with the body (a linear map of its posed vertices), and 0 keeps the fit's map."""
+    from pedx_graph.sim.config import DetectorOutputConfig
+    from pedx_graph.sim.detections import shifted_definitions
+
+    model = BodyModel.load().for_keypoint_set("coco17")
+    shifted = shifted_definitions(model, 0.03, (5, 12, 2))
+    again = shifted_definitions(model, 0.03, (5, 12, 2))
+    other = shifted_definitions(model, 0.03, (6, 12, 2))
+    assert np.array_equal(shifted.vertex_coeffs, again.vertex_coeffs)
+    assert not np.array_equal(shifted.vertex_coeffs, other.vertex_coeffs)
+    pose = np.random.default_rng(0).normal(scale=0.3, size=72)
+    body = model.forward(pose, np.zeros(model.num_betas), np.array([3.0, -1.0, 0.5]))
+    ours = model.keypoint_map.apply(body.vertices[model.keypoint_map.vertex_ids], body.joints)
+    theirs = shifted.apply(body.vertices[shifted.vertex_ids], body.joints)
+    off = np.linalg.norm(theirs - ours, axis=1)
+    assert np.all(off > 0.015) and np.all(off < 0.05) and 0.025 < np.median(off) < 0.04
+    # still a map of the skin: the same moves at the rest pose measure the shift the ring was drawn at
+    rest = model.forward(np.zeros(72), np.zeros(model.num_betas), np.zeros(3))
+    ours = model.keypoint_map.apply(rest.vertices[model.keypoint_map.vertex_ids], rest.joints)
+    rest_off = np.linalg.norm(shifted.apply(rest.vertices[shifted.vertex_ids], rest.joints) - ours, axis=1)
+    assert np.all(np.abs(rest_off - 0.03) <= 0.25 * 0.03 + 1e-9)
+    from pedx_graph.config import ConfigError
+
+    with pytest.raises(ConfigError, match="detections.definition_shift_m"):
+        SimConfig(detections=DetectorOutputConfig(definition_shift_m=0.5)).validate()
+    with pytest.raises(ConfigError, match="detections.raw_margin_px"):
+        SimConfig(detections=DetectorOutputConfig(raw_margin_px=(-1.0, 0.0))).validate()

@@ -387,6 +387,12 @@ class DetectorOutputConfig:
     """The raw focal lengths differ from the rectified one by up to this fraction (per camera and axis)."""
     raw_principal_jitter_px: float = 12.0
     """The raw principal point differs from the rectified one by up to this many pixels per axis."""
+    definition_shift_m: float = 0.0
+    """The detector's idea of each keypoint differs from the body model's definition the import fits by about
+    this many metres: each keypoint of each format is moved by the difference of two skin vertices this far
+    apart near it (drawn once per format from the seed; it moves with the skin), in every image alike — a
+    systematic error, not noise (a real detector's "hip" or "ankle" is its training labels' idea, not ours).
+    0 = the detector's points are the fit's definitions exactly (a convention the two would share)."""
     raw_margin_px: tuple[float, float] = (0.0, 0.0)
     """The raw images are larger than the rectified ones by this many pixels on each side, (x, y): their
     principal point shifted by it, their size ``S_0x`` (written to the calibration) the rectified size plus
@@ -505,6 +511,7 @@ class SimConfig:
             ("detections.distortion_tangential", 0 <= det.distortion_tangential <= 0.01),
             ("detections.raw_focal_jitter", 0 <= det.raw_focal_jitter <= 0.2),
             ("detections.raw_principal_jitter_px", 0 <= det.raw_principal_jitter_px <= 500),
+            ("detections.definition_shift_m", 0 <= det.definition_shift_m <= 0.2),
             ("detections.raw_margin_px", len(det.raw_margin_px) == 2
              and all(0 <= v <= 2000 for v in det.raw_margin_px)),
             ("detections.right_rect_rotation_deg", 0 <= det.right_rect_rotation_deg <= 10),

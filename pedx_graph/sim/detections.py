@@ -65,7 +65,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pedx_graph.body.keypoint_defs import load_keypoint_set, standing_keypoints_2d
+from pedx_graph.body.keypoint_defs import KeypointMap, load_keypoint_set, standing_keypoints_2d
 from pedx_graph.keypoints import lower_body_mask, mirror_index, mirror_order
 from pedx_graph.data.detector_model import corrupt_keypoints
 from pedx_graph.data.types import RawCamera, StereoCalibration
@@ -187,6 +187,33 @@ def sigma_scale(set_name: str) -> np.ndarray:
     return np.asarray(out, dtype=float)
 
 
+def shifted_definitions(model, shift_m: float, seed: tuple) -> KeypointMap:
+    """``model``'s keypoint map with every keypoint moved by about ``shift_m`` metres
+    (``DetectorOutputConfig.definition_shift_m``): plus the vertex ``b`` minus the vertex ``a``, ``a`` the rest
+    mesh's vertex nearest the keypoint, ``b`` one drawn (from ``seed``) among those between 0.75 and 1.25
+    ``shift_m`` from ``a`` (the nearest to ``shift_m`` when there is none).  Still a linear map of the posed
+    vertices and joints; the offset turns and stretches with the skin around the point."""
+    kmap = model.keypoint_map
+    rest_v = np.asarray(model.v_template, dtype=float)
+    rest_kp = kmap.apply(rest_v[kmap.vertex_ids], model.rest_joints(np.zeros(model.num_betas)))
+    rng = np.random.default_rng(list(seed))
+    moves = []
+    for point in rest_kp:
+        anchor = int(np.argmin(np.linalg.norm(rest_v - point, axis=1)))
+        distance = np.linalg.norm(rest_v - rest_v[anchor], axis=1)
+        ring = np.flatnonzero(np.abs(distance - shift_m) <= 0.25 * shift_m)
+        other = int(rng.choice(ring)) if len(ring) else int(np.argmin(np.abs(distance - shift_m)))
+        moves.append((anchor, other))
+    ids = np.unique(np.concatenate([kmap.vertex_ids, np.array(moves, dtype=np.int64).ravel()]))
+    coeffs = np.zeros((kmap.num_keypoints, len(ids)))
+    coeffs[:, np.searchsorted(ids, kmap.vertex_ids)] = kmap.vertex_coeffs
+    for k, (anchor, other) in enumerate(moves):
+        coeffs[k, np.searchsorted(ids, anchor)] -= 1.0
+        coeffs[k, np.searchsorted(ids, other)] += 1.0
+    return dataclasses.replace(kmap, vertex_ids=ids, vertex_coeffs=coeffs,
+                               source=f"{kmap.source}+shift{shift_m:g}")
+
+
 def clutter_template(body_model, set_name: str) -> np.ndarray:
     """(K, 2) a standing person's keypoints of the set, front view, unit height (v down, u centred):
     :func:`~pedx_graph.body.keypoint_defs.standing_keypoints_2d`."""
@@ -300,6 +327,8 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
         set_name = DETECTOR_FORMATS[fmt]
         model = ctx.body_model.for_keypoint_set(set_name)
         kmap = model.keypoint_map
+        if det_cfg.definition_shift_m > 0:
+            kmap = shifted_definitions(model, det_cfg.definition_shift_m, (int(ctx.seed), 12, f_index))
         template = clutter_template(ctx.body_model, set_name)
         rng = np.random.default_rng([int(ctx.seed), 5, int(k), f_index])
         set_points = {tid: kmap.apply(body.vertices[kmap.vertex_ids], body.joints) for tid, body in bodies.items()}
