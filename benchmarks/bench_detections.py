@@ -147,7 +147,7 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
                   detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
                   detector_flip_prob: float = 0.0, swap_keeps_confidence: bool = False,
                   detector_swap_prob: float | None = None, rig: str = "default",
-                  car_clearance_m: float = 0.0) -> dict[str, SimConfig]:
+                  car_clearance_m: float = 0.0, detector_definition_shift_m: float = 0.0) -> dict[str, SimConfig]:
     """The two scenes (module docstring) on ``rig`` (``default`` or ``pedx``), detector output on; the simulated
     detector's keypoint noise
     (``sigma_px`` and ``sigma_height_frac``) times ``detector_noise_scale``, ``detector_shared_noise`` of its
@@ -157,7 +157,9 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
     exchanged keypoints scored as confidently as well-placed ones with ``swap_keeps_confidence``
     (``DetectorOutputConfig.swap_keeps_confidence``), each pair exchanged with probability
     ``detector_swap_prob`` (``keypoint_noise.swap_prob``; None: the simulator's default), moving cars kept
-    ``car_clearance_m`` from the pedestrians (``SceneConfig.car_clearance_m``; 0: they drive through them)."""
+    ``car_clearance_m`` from the pedestrians (``SceneConfig.car_clearance_m``; 0: they drive through them), the
+    detector's keypoints off the fit's definitions by about ``detector_definition_shift_m``
+    (``DetectorOutputConfig.definition_shift_m``; 0: its points are the fit's definitions)."""
     if rig not in RIGS:
         raise ValueError(f"rig must be one of {RIGS}, got {rig!r}")
     out = {}
@@ -190,6 +192,7 @@ def scene_configs(pedestrians: int, frames: int, detector_noise_scale: float = 1
         if detector_swap_prob is not None:
             cfg.detections.keypoint_noise.swap_prob = detector_swap_prob
         cfg.scene.car_clearance_m = car_clearance_m
+        cfg.detections.definition_shift_m = detector_definition_shift_m
         if SHARED_CMU.is_dir():
             cfg.motion.motion_dir = str(SHARED_CMU)
             cfg.motion.split = "holdout"
@@ -487,7 +490,8 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
         stereo_noise_check: bool = True, detector_shared_noise: float = 0.0, detector_split_prob: float = 0.0,
         join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = False,
         swap_keeps_confidence: bool = False, mirror_screen: bool = True,
-        detector_swap_prob: float | None = None, rig: str = "default", car_clearance_m: float = 0.0) -> dict:
+        detector_swap_prob: float | None = None, rig: str = "default", car_clearance_m: float = 0.0,
+        detector_definition_shift_m: float = 0.0) -> dict:
     fit_config = FitConfig()
     if not mirror_screen:
         fit_config.noise.detector_left_right_swap_prob = 0.0
@@ -499,7 +503,8 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
     import_config.association.join_split_parts = join_split_parts
     import_config.flips.enabled = unflip
     configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob,
-                            detector_flip_prob, swap_keeps_confidence, detector_swap_prob, rig, car_clearance_m)
+                            detector_flip_prob, swap_keeps_confidence, detector_swap_prob, rig, car_clearance_m,
+                            detector_definition_shift_m)
     for s, (name, cfg) in enumerate(configs.items()):
         scenes[name] = run_scene(name, cfg, seed + s, work, workers, fit_config, ctx, import_config)
     accuracy = {}
@@ -531,6 +536,13 @@ def _cars(clearance_m: float) -> str:
     return f", moving cars kept {clearance_m:g} m from every pedestrian (scene.car_clearance_m)" if clearance_m else ""
 
 
+def _shift(shift_m: float) -> str:
+    """The markdown's words on the detector's keypoint definitions (``detections.definition_shift_m``): none
+    for the simulator's default (the fit's own definitions), so the default runs' text is as before."""
+    return (f", the detector's keypoints about {shift_m:g} m off the fit's definitions "
+            "(detections.definition_shift_m)") if shift_m else ""
+
+
 def markdown(result: dict, command: str) -> str:
     key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
     lines = ["# bench_detections: manual labels vs detector keypoints", "", f"Command: `{command}`", "",
@@ -547,7 +559,7 @@ def markdown(result: dict, command: str) -> str:
              f"({'as confident as well-placed keypoints' if result.get('swap_keeps_confidence') else 'losing confidence'}), "
              f"left/right label screen {'on' if result.get('mirror_screen', True) else 'off'}, "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}"
-             f"{_cars(result.get('car_clearance_m', 0.0))}.  "
+             f"{_cars(result.get('car_clearance_m', 0.0))}{_shift(result.get('detector_definition_shift_m', 0.0))}.  "
              "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
              "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
              "imported with `pedx-graph import` (association, undistortion, confidence -> noise, LiDAR cut) and "
@@ -675,6 +687,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--car-clearance", type=float, default=0.0,
                         help="moving cars keep this far from the pedestrians, metres (scene.car_clearance_m; "
                              "0: the simulator's default, cars drive through the people on the crosswalks)")
+    parser.add_argument("--detector-definition-shift", type=float, default=0.0,
+                        help="the simulated detector's keypoints lie about this far from the body model's "
+                             "definitions the import fits, metres (detections.definition_shift_m; 0: on them)")
     parser.add_argument("--no-mirror-screen", action="store_true",
                         help="fit without the left/right label screen (noise.detector_left_right_swap_prob 0)")
     args = parser.parse_args(argv)
@@ -685,7 +700,8 @@ def main(argv: list[str] | None = None) -> int:
                      not args.no_join_split_parts, args.detector_flip_prob, args.unflip,
                      swap_keeps_confidence=args.detector_swap_keeps_confidence,
                      mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
-                     rig=args.rig, car_clearance_m=args.car_clearance)
+                     rig=args.rig, car_clearance_m=args.car_clearance,
+                     detector_definition_shift_m=args.detector_definition_shift)
     result.update(rig=args.rig, seed=args.seed, pedestrians=args.pedestrians, frames=args.frames,
                   workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
@@ -693,7 +709,8 @@ def main(argv: list[str] | None = None) -> int:
                   join_split_parts=not args.no_join_split_parts, detector_flip_prob=args.detector_flip_prob,
                   unflip=args.unflip, swap_keeps_confidence=args.detector_swap_keeps_confidence,
                   mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
-                  car_clearance_m=args.car_clearance, total_seconds=time.perf_counter() - t0, hardware=hardware())
+                  car_clearance_m=args.car_clearance, detector_definition_shift_m=args.detector_definition_shift,
+                  total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command
     out = Path(args.out)
