@@ -415,6 +415,7 @@ RULES: dict[str, Range | Choice] = {
     "DetectionNoiseConfig.occluded_sigma_factor": POSITIVE,
     "DetectionNoiseConfig.reference_height_px": POSITIVE,
     "DetectionNoiseConfig.floor_px": NON_NEGATIVE,
+    "DetectionNoiseConfig.definition_sigma_m": NON_NEGATIVE,
     "DetectionNoiseConfig.keypoint_scale": POSITIVE,
     # pedx_graph.priors.train.TrainConfig
     "TrainConfig.fps": POSITIVE,

@@ -273,6 +273,40 @@ def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path, capsys):
     assert record["stereo_noise_check"]["applied"] == 1.0
 
 
+def test_the_definitions_uncertainty_is_added_at_the_persons_scale_after_the_stereo_check(tmp_path):
+    """``noise.definition_sigma_m``: every written sigma gains that many metres at the person's pixels per metre
+    (its keypoints' image span over the set's standing span), in quadrature; the stereo-row check, which such
+    an offset cannot show (it is the same in both images), judges the detector's noise alone."""
+    from pedx_graph.detections.noise import standing_span_m
+
+    root = small_scene(tmp_path / "scene", pedestrians=3, frames=6, seed=4)
+    raw_calibs = distorted_rig(root)
+    noise = DetectionNoiseConfig()
+
+    def twice_the_model(calib, side, rect_uv):
+        return 2.0 * noise.sigma("body25", np.full(25, 0.9), height_px=detection_height_px(rect_uv))
+
+    files = tmp_path / "noisy"
+    write_openpose_truth(root, raw_calibs, files, noise_px=twice_the_model)
+    views, checks = {}, {}
+    for definition in (0.0, 0.03):
+        config = ImportConfig(use_file_ids=True)
+        config.noise.definition_sigma_m = definition
+        summary = import_detections(read_openpose(files), root, tmp_path / f"d{definition}", config=config)
+        (record,) = summary["sequences"].values()
+        checks[definition] = record["stereo_noise_check"]["applied"]
+        views[definition] = {(t.tracking_id, fr.frame, pair, side): view
+                             for t in read_dataset(tmp_path / f"d{definition}")
+                             for fr in t.frames for pair, side, view in fr.labelled_views()}
+    assert checks[0.0] == checks[0.03] and 1.6 < checks[0.0] < 2.4
+    assert views[0.0].keys() == views[0.03].keys() and len(views[0.0]) > 20
+    assert 1.2 < standing_span_m("body25") < 1.8            # nose-or-head to toes of a standing person
+    for key, view in views[0.03].items():
+        added = 0.03 * detection_height_px(view.keypoints) / standing_span_m("body25")
+        np.testing.assert_allclose(view.sigma_px, np.hypot(views[0.0][key].sigma_px, added), rtol=1e-6)
+        assert added > 1.0                                   # a 3 cm offset is pixels at these people's size
+
+
 def test_import_with_two_workers_writes_what_one_process_writes(tmp_path):
     """``--workers 2`` runs the two stereo pairs' association steps in two processes: every file the import
     writes (labels, LiDAR segments, summary, resolved config) is byte for byte what one process writes."""

@@ -372,8 +372,10 @@ def _import_sequence(seq: str, detections: list[Detection], calibrations, out: P
                 view = views[(tid, frame, camera)]
                 if int(view.labelled.sum()) < config.min_keypoints:
                     continue
-                if factor != 1.0:
-                    view = dataclasses.replace(view, sigma_px=view.sigma_px * factor)
+                if factor != 1.0 or config.noise.definition_sigma_m > 0:
+                    definition = config.noise.definition_sigma_px(view.keypoint_set,
+                                                                  detection_height_px(view.keypoints))
+                    view = dataclasses.replace(view, sigma_px=np.hypot(view.sigma_px * factor, definition))
                 write_label2d(out, Label2D(sequence=seq, camera=camera, frame=frame, tracking_id=tid,
                                            category="pedestrian", view=view, subtype="detection"))
                 written += 1

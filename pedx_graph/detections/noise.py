@@ -20,6 +20,7 @@ the factor by which the data show it too confident, which the import applies.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -62,6 +63,15 @@ def detection_height_px(uv: np.ndarray) -> float:
     v = np.asarray(uv, dtype=float).reshape(-1, 2)
     v = v[np.all(np.isfinite(v), axis=1), 1]
     return float(np.ptp(v)) if len(v) >= 2 else 0.0
+
+
+@functools.lru_cache(maxsize=None)
+def standing_span_m(keypoint_set: str) -> float:
+    """The vertical span of ``keypoint_set``'s keypoints on the open model's mean shape standing, metres (a
+    person's image height in pixels over it: its pixels per metre)."""
+    from pedx_graph.body.templates import open_standing_keypoints_3d
+
+    return float(np.ptp(open_standing_keypoints_3d(keypoint_set)[:, 1]))
 
 
 #: Shipped per-keypoint relative factors (``python benchmarks/bench_detection_noise.py``).
@@ -109,6 +119,13 @@ class DetectionNoiseConfig:
     occluded_sigma_factor: float = 2.5
     """An annotation's keypoint marked labelled-but-not-visible (COCO ``v = 1``) gets this many times the
     sigma (the clicks land on a guessed position)."""
+    definition_sigma_m: float = 0.0
+    """How far the detector's own points may lie from the body model's definitions of them, metres on the body
+    per axis (a detector's "hip" is its training labels' idea, not ours): added in quadrature to every
+    keypoint's sigma as pixels at the person's scale (:meth:`definition_sigma_px`), after the stereo-row check
+    (an offset common to both images of a pair cancels in their rows).  0 = the detector's points taken for
+    the definitions, as the simulator's are by default.  What 2 and 4 cm cost, and what this term gives back:
+    docs/detections.md, "A detector whose points are not our definitions"."""
 
     def __post_init__(self) -> None:
         # a YAML file gives the curves as mappings
@@ -133,6 +150,14 @@ class DetectionNoiseConfig:
         if values is None or len(values) != count:
             return np.ones(count)
         return np.asarray(values, dtype=float)
+
+    def definition_sigma_px(self, keypoint_set: str, height_px: float) -> float:
+        """:attr:`definition_sigma_m` in pixels for a person of image height ``height_px`` (the span of its
+        present keypoints, :func:`detection_height_px`): times ``height_px`` over the set's keypoint span on
+        the open model's mean shape standing (:func:`standing_span_m`), the person's pixels per metre."""
+        if self.definition_sigma_m <= 0:
+            return 0.0
+        return float(self.definition_sigma_m) * max(float(height_px), 0.0) / standing_span_m(keypoint_set)
 
     def sigma(self, keypoint_set: str, confidence: np.ndarray, occluded: np.ndarray | None = None,
               annotation: bool = False, height_px: float | None = None) -> np.ndarray:
