@@ -491,7 +491,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
         join_split_parts: bool = True, detector_flip_prob: float = 0.0, unflip: bool = False,
         swap_keeps_confidence: bool = False, mirror_screen: bool = True,
         detector_swap_prob: float | None = None, rig: str = "default", car_clearance_m: float = 0.0,
-        detector_definition_shift_m: float = 0.0) -> dict:
+        detector_definition_shift_m: float = 0.0, definition_sigma_m: float = 0.0) -> dict:
     fit_config = FitConfig()
     if not mirror_screen:
         fit_config.noise.detector_left_right_swap_prob = 0.0
@@ -502,6 +502,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, work: Path, dete
     import_config = ImportConfig(stereo_noise_check=stereo_noise_check)
     import_config.association.join_split_parts = join_split_parts
     import_config.flips.enabled = unflip
+    import_config.noise.definition_sigma_m = definition_sigma_m
     configs = scene_configs(pedestrians, frames, detector_noise_scale, detector_shared_noise, detector_split_prob,
                             detector_flip_prob, swap_keeps_confidence, detector_swap_prob, rig, car_clearance_m,
                             detector_definition_shift_m)
@@ -543,6 +544,13 @@ def _shift(shift_m: float) -> str:
             "(detections.definition_shift_m)") if shift_m else ""
 
 
+def _definition(sigma_m: float) -> str:
+    """The markdown's words on the import's definition uncertainty (``import.noise.definition_sigma_m``): none
+    for the default (0)."""
+    return (f", imported with {sigma_m:g} m of uncertainty of the detector's points about the definitions "
+            "(import.noise.definition_sigma_m)") if sigma_m else ""
+
+
 def markdown(result: dict, command: str) -> str:
     key = f"{GOAL_RANGE_M[0]:g}-{GOAL_RANGE_M[1]:g}"
     lines = ["# bench_detections: manual labels vs detector keypoints", "", f"Command: `{command}`", "",
@@ -559,7 +567,8 @@ def markdown(result: dict, command: str) -> str:
              f"({'as confident as well-placed keypoints' if result.get('swap_keeps_confidence') else 'losing confidence'}), "
              f"left/right label screen {'on' if result.get('mirror_screen', True) else 'off'}, "
              f"stereo-row noise check {'on' if result.get('stereo_noise_check', True) else 'off'}"
-             f"{_cars(result.get('car_clearance_m', 0.0))}{_shift(result.get('detector_definition_shift_m', 0.0))}.  "
+             f"{_cars(result.get('car_clearance_m', 0.0))}{_shift(result.get('detector_definition_shift_m', 0.0))}"
+             f"{_definition(result.get('definition_sigma_m', 0.0))}.  "
              "Method: see the script's docstring (simulated OpenPose BODY_25 / BODY_25B and COCO files on "
              "distorted raw images, no ids, 15 % unlabelled bystanders, clutter and fragments; "
              "imported with `pedx-graph import` (association, undistortion, confidence -> noise, LiDAR cut) and "
@@ -690,6 +699,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--detector-definition-shift", type=float, default=0.0,
                         help="the simulated detector's keypoints lie about this far from the body model's "
                              "definitions the import fits, metres (detections.definition_shift_m; 0: on them)")
+    parser.add_argument("--definition-sigma", type=float, default=0.0,
+                        help="import with this uncertainty of the detector's points about the body model's "
+                             "definitions, metres (import.noise.definition_sigma_m; 0: none)")
     parser.add_argument("--no-mirror-screen", action="store_true",
                         help="fit without the left/right label screen (noise.detector_left_right_swap_prob 0)")
     args = parser.parse_args(argv)
@@ -701,7 +713,8 @@ def main(argv: list[str] | None = None) -> int:
                      swap_keeps_confidence=args.detector_swap_keeps_confidence,
                      mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
                      rig=args.rig, car_clearance_m=args.car_clearance,
-                     detector_definition_shift_m=args.detector_definition_shift)
+                     detector_definition_shift_m=args.detector_definition_shift,
+                     definition_sigma_m=args.definition_sigma)
     result.update(rig=args.rig, seed=args.seed, pedestrians=args.pedestrians, frames=args.frames,
                   workers=args.workers,
                   detector_noise_scale=args.detector_noise_scale, stereo_noise_check=not args.no_stereo_noise_check,
@@ -710,6 +723,7 @@ def main(argv: list[str] | None = None) -> int:
                   unflip=args.unflip, swap_keeps_confidence=args.detector_swap_keeps_confidence,
                   mirror_screen=not args.no_mirror_screen, detector_swap_prob=args.detector_swap_prob,
                   car_clearance_m=args.car_clearance, detector_definition_shift_m=args.detector_definition_shift,
+                  definition_sigma_m=args.definition_sigma,
                   total_seconds=time.perf_counter() - t0, hardware=hardware())
     command = " ".join(["python benchmarks/bench_detections.py"] + public_args(argv))
     result["command"] = command
