@@ -230,19 +230,26 @@ def test_stereo_row_scale_bounds_the_noise_from_below():
     assert abs(low["scale"] - 3.0) < 0.2 and abs(high["scale"] - 1.0) < 0.07
 
 
-def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path, capsys):
-    """Detections three times as noisy as the noise model says (independent in the two images): the import's
-    stereo-row check finds about 3 and multiplies every written sigma by it; exact detections change
-    nothing."""
+def _noisier_than_the_model(tmp_path, factor: float):
+    """A small scene on a distorted rig and its people's OpenPose files with ``factor`` times the noise model's
+    noise (independent in the two images): ``(scene root, raw calibrations, files folder)``."""
     root = small_scene(tmp_path / "scene", pedestrians=3, frames=6, seed=4)
     raw_calibs = distorted_rig(root)
     noise = DetectionNoiseConfig()
 
-    def three_times_the_model(calib, side, rect_uv):
-        return 3.0 * noise.sigma("body25", np.full(25, 0.9), height_px=detection_height_px(rect_uv))
+    def scaled_model(calib, side, rect_uv):
+        return factor * noise.sigma("body25", np.full(25, 0.9), height_px=detection_height_px(rect_uv))
 
     files = tmp_path / "noisy"
-    write_openpose_truth(root, raw_calibs, files, noise_px=three_times_the_model)
+    write_openpose_truth(root, raw_calibs, files, noise_px=scaled_model)
+    return root, raw_calibs, files
+
+
+def test_a_detector_noisier_than_the_model_raises_every_sigma(tmp_path, capsys):
+    """Detections three times as noisy as the noise model says (independent in the two images): the import's
+    stereo-row check finds about 3 and multiplies every written sigma by it; exact detections change
+    nothing."""
+    root, raw_calibs, files = _noisier_than_the_model(tmp_path, 3.0)
     sigmas = {}
     for check in (True, False):
         out = tmp_path / f"imported_{check}"
@@ -279,15 +286,7 @@ def test_the_definitions_uncertainty_is_added_at_the_persons_scale_after_the_ste
     an offset cannot show (it is the same in both images), judges the detector's noise alone."""
     from pedx_graph.detections.noise import standing_span_m
 
-    root = small_scene(tmp_path / "scene", pedestrians=3, frames=6, seed=4)
-    raw_calibs = distorted_rig(root)
-    noise = DetectionNoiseConfig()
-
-    def twice_the_model(calib, side, rect_uv):
-        return 2.0 * noise.sigma("body25", np.full(25, 0.9), height_px=detection_height_px(rect_uv))
-
-    files = tmp_path / "noisy"
-    write_openpose_truth(root, raw_calibs, files, noise_px=twice_the_model)
+    root, _, files = _noisier_than_the_model(tmp_path, 2.0)
     views, checks = {}, {}
     for definition in (0.0, 0.03):
         config = ImportConfig(use_file_ids=True)

@@ -145,18 +145,18 @@ def detector_image_size(calib: StereoCalibration, raw: RawCamera | None, config:
     return tuple(int(v) for v in calib.image_size)
 
 
-def _detector_sees(rect_uv: np.ndarray, raw_uv: np.ndarray, view, size: tuple[int, int],
+def _detector_sees(rect_uv: np.ndarray, view, raw: RawCamera | None, size: tuple[int, int],
                    config: DetectorOutputConfig) -> np.ndarray:
-    """(K,) which keypoints (rectified ``rect_uv``, and ``raw_uv`` in the image the detector ran on, both
-    (K, 2)) the detector's image holds: a raw image of a size of its own (``raw_margin_px``) the points inside
-    it, within twice the margin of the rectified image (beyond it the distortion polynomial folds far points
-    back in); else the rectified image's."""
+    """(K,) which keypoints (rectified ``rect_uv`` (K, 2)) the image the detector ran on holds (``size``:
+    :func:`detector_image_size`): a raw image of a size of its own (``raw_margin_px``) the points whose
+    distorted pixels lie inside it, within twice the margin of the rectified image (beyond it the distortion
+    polynomial folds far points back in); else the rectified image's (no distortion computed)."""
     rect_size = tuple(view.calib.image_size)
     if tuple(size) == rect_size:
         return view.in_image(rect_uv)
     margin = 2.0 * np.asarray(config.raw_margin_px, dtype=float)
     near = _inside(np.asarray(rect_uv, dtype=float) + margin, tuple(np.asarray(rect_size) + 2 * margin))
-    return near & _inside(raw_uv, size)
+    return near & _inside(_distort(rect_uv, raw), size)
 
 
 def _inside(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -341,9 +341,7 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                 for p_index, person in enumerate(present_people):
                     tid = person.tracking_id
                     rect_uv, depth = view.project(set_points[tid])
-                    # the pixels of the image the detector ran on (named raw_uv either way)
-                    raw_uv = _distort(rect_uv, raw) if det_cfg.detected_on == "raw" else rect_uv.copy()
-                    in_image = _detector_sees(rect_uv, raw_uv, view, size, det_cfg) & (depth > 0.5)
+                    in_image = _detector_sees(rect_uv, view, raw, size, det_cfg) & (depth > 0.5)
                     draws = rng.random(3)
                     if in_image.sum() < det_cfg.min_visible_keypoints:
                         continue
@@ -354,6 +352,8 @@ def frame_detections(ctx, k: int, ray_scene, bodies: dict, present_people: list,
                     occluded_frac = 1.0 - visible.sum() / in_image.sum()
                     if draws[0] < det_cfg.person_miss_prob + det_cfg.occluded_miss_prob * occluded_frac:
                         continue
+                    # the pixels of the image the detector ran on (named raw_uv either way)
+                    raw_uv = _distort(rect_uv, raw) if det_cfg.detected_on == "raw" else rect_uv.copy()
                     shared = None
                     if det_cfg.stereo_shared_noise > 0:      # the same draws in every camera (own generator)
                         shared = np.random.default_rng([int(ctx.seed), 7, int(k), f_index, p_index]).normal(
