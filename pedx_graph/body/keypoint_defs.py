@@ -168,28 +168,34 @@ def faces_digest(faces: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest()[:16]
 
 
-def keypoint_set_map(data, set_name: str) -> KeypointMap:
+def set_topology(data, set_name: str) -> str:
+    """Which of a keypoint set's definitions fit the model ``data``: ``"open"`` when its faces match the open
+    model's digest, ``"smpl"`` for the SMPL topology (V = 6890); any other model raises ValueError naming it."""
+    open_defs = load_keypoint_set(set_name).definitions["open"]
+    if data.num_vertices == open_defs["num_vertices"] and faces_digest(data.faces) == open_defs["faces_sha256_16"]:
+        return "open"
+    if data.num_vertices == SMPL_NUM_VERTICES:
+        return "smpl"
+    raise ValueError(f"{data.source}: keypoint set {set_name!r} is defined on the open model and the SMPL "
+                     f"topology only; this model has {data.num_vertices} vertices")
+
+
+def keypoint_set_map(data, set_name: str, kset: KeypointSet | None = None) -> KeypointMap:
     """The :class:`KeypointMap` of keypoint set ``set_name`` on the model ``data`` (a ModelData).
 
     ``pedx18`` is the model's own PedX map (:func:`keypoint_map_for_model`).  Other sets use the data file's
-    ``open`` definitions when the model's faces match the open model's digest, else its ``smpl`` definitions
-    when the model has the SMPL topology (V = 6890); any other model raises ValueError naming it.
+    definitions for the model's topology (:func:`set_topology`): the shipped file's, or ``kset``'s (a set
+    read from a file of its own, :func:`pedx_graph.keypoints.read_keypoint_set_file`).
     """
     if set_name == "pedx18":
         return keypoint_map_for_model(data)
-    kset = load_keypoint_set(set_name)
-    open_defs = kset.definitions["open"]
-    if data.num_vertices == open_defs["num_vertices"] and faces_digest(data.faces) == open_defs["faces_sha256_16"]:
-        topology = "open"
-    elif data.num_vertices == SMPL_NUM_VERTICES:
-        topology = "smpl"
-    else:
-        raise ValueError(f"{data.source}: keypoint set {set_name!r} is defined on the open model and the SMPL "
-                         f"topology only; this model has {data.num_vertices} vertices")
+    topology = set_topology(data, set_name)
+    kset = load_keypoint_set(set_name) if kset is None else kset
     points = kset.definitions[topology]["points"]
     entries = {n: (tuple((int(v), float(c)) for v, c in points[n]["vertices"]),
                    tuple((int(j), float(c)) for j, c in points[n]["joints"])) for n in kset.keypoints}
-    return _build_named(kset.keypoints, entries, len(data.parents), f"{set_name}:{topology}")
+    source = f"{set_name}:{topology}" if kset is load_keypoint_set(set_name) else f"{set_name}:{topology}:own-file"
+    return _build_named(kset.keypoints, entries, len(data.parents), source)
 
 
 def _build_named(names: tuple[str, ...], entries: dict, num_joints: int, source: str) -> KeypointMap:

@@ -204,9 +204,23 @@ class BodyModel:
     def report_model(self, model: "BodyModel") -> None:
         self._report_model = model
 
+    @property
+    def keypoint_sets(self) -> dict:
+        """Keypoint sets read from files of their own (set name -> ``KeypointSet``,
+        :func:`pedx_graph.keypoints.read_keypoint_set_folder`) whose definitions replace the shipped ones on
+        this model; empty: the shipped sets."""
+        return self.__dict__.get("_keypoint_sets", {})
+
+    @keypoint_sets.setter
+    def keypoint_sets(self, sets: dict) -> None:
+        if self.__dict__.get("_set_models") or self.__dict__.get("_layout_models"):
+            raise ValueError("keypoint sets must be given before the model's keypoint-set models are made")
+        self._keypoint_sets = dict(sets)
+
     def keypoint_set_map(self, set_name: str) -> KeypointMap:
-        """The :class:`KeypointMap` of keypoint set ``set_name`` on this model (:func:`keypoint_set_map`)."""
-        return keypoint_set_map(self.data, set_name)
+        """The :class:`KeypointMap` of keypoint set ``set_name`` on this model (:func:`keypoint_set_map`; a set
+        of :attr:`keypoint_sets` replaces the shipped one)."""
+        return keypoint_set_map(self.data, set_name, self.keypoint_sets.get(set_name))
 
     def for_keypoint_set(self, set_name: str) -> "BodyModel":
         """This model with :meth:`keypoints` (and their Jacobians) in keypoint set ``set_name``'s order and
@@ -215,8 +229,9 @@ class BodyModel:
             return self
         cache = self.__dict__.setdefault("_set_models", {})
         if set_name not in cache:
-            other = BodyModel(self.data, keypoint_set_map(self.data, set_name))
+            other = BodyModel(self.data, self.keypoint_set_map(set_name))
             other._keypoint_set = set_name
+            other._keypoint_sets = self.keypoint_sets
             cache[set_name] = other
         return cache[set_name]
 

@@ -1,4 +1,5 @@
-"""``pedx-graph import openpose|coco``: detector / annotation-tool keypoint files -> a PedX-layout dataset."""
+"""``pedx-graph import openpose|coco``: detector / annotation-tool keypoint files -> a PedX-layout dataset; and
+``pedx-graph calibrate-keypoints``: the detector's own keypoint definitions measured from a fit of such a dataset."""
 from __future__ import annotations
 
 import argparse
@@ -67,6 +68,69 @@ def register(subparsers) -> None:
                    help="local processes for the association, one stereo pair each (default 1: this process; "
                         "the same tracks with any number)")
     p.set_defaults(func=_run_import)
+
+    c = subparsers.add_parser(
+        "calibrate-keypoints", help="measure where a detector's keypoints sit on the body model from its fits",
+        description="From an imported detection dataset and its fit (pedx-graph fit --out RESULTS), estimate how "
+                    "far each keypoint of the detector's set lies from the definition the fit used, on the "
+                    "body model (per keypoint, an offset that turns with the skin around it; its uncertainty "
+                    "from the labels' sigmas), and write the moved sets as OUT/<set>.json, a table "
+                    "OUT/calibration.md and OUT/fit_config.yaml (the fit's config with keypoint_sets: OUT). "
+                    "A fit absorbs part of an offset: fit again with --config OUT/fit_config.yaml and "
+                    "calibrate again from that fit (2-3 rounds; docs/detections.md).")
+    c.add_argument("dataset", help="the imported dataset (pedx-graph import --out)")
+    c.add_argument("results", help="its fit's results folder (pedx-graph fit --out)")
+    c.add_argument("--out", required=True, help="folder for the calibrated keypoint sets (created)")
+    c.add_argument("--prior-sigma", type=float, default=0.05, metavar="METRES",
+                   help="prior standard deviation of each keypoint's offset from the shipped definition per axis, "
+                        "metres")
+    c.add_argument("--rounds", type=positive_int, default=1,
+                   help="calibrate, then fit the dataset again with the calibrated sets and calibrate from that fit, "
+                        "this many rounds in all (each one's sets, config and fit in OUT/round<k>/; the last "
+                        "round's in OUT)")
+    c.add_argument("--workers", type=positive_int, default=1, help="local processes fitting the tracks (--rounds > 1)")
+    c.set_defaults(func=_run_calibrate)
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
+    import sys
+
+    import numpy as np
+
+    from pedx_graph.detections.calibrate_keypoints import calibrate_from_results
+
+    if not args.prior_sigma > 0:
+        raise ValueError(f"--prior-sigma must be > 0 metres, got {args.prior_sigma}")
+    from pathlib import Path
+
+    from pedx_graph.config import load_config
+    from pedx_graph.graph.config import FitConfig
+    from pedx_graph.keypoints import load_keypoint_set
+    from pedx_graph.solvers.fit import fit_dataset
+
+    command = "pedx-graph " + " ".join(sys.argv[1:]) if sys.argv[1:] else "pedx-graph calibrate-keypoints"
+    out, results = Path(args.out), Path(args.results)
+    for k in range(1, args.rounds + 1):
+        folder = out if k == args.rounds else out / f"round{k}"
+        estimates = calibrate_from_results(args.dataset, results, folder, prior_sigma_m=args.prior_sigma,
+                                           command=command)
+        if k < args.rounds:
+            moved = {name: float(np.median(1000 * np.linalg.norm(e.rest_offset_m, axis=1)))
+                     for name, e in estimates.items()}
+            print(f"round {k}: definitions moved by " + ", ".join(f"{n} {v:.0f} mm" for n, v in moved.items())
+                  + f" (median); fitting again into {folder / 'fit'}")
+            results = folder / "fit"
+            fit_dataset(args.dataset, results, load_config(FitConfig, folder / "fit_config.yaml"), workers=args.workers,
+                        overwrite=True)
+    for name, est in estimates.items():
+        length = 1000 * np.linalg.norm(est.offset_in_use_m + est.rest_offset_m, axis=1)
+        change = 1000 * np.linalg.norm(est.rest_offset_m, axis=1)
+        worst = int(np.argmax(length))
+        print(f"{name}: {len(length)} keypoints {np.median(length):.0f} mm from the shipped definitions (median; "
+              f"largest {length[worst]:.0f} mm, {load_keypoint_set(name).keypoints[worst]}), moved by "
+              f"{np.median(change):.0f} mm this round (median); written {args.out}/{name}.json")
+    print(f"fit again with: pedx-graph fit {args.dataset} --config {args.out}/fit_config.yaml --out <folder>")
+    return 0
 
 
 def _camera_names(items: list[str] | None) -> dict[str, str] | None:

@@ -345,6 +345,10 @@ class FitConfig:
     """Path of a pose GMM ``.npz`` (``pedx-graph train-prior``); empty: the shipped prior."""
     temporal_prior: str = ""
     """Path of a temporal GMM ``.npz``; empty: the shipped prior."""
+    keypoint_sets: str = ""
+    """Folder of keypoint-set files (``<set>.json``, as ``pedx-graph calibrate-keypoints`` writes them: a
+    detector's own points on the body model) whose definitions replace the shipped set of that name in the
+    fit; empty: the shipped sets."""
     prior_covariance_scale: float = 3.0
     """Multiplies every covariance of the pose and the temporal GMM (1: the trained priors as they are).
     Inside a track the per-frame pose priors and the frame-to-frame temporal priors multiply, and that

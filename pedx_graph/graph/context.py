@@ -10,6 +10,7 @@ from factors.common import MaxMixture
 from pedx_graph.body import BodyModel
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.monocular import BodySizePrior, body_size_prior
+from pedx_graph.keypoints import read_keypoint_set_folder
 from pedx_graph.priors import load_pose_prior, load_temporal_prior
 
 
@@ -54,6 +55,8 @@ class EstimatorContext:
     @staticmethod
     def create(config: FitConfig) -> "EstimatorContext":
         model = BodyModel.load(config.body_model or None)
+        if config.keypoint_sets:
+            model.keypoint_sets = read_keypoint_set_folder(config.keypoint_sets)
         pose_prior = load_pose_prior(config.pose_prior or None)
         temporal_prior = load_temporal_prior(config.temporal_prior or None)
         scale = float(config.prior_covariance_scale)
