@@ -289,3 +289,14 @@ def test_readme_crowd_figures_match_the_json():
     assert f"{total['switches_in_line']} of {total['id_switches']} on the benchmark's crowded scenes" in text
     assert (f"holds {total['switches_first_quarter']} of the {total['switches_in_review']} switches they hold"
             in text)
+
+
+def test_keypoint_calibration_table_matches_its_runs():
+    """docs/detections.md's keypoint-calibration table is the one the committed runs' JSON gives."""
+    from pedx_graph.eval.benchmark_tables import (KEYPOINT_CALIBRATION_BEGIN, KEYPOINT_CALIBRATION_END,
+                                                  keypoint_calibration_block)
+
+    text = (ROOT / "docs" / "detections.md").read_text()
+    block = text[text.index(KEYPOINT_CALIBRATION_BEGIN):
+                 text.index(KEYPOINT_CALIBRATION_END) + len(KEYPOINT_CALIBRATION_END)] + "\n"
+    assert block == keypoint_calibration_block(ROOT / "benchmarks" / "results")

@@ -435,6 +435,40 @@ def frame_rates_block(results_dir: str | os.PathLike) -> str:
     return "\n".join(lines) + "\n"
 
 
+KEYPOINT_CALIBRATION_BEGIN, KEYPOINT_CALIBRATION_END = "<!-- keypoint-calibration -->", "<!-- /keypoint-calibration -->"
+#: The keypoint-calibration runs in docs/detections.md's table: folder under benchmarks/results, row label.
+KEYPOINT_CALIBRATION_RUNS = (("keypoint_calibration", "calibrated"),
+                             ("keypoint_calibration_definition_sigma_2cm", "calibrated, `definition_sigma_m` 2 cm"))
+
+
+def keypoint_calibration_block(results_dir: str | os.PathLike) -> str:
+    """docs/detections.md's table of ``bench_keypoint_calibration`` (markers included): per run of
+    :data:`KEYPOINT_CALIBRATION_RUNS` and detector offset, each format's MPJPE at 5-25 m with the shipped
+    definitions, after one round and after the last, and the coverage of the 95 % ellipsoids before and
+    after; then the commands."""
+    results_dir = Path(results_dir)
+    lines = [KEYPOINT_CALIBRATION_BEGIN,
+             "| run | detector's points off the definitions | MPJPE, shipped definitions (round 0) | after 1 round | "
+             "after the last round | 95 % coverage, round 0 -> last |",
+             "|---|---|---|---|---|---|"]
+    commands = []
+    for folder, label in KEYPOINT_CALIBRATION_RUNS:
+        run = json.loads((results_dir / folder / "bench_keypoint_calibration.json").read_text())
+        for shift, formats in run["shifts"].items():
+            def row(r, key, digits):
+                return " / ".join(_f(formats[fmt]["rounds"][r][key], digits) for fmt in formats)
+            last = run["rounds"]
+            lines.append(f"| {label} | {float(shift) * 100:g} cm | {row(0, 'mpjpe_mm', 1)} | {row(1, 'mpjpe_mm', 1)} | "
+                         f"{row(last, 'mpjpe_mm', 1)} (round {last}) | {row(0, 'coverage_95', 3)} -> "
+                         f"{row(last, 'coverage_95', 3)} |")
+        commands.append(f"`{run['command']}` (`benchmarks/results/{folder}`)")
+    names = " / ".join(json.loads((results_dir / KEYPOINT_CALIBRATION_RUNS[0][0] / "bench_keypoint_calibration.json")
+                                  .read_text())["shifts"]["0"].keys())
+    lines += ["", f"Formats in each cell: {names}.  Commands: " + "; ".join(commands) + ".",
+              KEYPOINT_CALIBRATION_END]
+    return "\n".join(lines) + "\n"
+
+
 def replace_block(text: str, block: str, begin: str = BEGIN, end: str = END) -> str:
     """``text`` with its block between ``begin`` / ``end`` replaced by ``block`` (the benchmark block: inserted
     before the notes, else appended)."""
