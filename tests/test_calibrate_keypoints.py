@@ -16,7 +16,8 @@ from pedx_graph.detections.calibrate_keypoints import calibrated_set, estimate_o
 from pedx_graph.detections.fit_layout import layout_model
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.context import EstimatorContext
-from pedx_graph.keypoints import KEYPOINT_SET_DIR, read_keypoint_set_file, read_keypoint_set_folder
+from pedx_graph.body.keypoint_defs import read_keypoint_set_file, read_keypoint_set_folder
+from pedx_graph.keypoints import KEYPOINT_SET_DIR
 from pedx_graph.preflight import check_fit_setup
 from pedx_graph.solvers.context import estimator_context
 from pedx_graph.sim.detections import shifted_definitions

@@ -17,12 +17,15 @@ Sources, in order:
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
+from pedx_graph.data.types import DataFormatError
 from pedx_graph.keypoints import PEDX_KEYPOINTS
 from pedx_graph.keypoints import KEYPOINT_SET_DIR, KeypointSet, keypoint_set_names, load_keypoint_set  # noqa: F401
 
@@ -168,6 +171,66 @@ def faces_digest(faces: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(faces, dtype=np.int64).tobytes()).hexdigest()[:16]
 
 
+def read_keypoint_set_file(path: str | Path) -> KeypointSet:
+    """A keypoint set written outside the package (``pedx-graph calibrate-keypoints``: a shipped set with its
+    definitions moved to a detector's points), checked against the shipped set of its name: the same
+    keypoints in the same order, PedX equivalents and topologies, every point's definition a list of
+    ``[id, coefficient]`` pairs.  Raises ``DataFormatError`` naming the file and the field."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataFormatError(path, None, f"not a readable JSON keypoint set ({exc})") from None
+    if not isinstance(doc, dict):
+        raise DataFormatError(path, None, "expected a JSON object")
+    name = doc.get("name")
+    if name not in keypoint_set_names() or name == "pedx18":
+        raise DataFormatError(path, "name", f"expected one of the detector sets "
+                              f"{', '.join(n for n in keypoint_set_names() if n != 'pedx18')}, got {name!r}")
+    shipped = load_keypoint_set(name)
+    if tuple(doc.get("keypoints") or ()) != shipped.keypoints:
+        raise DataFormatError(path, "keypoints", f"must be the {len(shipped.keypoints)} keypoints of {name} in its order")
+    if doc.get("pedx_equivalent") != shipped.pedx_equivalent:
+        raise DataFormatError(path, "pedx_equivalent", f"must be {name}'s")
+    definitions = doc.get("definitions")
+    if not isinstance(definitions, dict) or set(definitions) != set(shipped.definitions):
+        raise DataFormatError(path, "definitions", f"must hold the topologies {sorted(shipped.definitions)}")
+    for topology, entry in definitions.items():
+        for key in ("num_vertices", "faces_sha256_16"):
+            if key in shipped.definitions[topology] and entry.get(key) != shipped.definitions[topology][key]:
+                raise DataFormatError(path, f"definitions.{topology}.{key}", f"must be {name}'s")
+        points = entry.get("points")
+        if not isinstance(points, dict) or set(points) != set(shipped.keypoints):
+            raise DataFormatError(path, f"definitions.{topology}.points", "must define every keypoint of the set")
+        limit = shipped.definitions[topology].get("num_vertices", 10 ** 9)
+        for point, terms in points.items():
+            for kind in ("vertices", "joints"):
+                pairs = terms.get(kind) if isinstance(terms, dict) else None
+                ok = isinstance(pairs, list) and all(
+                    isinstance(x, list) and len(x) == 2 and isinstance(x[0], int) and isinstance(x[1], (int, float))
+                    and 0 <= x[0] < (limit if kind == "vertices" else 64) and np.isfinite(x[1]) for x in pairs)
+                if not ok:
+                    raise DataFormatError(path, f"definitions.{topology}.points.{point}.{kind}",
+                                          "expected a list of [id, coefficient] pairs within the model")
+    return KeypointSet(name=name, keypoints=shipped.keypoints, pedx_equivalent=shipped.pedx_equivalent,
+                       definitions=definitions, description=str(doc.get("description", "")))
+
+
+def read_keypoint_set_folder(folder: str | Path) -> dict[str, KeypointSet]:
+    """Every ``<set>.json`` of ``folder`` read by :func:`read_keypoint_set_file`, by set name (a file named
+    other than its set is refused).  Raises ``DataFormatError`` for a missing folder or a bad file."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataFormatError(folder, None, "no such folder of keypoint sets")
+    out = {}
+    for path in sorted(folder.glob("*.json")):
+        kset = read_keypoint_set_file(path)
+        if kset.name != path.stem:
+            raise DataFormatError(path, "name", f"a file named {path.name} must hold the set {path.stem!r}")
+        out[kset.name] = kset
+    return out
+
+
 def set_topology(data, set_name: str) -> str:
     """Which of a keypoint set's definitions fit the model ``data``: ``"open"`` when its faces match the open
     model's digest, ``"smpl"`` for the SMPL topology (V = 6890); any other model raises ValueError naming it."""
@@ -185,7 +248,7 @@ def keypoint_set_map(data, set_name: str, kset: KeypointSet | None = None) -> Ke
 
     ``pedx18`` is the model's own PedX map (:func:`keypoint_map_for_model`).  Other sets use the data file's
     definitions for the model's topology (:func:`set_topology`): the shipped file's, or ``kset``'s (a set
-    read from a file of its own, :func:`pedx_graph.keypoints.read_keypoint_set_file`).
+    read from a file of its own, :func:`read_keypoint_set_file`).
     """
     if set_name == "pedx18":
         return keypoint_map_for_model(data)

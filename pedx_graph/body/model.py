@@ -207,7 +207,7 @@ class BodyModel:
     @property
     def keypoint_sets(self) -> dict:
         """Keypoint sets read from files of their own (set name -> ``KeypointSet``,
-        :func:`pedx_graph.keypoints.read_keypoint_set_folder`) whose definitions replace the shipped ones on
+        :func:`pedx_graph.body.keypoint_defs.read_keypoint_set_folder`) whose definitions replace the shipped ones on
         this model; empty: the shipped sets."""
         return self.__dict__.get("_keypoint_sets", {})
 

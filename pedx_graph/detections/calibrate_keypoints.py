@@ -11,16 +11,19 @@ Model, per keypoint ``k`` of the set (frames: world = LiDAR frame, metres; pixel
     B_k(f)        = [v_b1 - v_a, v_b2 - v_a, v_b3 - v_a](f)            (3, 3) metres
 
 ``world_p_k`` is the definition in use (the fit's), ``v_a`` the posed vertex nearest the keypoint at rest and
-``v_b1..3`` vertices 2-25 cm from it (across the limb or trunk where the skin around is flat), skinned to the same joint, whose rest differences lie nearest the
-rest frame's x, y and z axes (either way) (:func:`offset_basis`).  The offset therefore turns and stretches with the skin
-around the point, and the moved point is still a linear map of the posed vertices: the set's file keeps its
-form (``+c_i`` on ``v_bi``, ``-sum c_i`` on ``v_a``).
+``v_b1..3`` vertices 2-25 cm from it (across the limb or trunk where the skin around is flat), skinned to the
+same joint, whose rest differences lie nearest the rest frame's x, y and z axes, either way
+(:func:`offset_basis`).  The offset therefore turns and stretches with the skin around the point, and the
+moved point is still a linear map of the posed vertices: the set's file keeps its form (``+c_i`` on
+``v_bi``, ``-sum c_i`` on ``v_a``).
 
 Each labelled keypoint of every fitted frame and image gives two rows, linearised at the fit:
 
     r = z - pi(world_p_k(f))       (2,) pixels             A = dpi/dp (2, 3) @ B_k(f)       r ~ A c_k
 
-whitened by the label's sigma (``View2D.sigma_px``, the import's, from the confidences) and weighted by a
+with the reprojection term's projection, derivative and sigmas (``factors.stereo_reprojection``: its
+``stereo_pixels`` and ``build_reprojection_setup``; the label's sigma, ``View2D.sigma_px``, the import's from
+the confidences), whitened by that sigma and weighted by a
 Cauchy kernel of the whitened 2D offset (scale ``kernel_sigmas``: a wrong detection does not move the
 definition).  With a zero-mean Gaussian prior of ``prior_sigma_m`` on the rest offset ``B_k(rest) c_k`` per
 axis (the offset of one keypoint is seen along every viewing direction only over many poses and views), the
@@ -40,11 +43,12 @@ from typing import Iterable
 
 import numpy as np
 
+from factors.stereo_reprojection import build_reprojection_setup, images_from_views, stereo_pixels
 from pedx_graph.body.keypoint_defs import keypoint_set_map, set_topology
 from pedx_graph.data.types import Track
 from pedx_graph.keypoints import load_keypoint_set
 
-#: Rest-frame axes the three basis differences of a keypoint point nearest (x, y, z of the model's frame).
+#: Rest-frame axes the three basis differences of a keypoint lie nearest (x, y, z of the model's frame).
 _AXES = np.eye(3)
 
 
@@ -72,10 +76,9 @@ def rest_keypoints(model, set_name: str, shipped: bool = False) -> np.ndarray:
 
 def offset_basis(model, set_name: str, min_length_m: float = 0.02, max_length_m: float = 0.25) -> OffsetBasis:
     """The :class:`OffsetBasis` of ``set_name`` on ``model`` (a ``BodyModel``), around the shipped definitions
-    (the same basis in every round): per keypoint, among the
-    vertices ``min_length_m`` to ``max_length_m`` from the anchor and skinned mostly to the anchor's joint,
-    the three whose rest difference lies nearest the x, y and z axes (either way) (any skinning when those are too
-    few or nearly coplanar)."""
+    (the same basis in every round): per keypoint, among the vertices ``min_length_m`` to ``max_length_m``
+    from the anchor and skinned mostly to the anchor's joint, the three whose rest difference lies nearest
+    the x, y and z axes, either way (any skinning when those are too few or nearly coplanar)."""
     rest_kp = rest_keypoints(model, set_name, shipped=True)
     rest_v = np.asarray(model.v_template, dtype=float)
     weights = np.asarray(model.weights.toarray() if hasattr(model.weights, "toarray") else model.weights)
@@ -129,12 +132,6 @@ class OffsetNormals:
                              weight=np.zeros(num_keypoints))
 
 
-def _image_P_world(calib, side: str) -> np.ndarray:
-    """(3, 4) world -> rectified pixels of a pair's ``side`` image."""
-    P_rect = calib.left_P_rect if side == "left" else calib.right_P_rect
-    return np.asarray(P_rect, dtype=float) @ np.asarray(calib.rect_T_world, dtype=float)
-
-
 def add_track(normals: OffsetNormals, model, basis: OffsetBasis, track: Track, frames: list[int],
               pose: np.ndarray, betas: np.ndarray, trans: np.ndarray, kernel_sigmas: float = 3.0,
               default_sigma_px: float = 4.0, chunk: int = 32) -> None:
@@ -156,25 +153,22 @@ def add_track(normals: OffsetNormals, model, basis: OffsetBasis, track: Track, f
             fr = by_frame.get(int(frame))
             if fr is None:
                 continue
-            for pair, side, view in fr.labelled_views():
-                if view.keypoint_set != basis.set_name:
-                    continue
-                image_P_world = _image_P_world(track.calibrations[pair], side)
-                M = image_P_world[:, :3]
-                h = world_p[i] @ M.T + image_P_world[:, 3]                                    # (K, 3)
-                depth = h[:, 2]
-                uv = h[:, :2] / depth[:, None]
-                jac = (M[None, :2, :] - uv[:, :, None] * M[None, 2:3, :]) / depth[:, None, None]  # (K, 2, 3)
-                sigma = np.full(len(uv), default_sigma_px) if view.sigma_px is None else np.asarray(view.sigma_px)
-                residual = np.asarray(view.keypoints, dtype=float) - uv
-                ok = np.all(np.isfinite(residual), axis=1) & np.isfinite(sigma) & (sigma > 0) & (depth > 0.1)
-                if not ok.any():
-                    continue
-                k = np.flatnonzero(ok)
-                e = residual[k] / sigma[k, None]
+            views = [v for v in fr.labelled_views() if v[2].keypoint_set == basis.set_name]
+            # the reprojection term's own pixels, derivatives and sigmas (a label's sigma, else the default)
+            setup = build_reprojection_setup(images_from_views(views, track.calibrations), default_sigma_px,
+                                             default_sigma_px, np.ones(len(basis.anchors)))
+            if not setup.num_images:
+                continue
+            uv, d_uv = stereo_pixels(world_p[i][None], [setup], derivatives=True)
+            row = 0
+            for m, image in enumerate(setup.images):
+                k = image.index
+                sigma = setup.sigmas[row:row + 2 * len(k):2]
+                row += 2 * len(k)
+                e = (image.uv - uv[0, m, k]) / sigma[:, None]
                 e_sq = np.sum(e * e, axis=1)
                 w = 1.0 / (1.0 + e_sq / kernel_sigmas ** 2)                                   # Cauchy
-                A = jac[k] @ spans[i, k] / sigma[k, None, None]                              # (n_k, 2, 3)
+                A = d_uv[0, m, k] @ spans[i, k] / sigma[:, None, None]                        # (n, 2, 3)
                 normals.hessian[k] += w[:, None, None] * np.einsum("nri,nrj->nij", A, A)
                 normals.gradient[k] += w[:, None] * np.einsum("nri,nr->ni", A, e)
                 normals.count[k] += 1
@@ -199,6 +193,9 @@ class OffsetEstimate:
     """(K, 3, 3) its covariance, square metres."""
     count: np.ndarray
     """(K,) labelled keypoints it rests on."""
+    residual_rms: np.ndarray
+    """(K,) RMS of the whitened residuals per axis at the definitions in use (kernel-weighted; 1: the labels'
+    noise as their sigmas say; NaN without rows)."""
 
 
 def solve_offsets(normals: OffsetNormals, basis: OffsetBasis, prior_sigma_m: float = 0.05,
@@ -218,11 +215,14 @@ def solve_offsets(normals: OffsetNormals, basis: OffsetBasis, prior_sigma_m: flo
     return OffsetEstimate(set_name=basis.set_name, coeffs=coeffs, coeff_cov=cov, rest_offset_m=rest_offset,
                           offset_in_use_m=np.zeros_like(rest_offset) if offset_in_use_m is None else
                           np.asarray(offset_in_use_m, dtype=float),
+                          residual_rms=np.sqrt(np.divide(normals.whitened_sq, 2 * normals.weight,
+                                                         out=np.full(len(normals.weight), np.nan),
+                                                         where=normals.weight > 0)),
                           rest_cov_m2=rest_cov, count=normals.count.copy())
 
 
 def calibrated_set(model, basis: OffsetBasis, estimate: OffsetEstimate, provenance: dict | None = None) -> dict:
-    """The keypoint-set document (the shipped file's form, :func:`pedx_graph.keypoints.read_keypoint_set_file`)
+    """The keypoint-set document (the shipped file's form, :func:`pedx_graph.body.keypoint_defs.read_keypoint_set_file`)
     of the definitions in use on ``model`` moved by ``estimate``, for the model's topology (the other
     topology's definitions are the ones in use, unmoved); ``provenance`` is stored with the offsets."""
     name = basis.set_name
@@ -247,14 +247,17 @@ def calibrated_set(model, basis: OffsetBasis, estimate: OffsetEstimate, provenan
         "keypoints": {point: {"rest_offset_m": [round(float(x), 5) for x in
                                                 (estimate.offset_in_use_m + estimate.rest_offset_m)[k]],
                               "round_offset_m": [round(float(x), 5) for x in estimate.rest_offset_m[k]],
-                              "rest_sigma_m": [round(float(x), 5) for x in np.sqrt(np.diagonal(estimate.rest_cov_m2[k]))],
+                              "rest_sigma_m": [round(float(x), 5)
+                                               for x in np.sqrt(np.diagonal(estimate.rest_cov_m2[k]))],
+                              "residual_rms_sigmas": round(float(estimate.residual_rms[k]), 4),
                               "labelled": int(estimate.count[k])}
                       for k, point in enumerate(shipped.keypoints)},
         **(provenance or {})}
     return doc
 
 
-def estimate_offsets(model, set_name: str, fitted: Iterable[tuple[Track, list[int], np.ndarray, np.ndarray, np.ndarray]],
+def estimate_offsets(model, set_name: str,
+                     fitted: Iterable[tuple[Track, list[int], np.ndarray, np.ndarray, np.ndarray]],
                      prior_sigma_m: float = 0.05, kernel_sigmas: float = 3.0,
                      step: float = 1.0) -> tuple[OffsetBasis, OffsetEstimate]:
     """:func:`offset_basis`, :func:`add_track` over ``fitted`` (``(track, frames, pose, betas, trans)``) and
@@ -267,7 +270,8 @@ def estimate_offsets(model, set_name: str, fitted: Iterable[tuple[Track, list[in
     in_use = rest_keypoints(model, set_name) - rest_keypoints(model, set_name, shipped=True)
     estimate = solve_offsets(normals, basis, prior_sigma_m, in_use)
     if step != 1.0:
-        estimate = dataclasses.replace(estimate, coeffs=step * estimate.coeffs, rest_offset_m=step * estimate.rest_offset_m)
+        estimate = dataclasses.replace(estimate, coeffs=step * estimate.coeffs,
+                                       rest_offset_m=step * estimate.rest_offset_m)
     return basis, estimate
 
 
@@ -281,17 +285,19 @@ def offsets_markdown(estimates: dict[str, OffsetEstimate], command: str) -> str:
              "millimetres.  This round's change is what the last fit's residuals added to the definitions it "
              "was fitted with; a fit absorbs part of an offset, so fit again with the written sets and "
              "calibrate again until the changes are small.  The standard deviations count the labels' noise "
-             "given the fitted bodies, not the fits' own errors.", ""]
+             "given the fitted bodies, not the fits' own errors; the residual RMS is that of the last fit's "
+             "whitened residuals per axis at the definitions it used (1: the labels' sigmas about right).", ""]
     for name, est in estimates.items():
         lines += [f"## {name}", "",
-                  "| keypoint | x | y | z | length | this round's change | sigma (x, y, z) | labelled |",
-                  "|---|---:|---:|---:|---:|---:|---|---:|"]
+                  "| keypoint | x | y | z | length | this round's change | sigma (x, y, z) | residual RMS (sigmas) "
+                  "| labelled |",
+                  "|---|---:|---:|---:|---:|---:|---|---:|---:|"]
         for k, point in enumerate(load_keypoint_set(name).keypoints):
             off = 1000 * (est.offset_in_use_m[k] + est.rest_offset_m[k])
             sd = 1000 * np.sqrt(np.diagonal(est.rest_cov_m2[k]))
             lines.append(f"| {point} | {off[0]:.1f} | {off[1]:.1f} | {off[2]:.1f} | {np.linalg.norm(off):.1f} | "
                          f"{1000 * np.linalg.norm(est.rest_offset_m[k]):.1f} | "
-                         f"{sd[0]:.1f}, {sd[1]:.1f}, {sd[2]:.1f} | {int(est.count[k])} |")
+                         f"{sd[0]:.1f}, {sd[1]:.1f}, {sd[2]:.1f} | {est.residual_rms[k]:.2f} | {int(est.count[k])} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -310,7 +316,7 @@ def calibrate_from_results(dataset, results, out, prior_sigma_m: float = 0.05, k
     from pedx_graph.data.reader import read_dataset, read_smpl_labels
     from pedx_graph.data.types import DataFormatError
     from pedx_graph.graph.config import FitConfig
-    from pedx_graph.keypoints import read_keypoint_set_folder
+    from pedx_graph.body.keypoint_defs import read_keypoint_set_folder
     from pedx_graph.utils import atomic_write_json, atomic_write_text
 
     results, out = Path(results), Path(out)

@@ -10,7 +10,7 @@ from factors.common import MaxMixture
 from pedx_graph.body import BodyModel
 from pedx_graph.graph.config import FitConfig
 from pedx_graph.graph.monocular import BodySizePrior, body_size_prior
-from pedx_graph.keypoints import read_keypoint_set_folder
+from pedx_graph.body.keypoint_defs import read_keypoint_set_folder
 from pedx_graph.priors import load_pose_prior, load_temporal_prior
 
 
