@@ -437,8 +437,11 @@ def frame_rates_block(results_dir: str | os.PathLike) -> str:
 
 KEYPOINT_CALIBRATION_BEGIN, KEYPOINT_CALIBRATION_END = "<!-- keypoint-calibration -->", "<!-- /keypoint-calibration -->"
 #: The keypoint-calibration runs in docs/detections.md's table: folder under benchmarks/results, row label.
-KEYPOINT_CALIBRATION_RUNS = (("keypoint_calibration", "calibrated"),
-                             ("keypoint_calibration_definition_sigma_2cm", "calibrated, `definition_sigma_m` 2 cm"))
+KEYPOINT_CALIBRATION_RUNS = (("keypoint_calibration", "simulator's ids"),
+                             ("keypoint_calibration_definition_sigma_2cm",
+                              "simulator's ids, `definition_sigma_m` 2 cm"),
+                             ("keypoint_calibration_associated", "the association (no ids)"),
+                             ("keypoint_calibration_pedx_rig", "simulator's ids, real PedX rig"))
 
 
 def keypoint_calibration_block(results_dir: str | os.PathLike) -> str:
@@ -448,8 +451,8 @@ def keypoint_calibration_block(results_dir: str | os.PathLike) -> str:
     after; then the commands."""
     results_dir = Path(results_dir)
     lines = [KEYPOINT_CALIBRATION_BEGIN,
-             "| run | detector's points off the definitions | MPJPE, shipped definitions (round 0) | after 1 round | "
-             "after the last round | 95 % coverage, round 0 -> last |",
+             "| detections grouped by | detector's points off the definitions | MPJPE, shipped definitions (round 0) | "
+             "after 1 round | after the last round | 95 % coverage, round 0 -> last |",
              "|---|---|---|---|---|---|"]
     commands = []
     for folder, label in KEYPOINT_CALIBRATION_RUNS:
