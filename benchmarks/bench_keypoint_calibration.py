@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import hardware, public_args  # noqa: E402
+from _common import hardware, public_args, write_outputs  # noqa: E402
 from bench_detections import (FORMATS, GOAL_RANGE_M, MATCH_RADIUS_M, RIGS, _truth_frames,  # noqa: E402
                               frame_owners, labelled_instances, read_format, scene_clouds, scene_configs,
                               with_true_ids)
@@ -57,7 +57,7 @@ from pedx_graph.sim.config import DETECTOR_FORMATS  # noqa: E402
 from pedx_graph.sim.detections import shifted_definitions  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
 from pedx_graph.solvers.fit import fit_tracks  # noqa: E402
-from pedx_graph.utils import atomic_write_json, atomic_write_text  # noqa: E402
+from pedx_graph.utils import atomic_write_json  # noqa: E402
 
 #: 95 % quantile of chi-square with 3 dof: a keypoint inside its 95 % ellipsoid.
 CHI2_3_95 = 7.814727903251178
@@ -248,11 +248,7 @@ def main(argv: list[str] | None = None) -> int:
               "total_seconds": time.perf_counter() - t0, "hardware": hardware()}
     command = " ".join(["python benchmarks/bench_keypoint_calibration.py"] + public_args(argv))
     result["command"] = command
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / "bench_keypoint_calibration.json", result)
-    atomic_write_text(out / "bench_keypoint_calibration.md", markdown(result, command))
-    print(markdown(result, command))
+    write_outputs(args.out, "bench_keypoint_calibration", result, markdown(result, command))
     return 0
 
 
