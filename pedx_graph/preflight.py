@@ -63,7 +63,8 @@ def check_fit_setup(config, dataset: str | os.PathLike | None = None, source: st
           config.temporal_prior)
     if config.keypoint_sets:
         from pedx_graph.body.keypoint_defs import read_keypoint_set_folder
-        _load(_key(source, "keypoint_sets"), lambda: read_keypoint_set_folder(config.keypoint_sets), config.keypoint_sets)
+        _load(_key(source, "keypoint_sets"), lambda: read_keypoint_set_folder(config.keypoint_sets),
+              config.keypoint_sets)
     return _load(source, lambda: EstimatorContext.create(config))
 
 

@@ -143,11 +143,11 @@ def test_bad_keypoint_set_files_are_refused_naming_file_and_field(tmp_path, mode
     basis = offset_basis(model, SET)
     assert basis.rest.shape == (25, 3, 3)
     good = json.loads((KEYPOINT_SET_DIR / f"{SET}.json").read_text())
+    bad_vertex = json.loads(json.dumps(good).replace('"Nose": {"vertices": [', '"Nose": {"vertices": [[-1, 1.0], '))
     cases = {
         "keypoints": {**good, "keypoints": good["keypoints"][::-1]},
         "name": {**good, "name": "openpose"},
-        "definitions.open.points.Nose.vertices": json.loads(json.dumps(good).replace('"Nose": {"vertices": [',
-                                                                                      '"Nose": {"vertices": [[-1, 1.0], ')),
+        "definitions.open.points.Nose.vertices": bad_vertex,
     }
     for field, doc in cases.items():
         path = tmp_path / f"{field}.json"

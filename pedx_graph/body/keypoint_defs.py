@@ -189,7 +189,8 @@ def read_keypoint_set_file(path: str | Path) -> KeypointSet:
                               f"{', '.join(n for n in keypoint_set_names() if n != 'pedx18')}, got {name!r}")
     shipped = load_keypoint_set(name)
     if tuple(doc.get("keypoints") or ()) != shipped.keypoints:
-        raise DataFormatError(path, "keypoints", f"must be the {len(shipped.keypoints)} keypoints of {name} in its order")
+        raise DataFormatError(path, "keypoints",
+                              f"must be the {len(shipped.keypoints)} keypoints of {name} in its order")
     if doc.get("pedx_equivalent") != shipped.pedx_equivalent:
         raise DataFormatError(path, "pedx_equivalent", f"must be {name}'s")
     definitions = doc.get("definitions")

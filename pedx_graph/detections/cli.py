@@ -77,7 +77,7 @@ def register(subparsers) -> None:
                     "from the labels' sigmas), and write the moved sets as OUT/<set>.json, a table "
                     "OUT/calibration.md and OUT/fit_config.yaml (the fit's config with keypoint_sets: OUT). "
                     "A fit absorbs part of an offset: fit again with --config OUT/fit_config.yaml and "
-                    "calibrate again from that fit (2-3 rounds; docs/detections.md).")
+                    "calibrate again from that fit, or let --rounds do it (3 rounds: docs/detections.md).")
     c.add_argument("dataset", help="the imported dataset (pedx-graph import --out)")
     c.add_argument("results", help="its fit's results folder (pedx-graph fit --out)")
     c.add_argument("--out", required=True, help="folder for the calibrated keypoint sets (created)")
@@ -94,20 +94,18 @@ def register(subparsers) -> None:
 
 def _run_calibrate(args: argparse.Namespace) -> int:
     import sys
+    from pathlib import Path
 
     import numpy as np
 
-    from pedx_graph.detections.calibrate_keypoints import calibrate_from_results
-
-    if not args.prior_sigma > 0:
-        raise ValueError(f"--prior-sigma must be > 0 metres, got {args.prior_sigma}")
-    from pathlib import Path
-
     from pedx_graph.config import load_config
+    from pedx_graph.detections.calibrate_keypoints import calibrate_from_results
     from pedx_graph.graph.config import FitConfig
     from pedx_graph.keypoints import load_keypoint_set
     from pedx_graph.solvers.fit import fit_dataset
 
+    if not args.prior_sigma > 0:
+        raise ValueError(f"--prior-sigma must be > 0 metres, got {args.prior_sigma}")
     command = "pedx-graph " + " ".join(sys.argv[1:]) if sys.argv[1:] else "pedx-graph calibrate-keypoints"
     out, results = Path(args.out), Path(args.results)
     for k in range(1, args.rounds + 1):
@@ -120,8 +118,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             print(f"round {k}: definitions moved by " + ", ".join(f"{n} {v:.0f} mm" for n, v in moved.items())
                   + f" (median); fitting again into {folder / 'fit'}")
             results = folder / "fit"
-            fit_dataset(args.dataset, results, load_config(FitConfig, folder / "fit_config.yaml"), workers=args.workers,
-                        overwrite=True)
+            fit_dataset(args.dataset, results, load_config(FitConfig, folder / "fit_config.yaml"),
+                        workers=args.workers, overwrite=True)
     for name, est in estimates.items():
         length = 1000 * np.linalg.norm(est.offset_in_use_m + est.rest_offset_m, axis=1)
         change = 1000 * np.linalg.norm(est.rest_offset_m, axis=1)
