@@ -100,6 +100,8 @@ def test_offsets_recovered_from_views_of_known_bodies(model, shifted):
     assert error.mean() < 0.0019, error
     assert np.sort(error)[-2] < 0.0039 and error.max() < 0.017, error
     assert np.all(est.count == 3 * 40 * 4)
+    # the tracks' spread: every keypoint has three tracks' own estimates
+    assert np.all(np.isfinite(est.track_sigma_m) & (est.track_sigma_m > 0))
     # the basis spans every keypoint's offset and stays with the anchor's part of the body
     assert np.all(np.abs(np.linalg.det(basis.rest)) > 0)
 

@@ -48,6 +48,10 @@ from pedx_graph.body.keypoint_defs import keypoint_set_map, set_topology
 from pedx_graph.data.types import Track
 from pedx_graph.keypoints import load_keypoint_set
 
+#: Labels of a keypoint a track needs for its own estimate to enter the tracks' spread
+#: (:attr:`OffsetEstimate.track_sigma_m`).
+MIN_TRACK_LABELS = 10
+
 #: Rest-frame axes the three basis differences of a keypoint lie nearest (x, y, z of the model's frame).
 _AXES = np.eye(3)
 
@@ -125,6 +129,11 @@ class OffsetNormals:
     weight: np.ndarray
     """(K,) ``sum w``."""
 
+    def add(self, other: "OffsetNormals") -> None:
+        """Add ``other``'s sums (another track's rows) to these."""
+        for name in ("hessian", "gradient", "count", "whitened_sq", "weight"):
+            getattr(self, name)[...] += getattr(other, name)
+
     @staticmethod
     def zeros(num_keypoints: int) -> "OffsetNormals":
         return OffsetNormals(hessian=np.zeros((num_keypoints, 3, 3)), gradient=np.zeros((num_keypoints, 3)),
@@ -190,12 +199,19 @@ class OffsetEstimate:
     offset_in_use_m: np.ndarray
     """(K, 3) how far the definitions in use lay from the shipped ones at rest, metres (earlier rounds')."""
     rest_cov_m2: np.ndarray
-    """(K, 3, 3) its covariance, square metres."""
+    """(K, 3, 3) the covariance of ``rest_offset_m`` from the labels' noise given the fitted bodies, square
+    metres."""
     count: np.ndarray
     """(K,) labelled keypoints it rests on."""
     residual_rms: np.ndarray
     """(K,) RMS of the whitened residuals per axis at the definitions in use (kernel-weighted; 1: the labels'
     noise as their sigmas say; NaN without rows)."""
+    track_sigma_m: np.ndarray | None = None
+    """(K, 3) the standard error of the offset from how the tracks disagree: the spread of each track's own
+    estimate (tracks with at least :data:`MIN_TRACK_LABELS` labels of the keypoint) over the square root of
+    their number, metres per axis; it carries the fits' own errors where they differ between tracks, which
+    ``rest_cov_m2`` does not (an error common to every track, e.g. an offset the basis cannot follow, it does
+    not see either).  NaN with fewer than two such tracks."""
 
 
 def solve_offsets(normals: OffsetNormals, basis: OffsetBasis, prior_sigma_m: float = 0.05,
@@ -250,6 +266,8 @@ def calibrated_set(model, basis: OffsetBasis, estimate: OffsetEstimate, provenan
                               "rest_sigma_m": [round(float(x), 5)
                                                for x in np.sqrt(np.diagonal(estimate.rest_cov_m2[k]))],
                               "residual_rms_sigmas": round(float(estimate.residual_rms[k]), 4),
+                              "track_sigma_m": None if estimate.track_sigma_m is None else
+                              [None if not np.isfinite(x) else round(float(x), 5) for x in estimate.track_sigma_m[k]],
                               "labelled": int(estimate.count[k])}
                       for k, point in enumerate(shipped.keypoints)},
         **(provenance or {})}
@@ -264,11 +282,24 @@ def estimate_offsets(model, set_name: str,
     :func:`solve_offsets`; the change times ``step`` (over-relaxation: a fit absorbs part of an offset, so
     each round's change falls short of it; 1: the change as estimated)."""
     basis = offset_basis(model, set_name)
-    normals = OffsetNormals.zeros(len(basis.anchors))
-    for track, frames, pose, betas, trans in fitted:
-        add_track(normals, model, basis, track, frames, pose, betas, trans, kernel_sigmas=kernel_sigmas)
     in_use = rest_keypoints(model, set_name) - rest_keypoints(model, set_name, shipped=True)
+    normals = OffsetNormals.zeros(len(basis.anchors))
+    per_track, labels = [], []
+    for track, frames, pose, betas, trans in fitted:
+        own = OffsetNormals.zeros(len(basis.anchors))
+        add_track(own, model, basis, track, frames, pose, betas, trans, kernel_sigmas=kernel_sigmas)
+        normals.add(own)
+        per_track.append(solve_offsets(own, basis, prior_sigma_m, in_use).rest_offset_m)
+        labels.append(own.count)
     estimate = solve_offsets(normals, basis, prior_sigma_m, in_use)
+    spread = np.full((len(basis.anchors), 3), np.nan)
+    if per_track:
+        per_track, labels = np.array(per_track), np.array(labels)                 # (T, K, 3), (T, K)
+        for k in range(len(basis.anchors)):
+            enough = labels[:, k] >= MIN_TRACK_LABELS
+            if enough.sum() >= 2:
+                spread[k] = per_track[enough, k].std(axis=0, ddof=1) / np.sqrt(enough.sum())
+    estimate = dataclasses.replace(estimate, track_sigma_m=spread)
     if step != 1.0:
         estimate = dataclasses.replace(estimate, coeffs=step * estimate.coeffs,
                                        rest_offset_m=step * estimate.rest_offset_m)
@@ -277,27 +308,32 @@ def estimate_offsets(model, set_name: str,
 
 def offsets_markdown(estimates: dict[str, OffsetEstimate], command: str) -> str:
     """The offsets as a markdown table per set, millimetres at rest on the model: each keypoint's whole offset
-    from the shipped definition, this round's change, its standard deviation and the labelled keypoints it
-    rests on."""
+    from the shipped definition, this round's change, its standard deviations (the labels' noise; the tracks'
+    spread), the residuals' RMS and the labelled keypoints it rests on."""
     lines = ["# Keypoint definitions calibrated from fitted tracks", "", f"Command: `{command}`", "",
              "Where the detector's points lie from the shipped definitions, at rest on the model (mean shape, "
              "rest pose; the model's axes: for SMPL-format models x to the body's left, y up, z forward), "
              "millimetres.  This round's change is what the last fit's residuals added to the definitions it "
              "was fitted with; a fit absorbs part of an offset, so fit again with the written sets and "
-             "calibrate again until the changes are small.  The standard deviations count the labels' noise "
-             "given the fitted bodies, not the fits' own errors; the residual RMS is that of the last fit's "
-             "whitened residuals per axis at the definitions it used (1: the labels' sigmas about right).", ""]
+             "calibrate again until the changes are small.  Sigma, labels: the labels' noise given the fitted "
+             "bodies; sigma, tracks: how the tracks' own estimates disagree, over the square root of their "
+             "number (it carries the fits' own errors; - with fewer than two tracks); the residual RMS is that of "
+             "the last fit's whitened residuals per axis at the definitions it used (1: the labels' sigmas about "
+             "right).", ""]
     for name, est in estimates.items():
         lines += [f"## {name}", "",
-                  "| keypoint | x | y | z | length | this round's change | sigma (x, y, z) | residual RMS (sigmas) "
-                  "| labelled |",
-                  "|---|---:|---:|---:|---:|---:|---|---:|---:|"]
+                  "| keypoint | x | y | z | length | this round's change | sigma, labels (x, y, z) | "
+                  "sigma, tracks (x, y, z) | residual RMS (sigmas) | labelled |",
+                  "|---|---:|---:|---:|---:|---:|---|---|---:|---:|"]
         for k, point in enumerate(load_keypoint_set(name).keypoints):
             off = 1000 * (est.offset_in_use_m[k] + est.rest_offset_m[k])
             sd = 1000 * np.sqrt(np.diagonal(est.rest_cov_m2[k]))
+            spread = np.full(3, np.nan) if est.track_sigma_m is None else 1000 * est.track_sigma_m[k]
+            tracks = "-" if not np.all(np.isfinite(spread)) else ", ".join(f"{x:.1f}" for x in spread)
             lines.append(f"| {point} | {off[0]:.1f} | {off[1]:.1f} | {off[2]:.1f} | {np.linalg.norm(off):.1f} | "
                          f"{1000 * np.linalg.norm(est.rest_offset_m[k]):.1f} | "
-                         f"{sd[0]:.1f}, {sd[1]:.1f}, {sd[2]:.1f} | {est.residual_rms[k]:.2f} | {int(est.count[k])} |")
+                         f"{sd[0]:.1f}, {sd[1]:.1f}, {sd[2]:.1f} | {tracks} | {est.residual_rms[k]:.2f} | "
+                         f"{int(est.count[k])} |")
         lines.append("")
     return "\n".join(lines)
 
