@@ -441,6 +441,7 @@ KEYPOINT_CALIBRATION_RUNS = (("keypoint_calibration", "simulator's ids"),
                              ("keypoint_calibration_definition_sigma_2cm",
                               "simulator's ids, `definition_sigma_m` 2 cm"),
                              ("keypoint_calibration_associated", "the association (no ids)"),
+                             ("keypoint_calibration_associated/seed1", "the association (no ids), seed 1"),
                              ("keypoint_calibration_pedx_rig", "simulator's ids, real PedX rig"))
 
 
