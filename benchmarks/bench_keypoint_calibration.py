@@ -52,7 +52,7 @@ from pedx_graph.detections.evaluate import read_detection_truth  # noqa: E402
 from pedx_graph.detections.importer import ImportConfig, import_detections  # noqa: E402
 from pedx_graph.eval.metrics import eval_joints, joint_errors  # noqa: E402
 from pedx_graph.graph.config import FitConfig  # noqa: E402
-from pedx_graph.body.keypoint_defs import read_keypoint_set_folder  # noqa: E402
+from pedx_graph.graph.context import fit_body_model  # noqa: E402
 from pedx_graph.sim.config import DETECTOR_FORMATS  # noqa: E402
 from pedx_graph.sim.detections import shifted_definitions  # noqa: E402
 from pedx_graph.sim.simulate import simulate  # noqa: E402
@@ -163,9 +163,7 @@ def run(seed: int, pedestrians: int, frames: int, workers: int, shifts: list[flo
                         1000 * float(np.mean(np.linalg.norm(estimated - truth_offsets, axis=1))))
                     if r == rounds:
                         break
-                    used = BodyModel.load()
-                    if folder:
-                        used.keypoint_sets = read_keypoint_set_folder(folder)
+                    used = fit_body_model(config)
                     fitted = [(track, res.frames, res.pose, res.betas, res.trans)
                               for track, (res, _) in zip(dataset, results) if res is not None]
                     basis, estimate = estimate_offsets(used, set_name, fitted, step=step)

@@ -347,12 +347,11 @@ def calibrate_from_results(dataset, results, out, prior_sigma_m: float = 0.05, k
     results' config with ``keypoint_sets`` set to ``out`` (fit again with it).  Returns the estimates."""
     from pathlib import Path
 
-    from pedx_graph.body import BodyModel
     from pedx_graph.config import load_config, save_config
     from pedx_graph.data.reader import read_dataset, read_smpl_labels
     from pedx_graph.data.types import DataFormatError
     from pedx_graph.graph.config import FitConfig
-    from pedx_graph.body.keypoint_defs import read_keypoint_set_folder
+    from pedx_graph.graph.context import fit_body_model
     from pedx_graph.utils import atomic_write_json, atomic_write_text
 
     results, out = Path(results), Path(out)
@@ -361,9 +360,7 @@ def calibrate_from_results(dataset, results, out, prior_sigma_m: float = 0.05, k
         raise DataFormatError(config_path, None, "missing: the results of a fit (pedx-graph fit --out) hold the "
                                                  "config they were fitted with")
     config = load_config(FitConfig, config_path)
-    model = BodyModel.load(config.body_model or None)
-    if config.keypoint_sets:
-        model.keypoint_sets = read_keypoint_set_folder(config.keypoint_sets)
+    model = fit_body_model(config)                  # the definitions the results were fitted with
     fitted = read_smpl_labels(results)
     by_set: dict[str, list] = {}
     for track in read_dataset(dataset):

@@ -36,6 +36,15 @@ def neutral_template(means: np.ndarray) -> np.ndarray:
     return means[int(np.argmin(np.linalg.norm(means, axis=1)))].copy()
 
 
+def fit_body_model(config: FitConfig) -> BodyModel:
+    """The body model a fit of ``config`` uses: ``config.body_model`` (empty: the shipped open model) with the
+    keypoint sets of ``config.keypoint_sets`` in place of the shipped ones of their names."""
+    model = BodyModel.load(config.body_model or None)
+    if config.keypoint_sets:
+        model.keypoint_sets = read_keypoint_set_folder(config.keypoint_sets)
+    return model
+
+
 @dataclass
 class EstimatorContext:
     """What every track's graph shares: the body model, the priors and the chamfer vertex subset."""
@@ -54,9 +63,7 @@ class EstimatorContext:
 
     @staticmethod
     def create(config: FitConfig) -> "EstimatorContext":
-        model = BodyModel.load(config.body_model or None)
-        if config.keypoint_sets:
-            model.keypoint_sets = read_keypoint_set_folder(config.keypoint_sets)
+        model = fit_body_model(config)
         pose_prior = load_pose_prior(config.pose_prior or None)
         temporal_prior = load_temporal_prior(config.temporal_prior or None)
         scale = float(config.prior_covariance_scale)
