@@ -39,6 +39,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterable
 
 import numpy as np
@@ -259,7 +260,7 @@ def calibrated_set(model, basis: OffsetBasis, estimate: OffsetEstimate, provenan
             terms[anchor] = terms.get(anchor, 0.0) - float(c)
         points[point]["vertices"] = [[v, round(c, 9)] for v, c in sorted(terms.items()) if abs(c) > 1e-12]
     doc["calibration"] = {
-        "topology": topology, "model": str(model.source),
+        "topology": topology, "model": Path(str(model.source)).name,      # the file's name: no machine path
         "keypoints": {point: {"rest_offset_m": [round(float(x), 5) for x in
                                                 (estimate.offset_in_use_m + estimate.rest_offset_m)[k]],
                               "round_offset_m": [round(float(x), 5) for x in estimate.rest_offset_m[k]],
@@ -345,8 +346,6 @@ def calibrate_from_results(dataset, results, out, prior_sigma_m: float = 0.05, k
     ``keypoint_sets`` are the definitions the offsets add to).  Writes into ``out``: ``<set>.json`` per set
     (:func:`calibrated_set`), ``calibration.md`` (:func:`offsets_markdown`) and ``fit_config.yaml``, the
     results' config with ``keypoint_sets`` set to ``out`` (fit again with it).  Returns the estimates."""
-    from pathlib import Path
-
     from pedx_graph.config import load_config, save_config
     from pedx_graph.data.reader import read_dataset, read_smpl_labels
     from pedx_graph.data.types import DataFormatError
