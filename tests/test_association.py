@@ -2281,7 +2281,7 @@ def test_a_one_image_track_end_another_track_explains_as_well_is_left_out():
     The far one's walk (smaller in the image) explains that detection at least as well as the near one's:
     it is left out.  The near one's own left detection there is kept (its walk explains it better), and so
     is the far one's when the far track holds its own left detection at frame 10 (no rival lacks it)."""
-    from pedx_graph.detections.association import drop_ambiguous_ends
+    from pedx_graph.detections.association import drop_ambiguous_frames
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
@@ -2291,14 +2291,47 @@ def test_a_one_image_track_end_another_track_explains_as_well_is_left_out():
         near = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
         far = _walker_of_height(calib, (22.0, 1.4 * 22.0 / 20.0), (0.0, -0.14 * 22.0 / 20.0), range(20), rng, 1.0)
         far_track = [_one_image(far[10], "right")] + far[11:]
-        out = drop_ambiguous_ends([near[:10] + [_one_image(far[10])], far_track], calib, AssociationConfig())
+        out = drop_ambiguous_frames([near[:10] + [_one_image(far[10])], far_track], calib, AssociationConfig())
         left_out += [[id(o) for o in t] for t in out] == [[id(o) for o in near[:10]], [id(o) for o in far_track]]
         tail = _one_image(near[10])
-        out = drop_ambiguous_ends([near[:10] + [tail], far_track], calib, AssociationConfig())
+        out = drop_ambiguous_frames([near[:10] + [tail], far_track], calib, AssociationConfig())
         kept_own += [[id(o) for o in t] for t in out] == [[id(o) for o in near[:10] + [tail]],
                                                            [id(o) for o in far_track]]
-        held = drop_ambiguous_ends([near[:10] + [_one_image(far[10])], far[10:]], calib, AssociationConfig())
+        held = drop_ambiguous_frames([near[:10] + [_one_image(far[10])], far[10:]], calib, AssociationConfig())
         assert [len(t) for t in held] == [11, 10]
+    assert left_out >= 9 and kept_own >= 9
+
+
+def test_a_one_image_frame_between_stereo_frames_another_track_explains_as_well_is_left_out():
+    """The same two people crossing at 20 and 22 m, in one image column at frame 10, but the near one's track
+    goes on, seen in both images, over frames 11-14: at frame 10, where its own person was missed in the
+    left image, the tracker gave it the far one's left detection (no depth).  The far one's track spans the
+    frame and lacks that image there, and its walk explains the detection at least as well: the frame is
+    left out though it lies between frames seen in both images.  Kept: the near one's own left detection
+    there (its walk explains it better), and the far one's when the far track holds its own left detection
+    at frame 10 (no rival lacks it)."""
+    from pedx_graph.detections.association import drop_ambiguous_frames
+
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    config = AssociationConfig()
+
+    def ids(tracks):
+        return [[id(o) for o in t] for t in tracks]
+
+    kept_own = left_out = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        near = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
+        far = _walker_of_height(calib, (22.0, 1.4 * 22.0 / 20.0), (0.0, -0.14 * 22.0 / 20.0), range(20), rng, 1.0)
+        far_track = [_one_image(far[10], "right")] + far[11:]
+        taken = near[:10] + [_one_image(far[10])] + near[11:15]
+        left_out += ids(drop_ambiguous_frames([taken, far_track], calib, config)) == \
+            ids([near[:10] + near[11:15], far_track])
+        own = near[:10] + [_one_image(near[10])] + near[11:15]
+        kept_own += ids(drop_ambiguous_frames([own, far_track], calib, config)) == ids([own, far_track])
+        held = drop_ambiguous_frames([taken, far[10:]], calib, config)
+        assert [len(t) for t in held] == [15, 10]
     assert left_out >= 9 and kept_own >= 9
 
 
@@ -2310,7 +2343,7 @@ def test_a_one_image_track_end_its_own_walk_refuses_is_left_out_even_with_a_cent
     explain them.  The walker's own one-image tail frames are kept (its walk explains them), and so is an
     off-walk one-image frame between two frames seen in both images (not an end), and an own tail frame
     whose one-image centre is far off the walk's depth (its detection is judged, not that centre)."""
-    from pedx_graph.detections.association import drop_ambiguous_ends, off_walk_ends
+    from pedx_graph.detections.association import drop_ambiguous_frames, off_walk_ends
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
@@ -2327,7 +2360,7 @@ def test_a_one_image_track_end_its_own_walk_refuses_is_left_out_even_with_a_cent
             return obs
 
         stray = [centred(beside[10]), centred(beside[12])]            # a gap at 11: ends are judged alike
-        out = drop_ambiguous_ends([walker[:10] + stray], calib, config)
+        out = drop_ambiguous_frames([walker[:10] + stray], calib, config)
         left_out += [[id(o) for o in t] for t in out] == [[id(o) for o in walker[:10]]]
         own = [centred(walker[10]), centred(walker[12])]
         out = off_walk_ends(walker[:10] + own, calib, config)
@@ -2353,10 +2386,10 @@ def test_a_short_piece_a_gap_parts_from_a_pair_track_is_left_out_when_the_rest_s
     frames, also seen in both images, of someone 1.5 m beside it, then holds nothing for frames 2-3 (the
     per-camera trackers coasted across the gap onto the walker): the walk of the rest misses both frames
     by far more than the gate, so the piece is left out, and so are two such frames after a gap at the
-    track's other end (through :func:`drop_ambiguous_ends`).  Kept: the walker's own first frames across
+    track's other end (through :func:`drop_ambiguous_frames`).  Kept: the walker's own first frames across
     that gap; someone else's frames across a single missed frame (a detector's miss, not a gap); and a
     piece of four frames (long enough for a walk of its own, not judged here)."""
-    from pedx_graph.detections.association import drop_ambiguous_ends, off_walk_pieces
+    from pedx_graph.detections.association import drop_ambiguous_frames, off_walk_pieces
 
     ahead = _person_points((21.0, 0.0), 0.0, 0.0)
     calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
@@ -2371,7 +2404,7 @@ def test_a_short_piece_a_gap_parts_from_a_pair_track_is_left_out_when_the_rest_s
         walker = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
         beside = _walker_of_height(calib, (20.0, 0.1), (0.0, 0.14), range(20), rng, 1.0)
         left_out += ids(off_walk_pieces(beside[:2] + walker[4:16], calib, config)) == ids(walker[4:16])
-        out = drop_ambiguous_ends([walker[4:14] + beside[16:18]], calib, config)
+        out = drop_ambiguous_frames([walker[4:14] + beside[16:18]], calib, config)
         tail_left_out += [ids(t) for t in out] == [ids(walker[4:14])]
         kept_own += ids(off_walk_pieces(walker[:2] + walker[4:16], calib, config)) == ids(walker[:2] + walker[4:16])
         across_a_miss = beside[:3] + walker[4:16]

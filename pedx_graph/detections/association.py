@@ -122,15 +122,15 @@ Steps:
    a frame seen in one image only at a track's end (before its first frame seen in both images or after its
    last) is left out where the track's own walk in that image misses its detection (column and image
    height) by more than ``gate_sigmas^2`` (:func:`off_walk_ends`, with or without a centre: a one-image
-   centre is the LiDAR cluster along that detection's ray, whoever it is), and,
-   without a centre, where another of the pair's tracks, spanning it and without a detection in that image
-   there, explains it by its walk in that image at least as well as the track's own walk does
-   (:func:`drop_ambiguous_ends`: one image cannot tell two people on one ray apart, and a tracklet born from
-   one detection has no velocity yet).  Before that, a person the pair lost and found again (hidden, or missed in both images, for up to
-   ``stitch_max_gap_frames``) is made one track when one straight walk explains both pieces, each with its
-   stereo depths (:func:`stitch_tracks`).  A person with fewer than
-   ``tracker.min_track_frames`` frames or a mean score below ``tracker.min_mean_score`` is dropped (clutter,
-   flickering bystanders).
+   centre is the LiDAR cluster along that detection's ray, whoever it is), and any frame seen in one image
+   only, at an end or between frames seen in both, without a centre, where another of the pair's tracks,
+   spanning it and without a detection in that image there, explains it by its walk in that image at least
+   as well as the track's own walk does (:func:`drop_ambiguous_frames`: one image cannot tell two people on
+   one ray apart, and a tracklet born from one detection has no velocity yet).  Before that, a person the
+   pair lost and found again (hidden, or missed in both images, for up to ``stitch_max_gap_frames``) is
+   made one track when one straight walk explains both pieces, each with its stereo depths
+   (:func:`stitch_tracks`).  A person with fewer than ``tracker.min_track_frames`` frames or a mean score
+   below ``tracker.min_mean_score`` is dropped (clutter, flickering bystanders).
 5. **Across pairs** (:func:`merge_pair_tracks`): tracks of different pairs whose 3D centres agree are one
    person: over at least ``merge_min_shared_frames`` shared frames (a track's centre between two of its 3D
    frames is interpolated), the median of the horizontal distance, each centre uncertain by its depth sigma
@@ -1577,7 +1577,7 @@ def pair_tracks(detections: list[Detection], calib: StereoCalibration, config: A
     out = drop_other_heights(repair_swaps(split_reversals(out, calib, config), calib, config), calib, config)
     if clouds is not None and config.lidar_identity:
         settle_centres(out, calib, config)
-    return drop_ambiguous_ends(out, calib, config)
+    return drop_ambiguous_frames(out, calib, config)
 
 
 def _stereo_centre(obs: Observation, calib: StereoCalibration, ground: GroundFrame,
@@ -2161,16 +2161,17 @@ def drop_other_heights(tracks: list[list[Observation]], calib: StereoCalibration
     return out
 
 
-def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibration,
-                        config: AssociationConfig) -> list[list[Observation]]:
-    """Leave out of one pair's final tracks the short pieces a gap parts from their ends and the one-image
-    frames at their ends that their own walk refuses, and the one-image end frames another track explains
-    as well.
+def drop_ambiguous_frames(tracks: list[list[Observation]], calib: StereoCalibration,
+                          config: AssociationConfig) -> list[list[Observation]]:
+    """Leave out of one pair's final tracks the short pieces a gap parts from their ends, the one-image
+    frames at their ends that their own walk refuses, and the one-image frames another track explains as
+    well.
 
-    Before a track's first frame seen in both images and after its last, a frame seen in one image only has
-    no depth of its own where the LiDAR gave it no centre: two people on one ray of that image cannot be
-    told apart by it, and the per-camera tracker may have begun the track with the other person or carried
-    it on to them (a tracklet born from one detection has no velocity yet).  First, a piece of at most 3
+    A frame seen in one image only has no depth of its own where the LiDAR gave it no centre: two people on
+    one ray of that image cannot be told apart by it, and the per-camera tracker may have begun the track
+    with the other person, carried it on to them, or given it, where its own person was missed in that
+    image, the detection of someone on that ray (a tracklet born from one detection has no velocity yet;
+    the image heights of a near short person and a far tall one agree).  First, a piece of at most 3
     frames at an end that a gap of at least ``end_gap_frames`` frames parts from the rest, seen in one image
     or both, is left out where the rest's walk misses every frame of it by more than ``gate_sigmas^2``
     (:func:`off_walk_pieces`: across a gap the trackers coasted on a prediction).  Then a one-image end
@@ -2178,14 +2179,14 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
     (:func:`_walk_misfits`), misses by more than ``gate_sigmas^2`` is left out, with or without a centre,
     from the outermost frame inwards while they are refused (:func:`off_walk_ends`: a one-image centre is
     the LiDAR cluster along that detection's ray, which does not tell whose detection it is).  Last, a
-    one-image end frame without a centre
-    is left out when another of the pair's tracks spans it give or take 2 frames (its first frame at most 2
-    after it, its last at most 2 before), has no detection of its own in that image there, and its straight
-    walk in that image (:func:`_walk_misfits`: column and image height, fitted as :func:`repair_swaps` fits
-    them) explains the frame's detection at least as well as the track's own walk without that frame.  Not
-    moved: the two explain it alike.  Its pieces apart, a track with no frame seen in both images is left as
-    it is (it has no ends to tell from its middle).  Each frame is judged against the tracks as they come
-    in.  A track left empty is removed.  Returns the tracks."""
+    one-image frame without a centre, at an end or between two frames seen in both images, is left out
+    when another of the pair's tracks spans it give or take 2 frames (its first frame at most 2 after it,
+    its last at most 2 before), has no detection of its own in that image there, and its straight walk in
+    that image (:func:`_walk_misfits`: column and image height, fitted as :func:`repair_swaps` fits them)
+    explains the frame's detection at least as well as the track's own walk without that frame.  Not
+    moved: the two explain it alike.  Its pieces apart, a track with no frame seen in both images is left
+    as it is.  Each frame is judged against the tracks as they come in.  A track left empty is removed.
+    Returns the tracks."""
     gate = config.gate_sigmas
     tracks = [off_walk_ends(off_walk_pieces(t, calib, config), calib, config) for t in tracks]
     spans = [(min(o.frame for o in t), max(o.frame for o in t)) if t else (0, -1) for t in tracks]
@@ -2214,7 +2215,7 @@ def drop_ambiguous_ends(tracks: list[list[Observation]], calib: StereoCalibratio
         both = [o.frame for o in track if len(o.uv) == 2]
         kept = []
         for obs in track:
-            if not both or len(obs.uv) != 1 or obs.world_p is not None or min(both) < obs.frame < max(both):
+            if not both or len(obs.uv) != 1 or obs.world_p is not None:
                 kept.append(obs)
                 continue
             side = next(iter(obs.uv))
