@@ -2169,9 +2169,9 @@ def drop_ambiguous_frames(tracks: list[list[Observation]], calib: StereoCalibrat
 
     A frame seen in one image only has no depth of its own where the LiDAR gave it no centre: two people on
     one ray of that image cannot be told apart by it, and the per-camera tracker may have begun the track
-    with the other person, carried it on to them, or given it, where its own person was missed in that
-    image, the detection of someone on that ray (a tracklet born from one detection has no velocity yet;
-    the image heights of a near short person and a far tall one agree).  First, a piece of at most 3
+    with the other person, carried it on to them, or given it the other person's detection where its own
+    person was missed in that image (a tracklet born from one detection has no velocity yet; a near short
+    person and a far tall one are of one image height).  First, a piece of at most 3
     frames at an end that a gap of at least ``end_gap_frames`` frames parts from the rest, seen in one image
     or both, is left out where the rest's walk misses every frame of it by more than ``gate_sigmas^2``
     (:func:`off_walk_pieces`: across a gap the trackers coasted on a prediction).  Then a one-image end
