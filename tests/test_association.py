@@ -2274,6 +2274,18 @@ def _one_image(obs: Observation, side: str = "left") -> Observation:
     return Observation(frame=obs.frame, uv={side: obs.uv[side]}, score=obs.score, payload={side: obs.payload[side]})
 
 
+def _crossing_at_20_and_22_m():
+    """The camera looking at +x and, per seed 0-9, two walkers of one height crossing at 20 and 22 m in
+    opposite directions, in one image column at frame 10 (pair-track observations of frames 0-19)."""
+    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
+    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        near = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
+        far = _walker_of_height(calib, (22.0, 1.4 * 22.0 / 20.0), (0.0, -0.14 * 22.0 / 20.0), range(20), rng, 1.0)
+        yield calib, near, far
+
+
 def test_a_one_image_track_end_another_track_explains_as_well_is_left_out():
     """Two people of one height crossing at 20 and 22 m in opposite directions, in one image column at frame
     10.  The near one's track ends at frame 9; its tracker carried it on to frame 10 with the far one's
@@ -2283,13 +2295,8 @@ def test_a_one_image_track_end_another_track_explains_as_well_is_left_out():
     is the far one's when the far track holds its own left detection at frame 10 (no rival lacks it)."""
     from pedx_graph.detections.association import drop_ambiguous_frames
 
-    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
-    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
     kept_own = left_out = 0
-    for seed in range(10):
-        rng = np.random.default_rng(seed)
-        near = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
-        far = _walker_of_height(calib, (22.0, 1.4 * 22.0 / 20.0), (0.0, -0.14 * 22.0 / 20.0), range(20), rng, 1.0)
+    for calib, near, far in _crossing_at_20_and_22_m():
         far_track = [_one_image(far[10], "right")] + far[11:]
         out = drop_ambiguous_frames([near[:10] + [_one_image(far[10])], far_track], calib, AssociationConfig())
         left_out += [[id(o) for o in t] for t in out] == [[id(o) for o in near[:10]], [id(o) for o in far_track]]
@@ -2312,18 +2319,13 @@ def test_a_one_image_frame_between_stereo_frames_another_track_explains_as_well_
     at frame 10 (no rival lacks it)."""
     from pedx_graph.detections.association import drop_ambiguous_frames
 
-    ahead = _person_points((21.0, 0.0), 0.0, 0.0)
-    calib = next(c for c in _rig().values() if np.all(np.subtract(*c.project(ahead))[:, 0] > 0))   # looks at +x
     config = AssociationConfig()
 
     def ids(tracks):
         return [[id(o) for o in t] for t in tracks]
 
     kept_own = left_out = 0
-    for seed in range(10):
-        rng = np.random.default_rng(seed)
-        near = _walker_of_height(calib, (20.0, -1.4), (0.0, 0.14), range(20), rng, 1.0)
-        far = _walker_of_height(calib, (22.0, 1.4 * 22.0 / 20.0), (0.0, -0.14 * 22.0 / 20.0), range(20), rng, 1.0)
+    for calib, near, far in _crossing_at_20_and_22_m():
         far_track = [_one_image(far[10], "right")] + far[11:]
         taken = near[:10] + [_one_image(far[10])] + near[11:15]
         left_out += ids(drop_ambiguous_frames([taken, far_track], calib, config)) == \
